@@ -1,0 +1,81 @@
+"""``cosim`` command line.
+
+    cosim fmus build [MODEL ...] [--force]     Modelica -> binary FMUs in fmus/
+    cosim fmus check FMU [--simulate]          interface + validation of any FMU
+    cosim demo --out DIR                       build FMUs, run a short demonstration
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+DEFAULT_MODELICA = REPO / "modelica" / "RehabSim"
+DEFAULT_FMUS = REPO / "fmus"
+
+
+class CliError(Exception):
+    pass
+
+
+def _cmd_fmus_build(a) -> int:
+    from .fmubuild.build import build_all
+    paths = build_all(Path(a.modelica), Path(a.out), a.models or None, force=a.force)
+    print(f"{len(paths)} FMU(s) in {a.out}")
+    return 0
+
+
+def _cmd_fmus_check(a) -> int:
+    from .fmubuild.check import check_fmu, format_report
+    rep = check_fmu(a.fmu, simulate=a.simulate)
+    print(format_report(rep))
+    return 0 if rep.ok else 1
+
+
+def _cmd_demo(a) -> int:
+    from .demo import run_demo
+    run_demo(Path(a.out), Path(a.modelica), Path(a.fmus))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="cosim", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    fm = sub.add_parser("fmus", help="build and check FMUs")
+    fsub = fm.add_subparsers(dest="fmus_cmd", required=True)
+    b = fsub.add_parser("build", help="build the package's models into FMUs (cached)")
+    b.add_argument("models", nargs="*", help="qualified model names (default: modelica/fmus.txt)")
+    b.add_argument("--modelica", default=str(DEFAULT_MODELICA), help="Modelica package folder")
+    b.add_argument("--out", default=str(DEFAULT_FMUS), help="output folder for the .fmu files")
+    b.add_argument("--force", action="store_true", help="rebuild even if the cache is valid")
+    b.set_defaults(func=_cmd_fmus_build)
+    c = fsub.add_parser("check", help="print an FMU's interface and validate it")
+    c.add_argument("fmu")
+    c.add_argument("--simulate", action="store_true", help="also run a 10 ms smoke simulation")
+    c.set_defaults(func=_cmd_fmus_check)
+
+    d = sub.add_parser("demo", help="build the FMUs and run a short demonstration")
+    d.add_argument("--out", default="out/demo")
+    d.add_argument("--modelica", default=str(DEFAULT_MODELICA))
+    d.add_argument("--fmus", default=str(DEFAULT_FMUS))
+    d.set_defaults(func=_cmd_demo)
+    return p
+
+
+def main(argv=None) -> int:
+    from .fmubuild.build import BuildError
+    from .fmubuild.check import FMUCheckError
+    from .fmubuild.modelica import ModelicaError
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (ModelicaError, BuildError, FMUCheckError, CliError, FileNotFoundError) as exc:
+        print(f"cosim: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
