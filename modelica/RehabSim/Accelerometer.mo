@@ -1,0 +1,37 @@
+within RehabSim;
+model Accelerometer "ADXL335 MEMS accelerometer on one axis read by a 16-bit ADC: 1600 Hz bandwidth, white noise, random-walk bias, temperature drift, saturation, quantisation, sample-and-hold (thesis Table 2, eq. 14-15)"
+  parameter Real f_bw(unit = "Hz", min = 0) = 1600 "bandwidth of the first-order output filter (Table 2)";
+  parameter Real nd(unit = "m/s2", min = 0) = 150e-6 * 9.80665 "noise density: rms noise in a 1 Hz band, 150 ug/sqrt(Hz) (Table 2)";
+  parameter Real T_noise(unit = "s", min = 0) = 1e-4 "period of the internal zero-order-hold noise generators (Nyquist 5 kHz above the 1600 Hz band)";
+  parameter Real b0(unit = "m/s2") = 0.1 "initial bias, residual 0 g offset after calibration (about 10 mg, assumed)";
+  parameter Real sigma_rw(unit = "m/s2", min = 0) = 1e-3 "bias random walk: standard deviation of the bias change over 1 s (eq. 15, assumed)";
+  parameter Real scale_err(unit = "1") = 0 "relative scale-factor error at the reference temperature";
+  parameter Real sens_tc(unit = "1/K") = 1e-4 "sensitivity change with temperature, 0.01 %/degC (Table 2)";
+  parameter Real offset_tc(unit = "m/(s2.K)") = 1e-3 * 9.80665 "0 g offset change with temperature, 1 mg/degC (Table 2)";
+  parameter Real dT0(unit = "K") = 0 "die temperature deviation from the calibration temperature at time 0";
+  parameter Real dT_rate(unit = "K/s") = 0 "rate of change of the die temperature deviation";
+  parameter Real a_range(unit = "m/s2", min = 0) = 3.6 * 9.80665 "measurement range: the output saturates at +-3.6 g (Table 2)";
+  parameter Real sens_v(unit = "V.s2/m", min = 0) = 0.3 / 9.80665 "sensitivity 300 mV/g (Table 2)";
+  parameter Real adc_lsb(unit = "V", min = 0) = 20 / 65536 "ADC resolution: 16 bit over +-10 V (Sensoray 626)";
+  parameter Real q_acc(unit = "m/s2") = adc_lsb / sens_v "acceleration quantum, adc_lsb / sens_v";
+  parameter Real T_sample(unit = "s", min = 0) = 1e-3 "sampling period of the reading (Table 2, 1 kHz)";
+  parameter Real a_lp0(unit = "m/s2") = 0 "initial state of the output filter";
+  parameter Integer seed = 1 "seed of the noise generators";
+  input Real a_true(unit = "m/s2") "true acceleration (specific force) along the sensing axis";
+  input Real eta_w(unit = "1") "unit-variance white noise sample of the measurement noise" annotation(__RehabSim(noise = "gaussian", period = T_noise));
+  input Real eta_b(unit = "1") "unit-variance white noise sample driving the bias random walk" annotation(__RehabSim(noise = "gaussian", period = T_noise));
+  input Real acc_held(unit = "m/s2") "analog output held since the last sample" annotation(__RehabSim(sample = a_sens, period = T_sample));
+  output Real acc_meas(unit = "m/s2") "accelerometer reading: held sample, saturated and quantised";
+  Real a_lp(unit = "m/s2", start = a_lp0, fixed = true) "output of the bandwidth filter (true acceleration plus white noise)";
+  Real b_rw(unit = "m/s2", start = 0, fixed = true) "random-walk part of the bias";
+  Real dT(unit = "K") "die temperature deviation";
+  Real bias(unit = "m/s2") "bias, b0 plus random walk";
+  Real a_sens(unit = "m/s2") "analog sensor output in acceleration units, before saturation";
+equation
+  der(a_lp) = 2 * 3.141592653589793 * f_bw * (a_true + nd * sqrt(1 / (2 * T_noise)) * eta_w - a_lp);
+  der(b_rw) = sigma_rw / sqrt(T_noise) * eta_b;
+  dT = dT0 + dT_rate * time;
+  bias = b0 + b_rw;
+  a_sens = (1 + scale_err + sens_tc * dT) * a_lp + bias + offset_tc * dT;
+  acc_meas = q_acc * floor(min(a_range, max(-a_range, acc_held)) / q_acc + 0.5);
+end Accelerometer;

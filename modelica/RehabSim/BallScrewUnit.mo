@@ -1,0 +1,36 @@
+within RehabSim;
+model BallScrewUnit "One unit of the single-DOF force transceiver: Maxon DC motor + ball screw, current driven, LuGre friction (thesis Sec. 2.4, Table 1)"
+  parameter Real J(unit = "kg.m2", min = 0) = 1.7e-5 "total inertia at the motor shaft, J = Jm + Jbs = 1.37e-5 + 0.33e-5 (Table 1)";
+  parameter Real b(unit = "N.m.s/rad", min = 0) = 1.6e-5 "viscous friction coefficient (Table 1)";
+  parameter Real fc(unit = "N.m", min = 0) = 3e-3 "Coulomb friction torque (Table 1)";
+  parameter Real fs(unit = "N.m", min = 0) = 3e-3 "static (breakaway) friction torque; = fc for the nominal device (no Stribeck effect)";
+  parameter Real ws(unit = "rad/s", min = 1e-9) = 1.0 "Stribeck speed (only matters when fs differs from fc)";
+  parameter Real sigma0(unit = "N.m/rad", min = 0) = 200 "LuGre bristle stiffness: bristle deflection at breakaway fs/sigma0 = 1.5e-5 rad, 0.05 encoder count";
+  parameter Real sigma1(unit = "N.m.s/rad", min = 0) = 0.117 "LuGre bristle damping at rest, about 2 sqrt(sigma0 J) (critical damping of the presliding mode)";
+  parameter Real wd(unit = "rad/s", min = 1e-9) = 0.1 "speed over which the bristle damping fades (keeps the friction passive while sliding)";
+  parameter Real Kt(unit = "N.m/A", min = 0) = 0.0603 "motor torque constant (Table 1, 60.3 mNm/A)";
+  parameter Real lead(unit = "m", min = 0) = 0.01 "ball screw lead: nut travel per motor revolution (Table 1, Kg = 0.01/(2 pi) m/rad)";
+  parameter Real r(unit = "m/rad") = lead / (2 * 3.141592653589793) "transmission ratio x/theta = lead/(2 pi)";
+  parameter Real delta_enc(unit = "rad", min = 0) = 2.908882086657216e-4 "encoder resolution, 2 pi/21600 rad: 21600 pulses/rev (Table 1)";
+  parameter Real theta0(unit = "rad") = 0 "initial motor angle";
+  parameter Real w0(unit = "rad/s") = 0 "initial motor speed";
+  input Real i(unit = "A") "motor current (the current driver is ideal: current = command)";
+  input Real f_ext(unit = "N") "external force on the nut/handle along +x (human, load cell, wall)";
+  output Real theta(unit = "rad", start = theta0, fixed = true) "motor angle";
+  output Real w(unit = "rad/s") "motor speed";
+  output Real x(unit = "m") "nut (handle) position, x = r theta";
+  output Real v(unit = "m/s") "nut (handle) speed";
+  output Real a(unit = "m/s2") "true nut acceleration, r der(w)";
+  output Real tau_f(unit = "N.m") "friction torque (LuGre, including viscous), opposing w";
+  output Real theta_enc(unit = "rad") "encoder reading: theta rounded to the encoder resolution (eq. 12-13)";
+  RehabSim.LuGreFriction friction(tau_c = fc, tau_s = fs, w_s = ws, sigma_0 = sigma0, sigma_1 = sigma1, w_d = wd, sigma_2 = b, w(start = w0, fixed = true)) "friction of motor, screw and nut, referred to the motor shaft";
+equation
+  der(theta) = friction.w;
+  J * der(friction.w) = Kt * i + r * f_ext - friction.tau;
+  w = friction.w;
+  x = r * theta;
+  v = r * friction.w;
+  a = r * der(friction.w);
+  tau_f = friction.tau;
+  theta_enc = delta_enc * floor(theta / delta_enc + 0.5);
+end BallScrewUnit;
