@@ -1,0 +1,268 @@
+"""Non-linear adaptive compliance ("assist-as-needed") controller (thesis Ch. 3, eq. 57-74).
+
+Per axis j = 1..N a PD controller pulls the end-effector towards the target
+(eq. 65-68, 73)::
+
+    f_j = k_p,j(x) x~_j + k_d,j(x) dx~_j/dt,     x~ = r - x          (eq. 66, 73)
+
+Its stiffness is a map over the workspace, a weighted sum of P Gaussian RBFs centred in
+the cells of a regular grid (eq. 59-64)::
+
+    k_p(x) = Y(x) a,   Y = blockdiag(g^T, ..., g^T) (N x NP)           (eq. 59, 62, 72)
+    g_i(x) = c / ((2 pi)^(N/2) sqrt(det S)) exp(-(x-mu_i)^T S^-1 (x-mu_i) / 2)   (eq. 63)
+    c such that  sum_i g_i(x) <= 1  over the workspace                  (eq. 64)
+
+and the NP heights ``a`` follow the update law (eq. 69-71)::
+
+    a_k = a_{k-1} + Ts ( -1/tau Y^T (Y Y^T)^-1 Y a_{k-1} + k Y^T |x~_k| ),  a(0) = alpha0 (eq. 70, 71)
+
+Because Y is block diagonal, ``Y Y^T = |g|^2 I`` and the forgetting term of axis j is
+the projection of a_j on g: at a fixed position the local stiffness obeys
+``k_p,j(k) = (1 - Ts/tau) k_p,j(k-1) + Ts k |g|^2 |x~_j|`` -- it decays with time
+constant tau where no error is made and rises where errors persist; cells far from
+the end-effector (g_i ~ 0) keep their memory.
+
+The error derivative is the pure difference (eq. 74).
+
+Interpretations / decisions
+---------------------------
+* **Damping (eq. 57 vs 58/60).** Eq. 57 (unit mass, ``s^2 + Kd s + Kp``) gives a constant
+  damping factor only with ``Kd = 2 xi sqrt(Kp)``; eq. 58/60 print ``Kd = xi/2 sqrt(Kp)``.
+  Default ``damping_form="physical"``: ``Kd = 2 xi sqrt(Kp m)`` with m the axis mass
+  ``damping_mass_kg`` (default 1 kg = the unit mass of eq. 57). ``damping_form="printed"``
+  gives ``Kd = xi/2 sqrt(Kp)`` (mass ignored, as printed). xi is "defined
+  experimentally" in the thesis; the default 0.7 is a choice.
+* **Grid and widths.** The workspace (default 0.4 m x 0.4 m, Sec. 3.4) is split in
+  ``cells_per_axis`` equal cells per axis (6 -> P = 36 for N = 2; P = 6 for N = 1);
+  centres mu_i at the cell centres. The thesis only says the covariance should follow
+  the cell size: here S = diag(sigma_j^2), sigma_j = ``sigma_over_cell`` x cell size
+  (default 0.5, for which the sum of the Gaussians is flat to about +-1.5 % inside the
+  workspace). c is computed numerically as 1 / max(sum_i g_i) over a fine grid of the
+  workspace, so eq. 64 holds with equality at the maximum; ``k_p ~ alpha0`` inside the
+  workspace at start, about 0.6 alpha0 at the edges (0.4 alpha0 at corners, N = 2).
+* **Lower bound a_min (eq. 78).** The stability proof assumes the heights stay above
+  a_min > 0; the update law alone does not guarantee it (the projection can push a
+  weight below zero). Here every component is clamped to ``a_min_N_per_m`` after each
+  update (default 1 N/m, not given in the thesis; 0 disables the clamp effectively).
+* **Multi-dimensional Gaussians.** Eq. 63 is written for N = 2 (prefactor 1/(2 pi));
+  the N-dimensional prefactor ``(2 pi)^(-N/2)`` is used, which coincides for N = 2.
+* **Motors OFF (Table 6).** With ``motors_on=False`` the map keeps being updated but
+  the output forces are forced to zero (``set_motors`` switches at run time).
+* **First sample.** The derivative (eq. 74) needs x~_{k-1}; on the first step after
+  ``reset`` it is taken equal to x~_k (derivative 0).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class AdaptiveComplianceParams:
+    """Parameters of :class:`AdaptiveComplianceController`.
+
+    Attributes
+    ----------
+    n_dof: number of axes N (1 or 2).
+    axis_names: names used in the inputs/outputs, one per axis.
+    workspace_min_m: lower corner of the workspace [m], one per axis.
+    workspace_size_m: side lengths of the workspace [m] (Sec. 3.4: about 0.4 x 0.4).
+    cells_per_axis: cells per axis (Sec. 3.4: 6 -> P = 36 for N = 2).
+    sigma_over_cell: Gaussian standard deviation / cell side [-].
+    k_N_per_m2s: error gain k of eq. 69/71 [N/(m^2 s)] (thesis writes N/m^2; Sec. 3.5:
+        1000, Sec. 3.6: 500).
+    tau_s: forgetting time constant tau [s] (Sec. 3.5: 5 s, Sec. 3.6: 20 s).
+    alpha0_N_per_m: initial height alpha0 of eq. 70 [N/m] (10 N/m in the thesis).
+    a_min_N_per_m: lower bound on every height (eq. 78) [N/m].
+    xi: constant damping factor [-].
+    damping_form: "physical" (Kd = 2 xi sqrt(Kp m)) or "printed" (Kd = xi/2 sqrt(Kp)).
+    damping_mass_kg: mass m per axis for the physical form [kg] (None = 1 kg, eq. 57).
+    Ts_s: sampling time [s] (1 ms).
+    motors_on: initial state of the motor drivers (Table 6).
+    """
+
+    n_dof: int = 2
+    axis_names: tuple[str, ...] = ("x", "y")
+    workspace_min_m: tuple[float, ...] = (-0.2, -0.2)
+    workspace_size_m: tuple[float, ...] = (0.4, 0.4)
+    cells_per_axis: int = 6
+    sigma_over_cell: float = 0.5
+    k_N_per_m2s: float = 500.0
+    tau_s: float = 20.0
+    alpha0_N_per_m: float = 10.0
+    a_min_N_per_m: float = 1.0
+    xi: float = 0.7
+    damping_form: str = "physical"
+    damping_mass_kg: tuple[float, ...] | None = None
+    Ts_s: float = 1e-3
+    motors_on: bool = True
+
+    def __post_init__(self):
+        n = self.n_dof
+        if n not in (1, 2):
+            raise ValueError("n_dof must be 1 or 2")
+        for name in ("axis_names", "workspace_min_m", "workspace_size_m"):
+            if len(getattr(self, name)) < n:
+                raise ValueError(f"{name} needs {n} entries")
+        if self.damping_form not in ("physical", "printed"):
+            raise ValueError("damping_form must be 'physical' or 'printed'")
+        if self.damping_mass_kg is not None and len(self.damping_mass_kg) < n:
+            raise ValueError("damping_mass_kg needs one mass per axis")
+        if self.tau_s <= 0 or self.Ts_s <= 0:
+            raise ValueError("tau_s and Ts_s must be positive")
+
+
+def damping_gain(kp: float, xi: float, form: str = "physical", mass_kg: float = 1.0) -> float:
+    """Derivative gain for stiffness ``kp`` [N/m] and damping factor ``xi``.
+
+    physical: Kd = 2 xi sqrt(Kp m)  (constant damping of m s^2 + Kd s + Kp, eq. 57)
+    printed : Kd = xi/2 sqrt(Kp)    (eq. 58, 60 as printed)
+    """
+    kp = max(kp, 0.0)
+    if form == "physical":
+        return 2.0 * xi * math.sqrt(kp * mass_kg)
+    if form == "printed":
+        return 0.5 * xi * math.sqrt(kp)
+    raise ValueError(form)
+
+
+class RBFGrid:
+    """The P Gaussian RBFs of eq. 63 on a regular grid of cells (eq. 64 normalisation)."""
+
+    def __init__(self, p: AdaptiveComplianceParams):
+        n = p.n_dof
+        self.n = n
+        lo = np.asarray(p.workspace_min_m[:n], float)
+        size = np.asarray(p.workspace_size_m[:n], float)
+        self.lo, self.size = lo, size
+        self.cell_m = size / p.cells_per_axis
+        axes = [lo[j] + (np.arange(p.cells_per_axis) + 0.5) * self.cell_m[j] for j in range(n)]
+        mesh = np.meshgrid(*axes, indexing="ij")
+        self.centres = np.stack([m.ravel() for m in mesh], axis=1)       # (P, N)
+        self.P = self.centres.shape[0]
+        self.sigma_m = p.sigma_over_cell * self.cell_m                  # per axis
+        self._inv_var = 1.0 / self.sigma_m ** 2
+        self._pref1 = 1.0 / ((2 * math.pi) ** (n / 2) * float(np.prod(self.sigma_m)))
+        # eq. 64: c = 1 / max over the workspace of sum_i g_i (with c = 1)
+        fine = [np.linspace(lo[j], lo[j] + size[j], 241) for j in range(n)]
+        pts = np.stack([m.ravel() for m in np.meshgrid(*fine, indexing="ij")], axis=1)
+        self.c = 1.0
+        self.c = 1.0 / float(self.evaluate(pts).sum(axis=1).max())
+        self.prefactor = self.c * self._pref1
+
+    def evaluate(self, points: np.ndarray) -> np.ndarray:
+        """g_i at each point: (M, N) -> (M, P) (eq. 63)."""
+        d = points[:, None, :] - self.centres[None, :, :]
+        q = np.einsum("mpn,n->mp", d * d, self._inv_var)
+        return self.c * self._pref1 * np.exp(-0.5 * q)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """g(x) for one point x (N,) -> (P,)."""
+        d = x[None, :] - self.centres
+        return self.prefactor * np.exp(-0.5 * (d * d) @ self._inv_var)
+
+    @property
+    def max_slope_per_m(self) -> float:
+        """max over x of |dg_i/dx_j| [1/m] (the Gaussian-slope bound of eq. 89).
+
+        For N = 1 this is c / (sigma^2 sqrt(2 pi e)) exactly as in eq. 89.
+        """
+        return self.prefactor * math.exp(-0.5) / float(np.min(self.sigma_m))
+
+
+class AdaptiveComplianceController:
+    """Adaptive compliance controller of Ch. 3 for N = 1 or 2 axes.
+
+    Inputs (per axis name ``ax``): ``pos_<ax>`` end-effector position [m], ``ref_<ax>``
+    target position [m]. Outputs: ``f_<ax>`` assistive force [N] (eq. 73; 0 when the
+    motors are OFF), ``kp_<ax>`` [N/m], ``kd_<ax>`` [N s/m], ``err_<ax>`` [m] (x~ = r - x).
+    State: ``a`` (N, P) heights [N/m]; ``grid`` (:class:`RBFGrid`).
+    """
+
+    #: default wiring (N = 2, axes x, y); the instance attributes reflect the params
+    inputs: tuple[str, ...] = ("pos_x", "pos_y", "ref_x", "ref_y")
+    outputs: tuple[str, ...] = ("f_x", "f_y", "kp_x", "kp_y", "kd_x", "kd_y", "err_x", "err_y")
+    recordable = ("a", "kp", "kd")
+
+    def __init__(self, params: AdaptiveComplianceParams = AdaptiveComplianceParams()):
+        self.params = params
+        n = params.n_dof
+        self.axes = tuple(params.axis_names[:n])
+        self.inputs: tuple[str, ...] = tuple(f"pos_{a}" for a in self.axes) + tuple(
+            f"ref_{a}" for a in self.axes)
+        self.outputs: tuple[str, ...] = tuple(
+            f"{q}_{a}" for q in ("f", "kp", "kd", "err") for a in self.axes)
+        self.grid = RBFGrid(params)
+        self.masses = (np.ones(n) if params.damping_mass_kg is None
+                       else np.asarray(params.damping_mass_kg[:n], float))
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self) -> None:
+        p = self.params
+        self.a = np.full((p.n_dof, self.grid.P), float(p.alpha0_N_per_m))   # eq. 70
+        self.err_prev: np.ndarray | None = None
+        self.motors_on = p.motors_on
+        self.kp = np.zeros(p.n_dof)
+        self.kd = np.zeros(p.n_dof)
+
+    def set_motors(self, on: bool) -> None:
+        """Switch the motor drivers ON/OFF (Table 6); the map keeps adapting."""
+        self.motors_on = bool(on)
+
+    def kd_of(self, kp: float, axis: int = 0) -> float:
+        """Derivative gain for stiffness kp on ``axis`` (eq. 60 / physical form)."""
+        p = self.params
+        return damping_gain(kp, p.xi, p.damping_form, float(self.masses[axis]))
+
+    # ------------------------------------------------------------------ step
+    def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
+        p = self.params
+        x = np.array([float(measurements[f"pos_{a}"]) for a in self.axes])
+        r = np.array([float(measurements[f"ref_{a}"]) for a in self.axes])
+        err = r - x                                              # x~ = r - x (eq. 65)
+        g = self.grid(x)                                         # row of Y(x_k) (eq. 62-63)
+        g2 = float(g @ g)                                        # Y Y^T = |g|^2 I
+        # eq. 71: a_k = a_{k-1} + Ts(-1/tau Y^T (YY^T)^-1 Y a_{k-1} + k Y^T |x~_k|)
+        kp_prev = self.a @ g                                     # Y a_{k-1}, (N,)
+        forget = np.outer(kp_prev / g2, g) / p.tau_s if g2 > 1e-300 else 0.0
+        self.a = self.a + p.Ts_s * (-forget + p.k_N_per_m2s * np.outer(np.abs(err), g))
+        np.maximum(self.a, p.a_min_N_per_m, out=self.a)          # eq. 78 lower bound
+        # eq. 72: k_p(x_k, k) = Y(x_k) a_k ; eq. 60 (or physical form): k_d
+        self.kp = self.a @ g
+        self.kd = np.array([self.kd_of(self.kp[j], j) for j in range(p.n_dof)])
+        # eq. 74: pure difference; eq. 73: f = Kp x~ + Kd dx~
+        derr = np.zeros_like(err) if self.err_prev is None else (err - self.err_prev) / p.Ts_s
+        self.err_prev = err
+        f = self.kp * err + self.kd * derr
+        if not self.motors_on:                                   # Table 6: drivers OFF
+            f = np.zeros_like(f)
+        out: dict[str, float] = {}
+        for j, ax in enumerate(self.axes):
+            out[f"f_{ax}"] = float(f[j])
+            out[f"kp_{ax}"] = float(self.kp[j])
+            out[f"kd_{ax}"] = float(self.kd[j])
+            out[f"err_{ax}"] = float(err[j])
+        return out
+
+    # ------------------------------------------------------------------ map
+    def stiffness_map(self, grid) -> np.ndarray:
+        """Stiffness k_p = Y(x) a at many points, for plotting (Fig. 47, 49).
+
+        ``grid`` is either an array of points (M, N) -> returns (M, N), or a sequence of
+        N 1-D coordinate arrays -> returns an array of shape (len_1, ..., len_N, N) on
+        their ``ij`` mesh.
+        """
+        n = self.params.n_dof
+        if isinstance(grid, np.ndarray) and grid.ndim == 2 and grid.shape[1] == n:
+            return self.grid.evaluate(grid) @ self.a.T
+        axes: Sequence[np.ndarray] = [np.asarray(v, float) for v in grid]
+        if len(axes) != n:
+            raise ValueError("grid must have one coordinate array per axis")
+        mesh = np.meshgrid(*axes, indexing="ij")
+        pts = np.stack([m.ravel() for m in mesh], axis=1)
+        vals = self.grid.evaluate(pts) @ self.a.T
+        return vals.reshape(*[len(v) for v in axes], n)
