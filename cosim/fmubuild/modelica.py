@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Optional
 
 import casadi as ca
+import numpy as np
 
 
 class ModelicaError(Exception):
@@ -308,7 +309,7 @@ def load_model(package_dir: Path, model: str) -> FlatModel:
         val = pv.value
         var = meta(name, "parameter", pv.python_type)
         if isinstance(val, (int, float, bool)) or (isinstance(val, ca.MX) and val.is_constant()):
-            var.start = float(val) if not isinstance(val, ca.MX) else float(ca.DM(val))
+            var.start = float(val) if not isinstance(val, ca.MX) else float(ca.evalf(val))
             params.append(var)
         elif isinstance(val, ca.MX):
             var.kind = "calculated"
@@ -486,6 +487,8 @@ def _causalise(model: str, r: ca.SX, w: ca.SX, eq_text: list[str], w_names: list
                                     + "; ".join(eq_text[i] for i in rows[:3])
                                     + " -> " + ", ".join(w_names[k] for k in cols))
             bb = -ca.substitute(rb, wb, ca.DM.zeros(wb.shape))
+            _check_affine(model, rb, wb, Ab, bb, [eq_text[i] for i in rows],
+                          [w_names[k] for k in cols])
             xb = ca.solve(Ab, bb) if len(cols) > 1 else bb / Ab
             for j, k in enumerate(cols):
                 solved[k] = xb[j]
@@ -495,6 +498,30 @@ def _causalise(model: str, r: ca.SX, w: ca.SX, eq_text: list[str], w_names: list
             raise ModelicaError(model, "cannot order the equations (algebraic loop across "
                                 "blocks): " + ", ".join(w_names[k] for b in pending for k in b[1]))
     return ca.vertcat(*[solved[k] for k in range(n)])
+
+
+def _check_affine(model, rb, wb, Ab, bb, eqs, names, trials: int = 4) -> None:
+    """Numerically confirm rb(wb) == Ab wb - bb at random points.
+
+    The structural test (Jacobian independent of wb) misses piecewise-constant
+    functions such as floor() of an unknown, whose derivative is zero but which is
+    not affine: a linear solve would then be silently wrong.
+    """
+    syms = ca.symvar(ca.vertcat(rb, Ab, bb))
+    others = [s for s in syms if not ca.depends_on(wb, s)]
+    f = ca.Function("affine_check", [wb] + others, [rb - (ca.mtimes(Ab, wb) - bb)])
+    rng = np.random.default_rng(0)
+    for _ in range(trials):
+        args = [rng.uniform(-3, 3, wb.shape)] + [rng.uniform(0.5, 3) for _ in others]
+        dev = np.abs(np.array(f(*args), dtype=float)).max(initial=0.0)
+        if not np.isfinite(dev):
+            continue
+        if dev > 1e-8 * (1 + np.abs(np.array(ca.Function("s", [wb] + others, [rb])(*args),
+                                              dtype=float)).max(initial=0.0)):
+            raise ModelicaError(model, "equation(s) not affine in the variable(s) they determine "
+                                "(e.g. floor/abs/sign/if of an algebraic variable; apply them to "
+                                "states, inputs or held samples): " + "; ".join(eqs[:3])
+                                + " -> " + ", ".join(names))
 
 
 def _is_number(s: str) -> bool:

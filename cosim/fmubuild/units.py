@@ -51,6 +51,10 @@ def parse_unit(unit: str) -> tuple[float, float, dict[str, int]]:
     if u == "degC":
         return 1.0, 273.15, {"K": 1}
     num, _, den = u.partition("/")
+    if den.startswith("(") and den.endswith(")"):
+        den = den[1:-1]          # Modelica allows "m/(s2.K)"
+    if "/" in den or "(" in den or "(" in num:
+        raise UnitError(f"cannot parse unit {unit!r}")
     factor, exps = 1.0, {}
     for part, sign in ((num, 1), (den, -1)):
         if not part:
