@@ -1,0 +1,572 @@
+"""Accelerometer-aided Kalman filter (aaKF) of thesis Sec. 2.2, with the state reset
+of Sec. 2.2.2, and a plain encoder differentiator for comparison.
+
+Model (thesis eq. 14-23)
+------------------------
+The filter is purely kinematic (no mechanical parameter enters it). The state is
+
+    x = [theta_m, theta_m', theta_m'', a_b]^T                              # eq. 19
+
+with ``theta_m`` the **motor angle in rad** (the thesis' ``x_m``: the encoder sits on
+the motor, so the quantisation interval of eq. 13/29 and the speed bounds of eq. 31
+are naturally in these units), ``theta_m'`` in rad/s, ``theta_m''`` in rad/s^2, and
+``a_b`` the accelerometer bias in **m/s^2** (the accelerometer is on the nut, eq. 14).
+The motor jerk and the bias derivative are white (eq. 15-16):
+
+    theta_m''' = w_a,   a_b' = w_b,   Q_c = diag(sigma_a^2, sigma_b^2)       # eq. 21, 23
+
+The measurements are ``y = [theta_enc, acc_meas]``: the quantised encoder angle
+(rad) and the accelerometer reading along +x of the nut (m/s^2). With the project's
+decision x_load = lead/(2 pi) * theta_motor (thesis-digest, "Gear ratio Kg"), eq. 11
+reads theta_m'' = (2 pi/lead) x_l'', i.e. the thesis' Kg (motor per load) is 2 pi/lead
+and the second row of C_c (eq. 22, ``1/Kg``) is ``lead/(2 pi)``:
+
+    C_c = [[1, 0, 0,           0],
+           [0, 0, lead/(2 pi), 1]]                                        # eq. 22
+
+Discretisation (eq. 24-28): A_d = expm(A_c Ts), B_dw = int_0^Ts expm(A_c t) B_cw dt and
+Q_d = int_0^Ts expm(A_c t) B_cw Q_c B_cw^T expm(A_c^T t) dt are *computed* (Van Loan's
+block-exponential method), not hand-expanded. Eq. 28 prints ``Q_c`` between the two
+exponentials, which is dimensionally only meaningful as ``B_cw Q_c B_cw^T``; with Q_d
+so defined (4x4) the covariance prediction of eq. 99 is ``A_d P A_d^T + Q_d`` (eq. 99's
+extra ``B_dw ... B_dw^T`` would apply a second time the input matrix already inside
+Q_d). R_d = diag(Delta^2/12, sigma_acc^2) (Sec. 2.2.1.1: sigma_enc = Delta^2/12; the
+accelerometer variance from the data sheet).
+
+Units of the tuning parameters (thesis "sigma_a, sigma_b" are variances of the white
+processes; here the fields hold the square roots of the continuous-time intensities,
+so that Q_c = diag(sigma_a^2, sigma_b^2)):
+
+* ``sigma_a``: rad/s^3/sqrt(Hz), motor jerk. The load-side equivalent is
+  sigma_a * lead/(2 pi) in m/s^3/sqrt(Hz).
+* ``sigma_b``: (m/s^2)/sqrt(s), bias random walk: after T seconds the bias has
+  drifted by about sigma_b * sqrt(T).
+
+Filter step (Appendix A, eq. 98-103, plus the reset of Sec. 2.2.2 between prediction
+and update, as the thesis places it "after the prediction step"). The reset changes
+only the predicted *state*, never the covariance, so the gain sequence K_k is
+data-independent and converges to the stationary gain of python-control's ``dlqe``.
+The covariance update uses the Joseph form of eq. 103, then is symmetrised: with
+these scales (position variance ~1e-9 rad^2 next to acceleration variance ~1e5
+rad^2/s^4) the short form (I - K C) P iterated without symmetrisation ends more than
+10x away from the ``dlqe`` gain after 20 000 steps for sigma_a = 3e3; the Joseph form
+converges to it within 1e-10.
+
+State reset (Sec. 2.2.2) and what we found
+------------------------------------------
+Default = the thesis pseudocode, literally: after the prediction, x(1)_k|k-1 is
+clamped into [theta_enc_k - Delta/2, theta_enc_k + Delta/2] (eq. 29) and
+x(2)_k|k-1 into (theta_enc_k - theta_enc_k-1)/Ts -+ Delta/Ts (eq. 31); P is not
+touched; the update and the innovation use the clamped prediction. Two variants are
+available and documented as *not* the thesis:
+
+* ``reset_speed_bound="eq31_accel"``: eq. 31 bounds the *mean* speed over the last
+  sample, which differs from the speed at t_k by about alpha*Ts/2; that exceeds the
+  bound half-width Delta/Ts as soon as |alpha| > 2 Delta/Ts^2 = 582 rad/s^2
+  (0.93 m/s^2 at the nut), which ordinary arm movements reach. The variant centres the
+  interval on (theta_enc_k - theta_enc_k-1)/Ts + alpha_k|k-1 Ts/2.
+* ``reset_stage="posterior"``: clamp x_k|k after the update instead of the
+  prediction, so the innovations (the information the filter learns from) are not
+  saturated.
+
+In our simulated human-like trial (tests/test_aakf.py) the literal reset makes the
+speed estimate worse, not better: RMS speed error 2.2x below encoder differencing
+against 5.4x with the reset disabled, and the reset fires at 28 % of the samples
+(the predicted position, whose spread is comparable to Delta, often falls outside
+the cell even with a correct filter; with faster random motion we saw 50-90 %).
+With the filter started mid-movement the literal reset delays the bias convergence
+from about 10 ms to 2-4 s (with a narrower P_0 it kept a wrong bias for a whole 20 s
+run): the clamps hide the position drift that would reveal the bias error. It does cut the largest
+overshoots of a too-slowly tuned filter under step changes of acceleration, the
+benefit the thesis shows in Fig. 21. The posterior variant with the corrected speed
+bound was never more than 1 % worse than no reset in our runs, and better under
+step changes of acceleration with a slow tuning.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, NamedTuple, Sequence
+
+import numpy as np
+from scipy.linalg import expm
+
+__all__ = [
+    "AakfParams",
+    "AakfModel",
+    "AaKF",
+    "EncoderDifferentiator",
+    "EncoderDifferentiatorParams",
+    "SteadyStateGain",
+    "discretise",
+    "steady_state_gain",
+    "filter_log",
+    "ADXL335_NOISE_STD_M_S2",
+]
+
+G0_M_S2 = 9.80665
+#: ADXL335 (Table 2): 150 ug/sqrt(Hz) over a 1600 Hz single-pole bandwidth; the
+#: equivalent noise bandwidth of a single pole is (pi/2) * 1600 Hz, so the rms noise
+#: is 150e-6 g * sqrt(1.571 * 1600) = 7.5 mg = 0.0737 m/s^2. The bandwidth exceeds the
+#: 500 Hz Nyquist frequency of the 1 kHz sampling, so the samples are close to white.
+ADXL335_NOISE_STD_M_S2 = 150e-6 * G0_M_S2 * math.sqrt(math.pi / 2.0 * 1600.0)
+
+
+@dataclass(frozen=True)
+class AakfParams:
+    """Parameters of the aaKF (thesis Sec. 2.2, Table 1 and 2).
+
+    Defaults are those of the ball-screw device of Table 1 and the ADXL335 of
+    Table 2. The thesis gives no values for ``sigma_a`` and ``sigma_b``: the default
+    sigma_a is what :mod:`cosim.algorithms.aakf_tuning` picks on simulated
+    human-like reaching (whitest innovations, 240-420 rad/s^3/sqrt(Hz), i.e. about
+    0.5 m/s^3/sqrt(Hz) at the nut); sigma_b is set small (the whiteness criterion
+    hardly depends on it; 1e-3 (m/s^2)/sqrt(s) is a drift of about 0.03 m/s^2 in
+    15 minutes, the order of the ADXL335 thermal offset drift of 1 mg/degC). The
+    initial covariance is broad (0.3 m/s, 4.8 m/s^2 at the nut, 1 m/s^2 of bias) so
+    that a start in mid-movement is tolerated.
+    """
+
+    #: sampling time [s] (Table 1)
+    Ts: float = 1e-3
+    #: ball-screw lead [m/rev]; x_load = lead/(2 pi) * theta_motor
+    lead_m: float = 0.01
+    #: encoder counts per motor revolution (Table 1); Delta = 2 pi / counts [rad]
+    encoder_counts_per_rev: int = 21600
+    #: "round" (thesis eq. 12-13: theta - Delta/2 <= theta_enc <= theta + Delta/2) or
+    #: "floor" (theta_enc <= theta < theta_enc + Delta; the filter then uses
+    #: theta_enc + Delta/2 as the unbiased measurement and shifts the eq. 29 interval)
+    encoder_quantiser: str = "round"
+    #: motor-jerk process noise [rad/s^3/sqrt(Hz)], Q_c[0,0] = sigma_a^2 (eq. 16, 23)
+    sigma_a: float = 300.0
+    #: bias random-walk intensity [(m/s^2)/sqrt(s)], Q_c[1,1] = sigma_b^2 (eq. 15, 23)
+    sigma_b: float = 1.0e-3
+    #: accelerometer white-noise standard deviation per sample [m/s^2] (Table 2)
+    acc_noise_std_m_s2: float = ADXL335_NOISE_STD_M_S2
+    #: encoder noise variance override [rad^2]; None -> Delta^2/12 (Sec. 2.2.1.1)
+    enc_noise_var_rad2: float | None = None
+    #: apply the state reset of Sec. 2.2.2 (eq. 29-31)
+    reset_enabled: bool = True
+    #: speed bound of the reset: "eq31" (thesis, literal: the backward difference of the
+    #: encoder +- Delta/Ts, which bounds the *mean* speed over [t_k-1, t_k]) or
+    #: "eq31_accel" (same bound shifted by alpha_k|k-1 * Ts/2, the mean-to-endpoint
+    #: speed difference under the model's acceleration; an extension, see module doc)
+    reset_speed_bound: str = "eq31"
+    #: where the reset acts: "prediction" (thesis: on x_k|k-1, between eq. 99 and
+    #: eq. 100, so the update and the innovation use the clamped prediction) or
+    #: "posterior" (variant: on x_k|k after eq. 102; innovations are untouched)
+    reset_stage: str = "prediction"
+    #: initialise the position estimate from the first encoder reading (otherwise
+    #: x_0 = 0 as in Appendix A)
+    init_from_first_measurement: bool = True
+    #: initial standard deviations of P_0: position [rad] (None -> Delta/sqrt(12)),
+    #: speed [rad/s], acceleration [rad/s^2], bias [m/s^2]
+    p0_theta_std_rad: float | None = None
+    p0_omega_std_rad_s: float = 200.0
+    p0_alpha_std_rad_s2: float = 3000.0
+    p0_bias_std_m_s2: float = 1.0
+
+    @property
+    def delta_rad(self) -> float:
+        """Encoder quantisation step Delta [rad] (Table 1)."""
+        return 2.0 * math.pi / self.encoder_counts_per_rev
+
+    @property
+    def m_per_rad(self) -> float:
+        """Load displacement per motor angle, lead/(2 pi) [m/rad] (= 1/Kg of eq. 22)."""
+        return self.lead_m / (2.0 * math.pi)
+
+
+class AakfModel(NamedTuple):
+    """Continuous and discretised matrices of the aaKF model (eq. 21-28)."""
+
+    Ac: np.ndarray   # eq. 21
+    Bcw: np.ndarray  # eq. 21
+    Cc: np.ndarray   # eq. 22
+    Qc: np.ndarray   # eq. 23 (2x2, intensities of w_a, w_b)
+    Ad: np.ndarray   # eq. 26
+    Bdw: np.ndarray  # eq. 26
+    Cd: np.ndarray   # eq. 27
+    Qd: np.ndarray   # eq. 28 (4x4, on the state)
+    Rd: np.ndarray   # measurement covariance (Sec. 2.2.1.1)
+    P0: np.ndarray   # initial covariance (Appendix A)
+
+
+def _van_loan(A: np.ndarray, GQGt: np.ndarray, Ts: float) -> tuple[np.ndarray, np.ndarray]:
+    """Van Loan (1978): Ad = expm(A Ts), Qd = int_0^Ts expm(A t) GQG' expm(A' t) dt."""
+    n = A.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = -A
+    M[:n, n:] = GQGt
+    M[n:, n:] = A.T
+    F = expm(M * Ts)
+    Ad = F[n:, n:].T
+    Qd = Ad @ F[:n, n:]
+    return Ad, 0.5 * (Qd + Qd.T)
+
+
+def discretise(p: AakfParams) -> AakfModel:
+    """Build the continuous model (eq. 17-23) and its ZOH discretisation (eq. 24-28)."""
+    Ac = np.zeros((4, 4))
+    Ac[0, 1] = 1.0
+    Ac[1, 2] = 1.0                                                    # eq. 21
+    Bcw = np.zeros((4, 2))
+    Bcw[2, 0] = 1.0
+    Bcw[3, 1] = 1.0                                                   # eq. 21
+    Cc = np.array([[1.0, 0.0, 0.0, 0.0],
+                   [0.0, 0.0, p.m_per_rad, 1.0]])                     # eq. 22 (1/Kg = lead/2pi)
+    Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])                    # eq. 23
+    # eq. 26: A_d and B_dw from one block exponential expm([[A, B],[0, 0]] Ts)
+    Maug = np.zeros((6, 6))
+    Maug[:4, :4] = Ac
+    Maug[:4, 4:] = Bcw
+    Faug = expm(Maug * p.Ts)
+    Bdw = Faug[:4, 4:]
+    Ad, Qd = _van_loan(Ac, Bcw @ Qc @ Bcw.T, p.Ts)                    # eq. 26, 28
+    Cd = Cc.copy()                                                    # eq. 27
+    enc_var = p.delta_rad ** 2 / 12.0 if p.enc_noise_var_rad2 is None else p.enc_noise_var_rad2
+    Rd = np.diag([enc_var, p.acc_noise_std_m_s2 ** 2])                # eq. 23, sigma_enc = Delta^2/12
+    th0 = p.delta_rad / math.sqrt(12.0) if p.p0_theta_std_rad is None else p.p0_theta_std_rad
+    P0 = np.diag([th0, p.p0_omega_std_rad_s, p.p0_alpha_std_rad_s2, p.p0_bias_std_m_s2]) ** 2
+    return AakfModel(Ac, Bcw, Cc, Qc, Ad, Bdw, Cd, Qd, Rd, P0)
+
+
+class SteadyStateGain(NamedTuple):
+    """Stationary Kalman filter of the aaKF model, from python-control's ``dlqe``."""
+
+    K: np.ndarray       # filter (update) gain, x_k|k = x_k|k-1 + K e_k (eq. 100, 102)
+    L: np.ndarray       # predictor gain returned by dlqe, L = A_d K
+    P_pred: np.ndarray  # stationary P_k|k-1 (solution of the DARE)
+    poles: np.ndarray   # eig(A_d - L C_d)
+
+
+def steady_state_gain(p: AakfParams) -> SteadyStateGain:
+    """Stationary gain of the same model via ``control.dlqe`` (G = I, QN = Q_d)."""
+    import control  # local import: only this helper needs python-control
+
+    m = discretise(p)
+    L, P, E = control.dlqe(m.Ad, np.eye(4), m.Cd, m.Qd, m.Rd)
+    P = np.asarray(P)
+    S = m.Cd @ P @ m.Cd.T + m.Rd
+    K = np.linalg.solve(S.T, (P @ m.Cd.T).T).T
+    return SteadyStateGain(K=K, L=np.asarray(L), P_pred=P, poles=np.asarray(E))
+
+
+def _speed_centre(p: AakfParams, enc: float, enc_prev: float, alpha: float) -> float:
+    """Centre of the eq. 31 speed interval [rad/s]."""
+    v = (enc - enc_prev) / p.Ts                          # eq. 30 with encoder readings
+    if p.reset_speed_bound == "eq31_accel":
+        v += 0.5 * p.Ts * alpha                          # endpoint vs mean speed (extension)
+    return v
+
+
+def _position_bounds(p: AakfParams, enc: float) -> tuple[float, float]:
+    """Interval of eq. 29 that certainly holds the true motor angle [rad]."""
+    d = p.delta_rad
+    if p.encoder_quantiser == "floor":
+        return enc, enc + d                              # eq. 29 for a floor quantiser
+    return enc - 0.5 * d, enc + 0.5 * d                  # eq. 29
+
+
+def _check_params(p: AakfParams) -> None:
+    if p.encoder_quantiser not in ("round", "floor"):
+        raise ValueError("encoder_quantiser must be 'round' or 'floor'")
+    if p.reset_speed_bound not in ("eq31", "eq31_accel"):
+        raise ValueError("reset_speed_bound must be 'eq31' or 'eq31_accel'")
+    if p.reset_stage not in ("prediction", "posterior"):
+        raise ValueError("reset_stage must be 'prediction' or 'posterior'")
+
+
+class AaKF:
+    """Accelerometer-aided time-varying Kalman filter with state reset (Sec. 2.2).
+
+    Inputs (tick k): ``theta_enc`` [rad] quantised motor angle from the encoder;
+    ``acc_meas`` [m/s^2] accelerometer reading along +x of the nut.
+
+    Outputs: a-posteriori estimates ``theta_rad`` [rad], ``omega_rad_s`` [rad/s],
+    ``alpha_rad_s2`` [rad/s^2] and their load-side images ``x_m`` [m], ``v_m_s`` [m/s],
+    ``a_m_s2`` [m/s^2] (times lead/2 pi); ``bias_m_s2`` [m/s^2] the accelerometer-bias
+    estimate; ``innov_enc_rad`` [rad] and ``innov_acc_m_s2`` [m/s^2] the innovation
+    e_k = y_k - C x_k|k-1 (eq. 101; with the thesis' reset stage it is computed from
+    the reset prediction); ``reset_fired``, ``reset_pos_fired``,
+    ``reset_speed_fired`` (1.0 when the Sec. 2.2.2 step clamped anything / the
+    position / the speed at this tick, else 0.0).
+
+    Recordable attributes: ``gain`` (K_k, 4x2), ``P`` (P_k|k, 4x4), ``P_pred``
+    (P_k|k-1), ``x_pred`` (x_k|k-1, after the reset when the reset acts on the
+    prediction), ``x_post`` (x_k|k), ``innovation`` (e_k), ``reset_lo``/``reset_hi``
+    (eq. 29 interval of this tick).
+    """
+
+    inputs: tuple[str, ...] = ("theta_enc", "acc_meas")
+    outputs: tuple[str, ...] = (
+        "theta_rad", "omega_rad_s", "alpha_rad_s2",
+        "x_m", "v_m_s", "a_m_s2", "bias_m_s2",
+        "innov_enc_rad", "innov_acc_m_s2",
+        "reset_fired", "reset_pos_fired", "reset_speed_fired",
+    )
+    recordable: tuple[str, ...] = ("gain", "P", "P_pred", "x_pred", "x_post", "innovation",
+                                   "reset_lo", "reset_hi")
+
+    def __init__(self, params: AakfParams | None = None) -> None:
+        self.params = params if params is not None else AakfParams()
+        _check_params(self.params)
+        self.model = discretise(self.params)
+        self.reset()
+
+    def reset(self) -> None:
+        m = self.model
+        self.k = 0
+        self.x_post = np.zeros(4)
+        self.P = m.P0.copy()
+        self.x_pred = np.zeros(4)
+        self.P_pred = m.P0.copy()
+        self.gain = np.zeros((4, 2))
+        self.innovation = np.zeros(2)
+        self.reset_lo = math.nan
+        self.reset_hi = math.nan
+        self._enc_prev: float | None = None
+
+    def _state_reset(self, x: np.ndarray, enc: float) -> tuple[bool, bool]:
+        """Sec. 2.2.2 pseudocode, in place on ``x``; returns (position, speed) fired."""
+        p = self.params
+        lo, hi = _position_bounds(p, enc)
+        self.reset_lo, self.reset_hi = lo, hi
+        pos_fired = speed_fired = False
+        if x[0] > hi:                                                     # eq. 29, upper
+            x[0] = hi
+            pos_fired = True
+        elif x[0] < lo:                                                   # eq. 29, lower
+            x[0] = lo
+            pos_fired = True
+        if self._enc_prev is not None:
+            v = _speed_centre(p, enc, self._enc_prev, float(x[2]))
+            dv = p.delta_rad / p.Ts
+            if x[1] > v + dv:                                             # eq. 31, upper
+                x[1] = v + dv
+                speed_fired = True
+            elif x[1] < v - dv:                                           # eq. 31, lower
+                x[1] = v - dv
+                speed_fired = True
+        return pos_fired, speed_fired
+
+    def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
+        p, m = self.params, self.model
+        enc = float(measurements["theta_enc"])
+        acc = float(measurements["acc_meas"])
+        y_enc = enc + 0.5 * p.delta_rad if p.encoder_quantiser == "floor" else enc
+        y = np.array([y_enc, acc])
+
+        # --- prediction (eq. 98-99; u = 0) ---
+        if self.k == 0:
+            x_pred = np.zeros(4)
+            if p.init_from_first_measurement:
+                x_pred[0] = y_enc
+            P_pred = m.P0.copy()
+        else:
+            x_pred = m.Ad @ self.x_post                                   # eq. 98
+            P_pred = m.Ad @ self.P @ m.Ad.T + m.Qd                        # eq. 99 (Q_d of eq. 28)
+
+        # --- state estimation reset (Sec. 2.2.2) on the prediction, as in the thesis ---
+        fired = (False, False)
+        if p.reset_enabled and p.reset_stage == "prediction":
+            fired = self._state_reset(x_pred, enc)
+        else:
+            self.reset_lo, self.reset_hi = _position_bounds(p, enc)
+
+        # --- update (eq. 100-103) ---
+        C, R = m.Cd, m.Rd
+        PCt = P_pred @ C.T
+        S = C @ PCt + R
+        K = np.linalg.solve(S, PCt.T).T                                   # eq. 100 (S symmetric)
+        e = y - C @ x_pred                                                # eq. 101
+        x_post = x_pred + K @ e                                           # eq. 102
+        IKC = np.eye(4) - K @ C
+        P_post = IKC @ P_pred @ IKC.T + K @ R @ K.T                       # eq. 103, Joseph form
+        P_post = 0.5 * (P_post + P_post.T)
+
+        if p.reset_enabled and p.reset_stage == "posterior":              # variant, not thesis
+            fired = self._state_reset(x_post, enc)
+
+        self.x_pred, self.P_pred = x_pred, P_pred
+        self.x_post, self.P = x_post, P_post
+        self.gain, self.innovation = K, e
+        self._enc_prev = enc
+        self.k += 1
+
+        s = p.m_per_rad
+        return {
+            "theta_rad": float(x_post[0]),
+            "omega_rad_s": float(x_post[1]),
+            "alpha_rad_s2": float(x_post[2]),
+            "x_m": float(s * x_post[0]),
+            "v_m_s": float(s * x_post[1]),
+            "a_m_s2": float(s * x_post[2]),
+            "bias_m_s2": float(x_post[3]),
+            "innov_enc_rad": float(e[0]),
+            "innov_acc_m_s2": float(e[1]),
+            "reset_fired": float(fired[0] or fired[1]),
+            "reset_pos_fired": float(fired[0]),
+            "reset_speed_fired": float(fired[1]),
+        }
+
+
+_SHARED_FIELDS = ("Ts", "lead_m", "encoder_counts_per_rev", "encoder_quantiser",
+                  "acc_noise_std_m_s2", "enc_noise_var_rad2", "reset_enabled",
+                  "reset_speed_bound", "reset_stage", "init_from_first_measurement")
+
+
+def filter_log(params: AakfParams | Sequence[AakfParams], theta_enc: np.ndarray,
+               acc_meas: np.ndarray, gain_rtol: float = 1e-13) -> dict[str, np.ndarray]:
+    """Run the :class:`AaKF` algorithm over a recorded log, for one or many tunings.
+
+    The same equations as :meth:`AaKF.step`, vectorised over ``F`` filters that
+    may differ only in ``sigma_a``, ``sigma_b`` and P_0 (all other fields must be
+    equal). Because the reset never touches the covariance, the gain sequence K_k
+    does not depend on the data; the Riccati recursion (eq. 99, 100, 103, Joseph
+    form) is run until no gain changes by more than ``gain_rtol`` (relative) in one
+    step, and the last gains are then held.
+
+    Returns arrays, with a leading filter axis when ``params`` is a sequence:
+    ``x_post`` (N x 4), ``x_pred`` (N x 4, the prediction the update used),
+    ``innov`` (N x 2), ``reset_pos`` and ``reset_speed`` (N, bool), and
+    ``gain_steps`` (number of Riccati steps run).
+    """
+    single = isinstance(params, AakfParams)
+    plist = [params] if single else list(params)
+    if not plist:
+        raise ValueError("no parameters given")
+    p = plist[0]
+    for q in plist:
+        _check_params(q)
+        for f in _SHARED_FIELDS:
+            if getattr(q, f) != getattr(p, f):
+                raise ValueError(f"all filters must share {f}")
+    enc_a = np.asarray(theta_enc, dtype=float).ravel()
+    acc_a = np.asarray(acc_meas, dtype=float).ravel()
+    n = enc_a.size
+    if acc_a.size != n:
+        raise ValueError("theta_enc and acc_meas must have the same length")
+    models = [discretise(q) for q in plist]
+    nf = len(plist)
+    Ad = models[0].Ad
+    AdT = Ad.T
+    C, R = models[0].Cd, models[0].Rd
+    Qd = np.stack([mm.Qd for mm in models])
+    P = np.stack([mm.P0 for mm in models])
+    I4 = np.eye(4)
+    s, d, Ts = p.m_per_rad, p.delta_rad, p.Ts
+    dv = d / Ts
+    floor_q = p.encoder_quantiser == "floor"
+    accel_bound = p.reset_speed_bound == "eq31_accel"
+    reset_pred = p.reset_enabled and p.reset_stage == "prediction"
+    reset_post = p.reset_enabled and p.reset_stage == "posterior"
+
+    x_post = np.empty((nf, n, 4))
+    x_pred_out = np.empty((nf, n, 4))
+    innov = np.empty((nf, n, 2))
+    rpos = np.zeros((nf, n), dtype=bool)
+    rspd = np.zeros((nf, n), dtype=bool)
+
+    def clamp(x: np.ndarray, k: int) -> None:
+        enc = enc_a[k]
+        lo, hi = (enc, enc + d) if floor_q else (enc - 0.5 * d, enc + 0.5 * d)  # eq. 29
+        c = np.clip(x[:, 0], lo, hi)
+        rpos[:, k] = c != x[:, 0]
+        x[:, 0] = c
+        if k > 0:
+            v = (enc - enc_a[k - 1]) / Ts                                         # eq. 30
+            if accel_bound:
+                v = v + 0.5 * Ts * x[:, 2]
+            c = np.clip(x[:, 1], v - dv, v + dv)                                 # eq. 31
+            rspd[:, k] = c != x[:, 1]
+            x[:, 1] = c
+
+    K = np.zeros((nf, 4, 2))
+    converged = False
+    gain_steps = 0
+    x = np.zeros((nf, 4))
+    for k in range(n):
+        y0 = enc_a[k] + 0.5 * d if floor_q else enc_a[k]
+        if not converged:
+            if k > 0:
+                P = Ad @ P @ AdT + Qd                                             # eq. 99
+            PCt = P @ C.T
+            S = C @ PCt + R
+            Knew = np.linalg.solve(S, PCt.transpose(0, 2, 1)).transpose(0, 2, 1)  # eq. 100
+            IKC = I4 - Knew @ C
+            P = IKC @ P @ IKC.transpose(0, 2, 1) + Knew @ R @ Knew.transpose(0, 2, 1)  # eq. 103
+            P = 0.5 * (P + P.transpose(0, 2, 1))
+            if k > 0:
+                ch = np.abs(Knew - K).max(axis=(1, 2)) / np.abs(Knew).max(axis=(1, 2))
+                converged = bool(np.all(ch <= gain_rtol))
+            K = Knew
+            gain_steps += 1
+        if k == 0:
+            xp = np.zeros((nf, 4))
+            if p.init_from_first_measurement:
+                xp[:, 0] = y0
+        else:
+            xp = x @ AdT                                                          # eq. 98
+        if reset_pred:
+            clamp(xp, k)                                                          # Sec. 2.2.2
+        e0 = y0 - xp[:, 0]                                                        # eq. 101
+        e1 = acc_a[k] - (s * xp[:, 2] + xp[:, 3])
+        x = xp + K[:, :, 0] * e0[:, None] + K[:, :, 1] * e1[:, None]              # eq. 102
+        if reset_post:
+            clamp(x, k)
+        x_pred_out[:, k] = xp
+        x_post[:, k] = x
+        innov[:, k, 0] = e0
+        innov[:, k, 1] = e1
+    out = {"x_post": x_post, "x_pred": x_pred_out, "innov": innov,
+           "reset_pos": rpos, "reset_speed": rspd}
+    if single:
+        out = {key: val[0] for key, val in out.items()}
+    out["gain_steps"] = np.array(gain_steps)
+    return out
+
+
+@dataclass(frozen=True)
+class EncoderDifferentiatorParams:
+    """Parameters of the encoder backward-difference estimator."""
+
+    #: sampling time [s]
+    Ts: float = 1e-3
+    #: ball-screw lead [m/rev]; x_load = lead/(2 pi) * theta_motor
+    lead_m: float = 0.01
+
+
+class EncoderDifferentiator:
+    """Speed and acceleration by backward differences of the encoder angle.
+
+    The comparison estimator of Fig. 24/26: omega_k = (theta_k - theta_k-1)/Ts
+    (eq. 30 applied to the encoder readings), alpha_k = (omega_k - omega_k-1)/Ts.
+    The first tick returns zero speed, the first two zero acceleration.
+
+    Inputs: ``theta_enc`` [rad]. Outputs (same names as :class:`AaKF`):
+    ``theta_rad``, ``omega_rad_s``, ``alpha_rad_s2``, ``x_m``, ``v_m_s``, ``a_m_s2``.
+    """
+
+    inputs: tuple[str, ...] = ("theta_enc",)
+    outputs: tuple[str, ...] = ("theta_rad", "omega_rad_s", "alpha_rad_s2", "x_m", "v_m_s", "a_m_s2")
+    recordable: tuple[str, ...] = ()
+
+    def __init__(self, params: EncoderDifferentiatorParams | None = None) -> None:
+        self.params = params if params is not None else EncoderDifferentiatorParams()
+        self.reset()
+
+    def reset(self) -> None:
+        self._theta_prev: float | None = None
+        self._omega_prev: float | None = None
+
+    def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
+        p = self.params
+        th = float(measurements["theta_enc"])
+        omega = 0.0 if self._theta_prev is None else (th - self._theta_prev) / p.Ts    # eq. 30
+        alpha = 0.0 if self._omega_prev is None else (omega - self._omega_prev) / p.Ts
+        self._omega_prev = omega if self._theta_prev is not None else None
+        self._theta_prev = th
+        s = p.lead_m / (2.0 * math.pi)
+        return {"theta_rad": th, "omega_rad_s": omega, "alpha_rad_s2": alpha,
+                "x_m": s * th, "v_m_s": s * omega, "a_m_s2": s * alpha}
