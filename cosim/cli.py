@@ -3,6 +3,8 @@
     cosim fmus build [MODEL ...] [--force]     Modelica -> binary FMUs in fmus/
     cosim fmus check FMU [--simulate]          interface + validation of any FMU
     cosim demo --out DIR                       build FMUs, run a short demonstration
+    cosim estimate --log LOG.csv --out OUT.csv aaKF + encoder differencing over a trial log
+    cosim identify --log LOG.csv --out OUT.json RLS identification of J, b, fc over a log
 """
 from __future__ import annotations
 
@@ -62,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--modelica", default=str(DEFAULT_MODELICA))
     d.add_argument("--fmus", default=str(DEFAULT_FMUS))
     d.set_defaults(func=_cmd_demo)
+
+    from .offline import add_offline_commands
+    add_offline_commands(sub)      # cosim estimate / cosim identify (trial logs)
     return p
 
 

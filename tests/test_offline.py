@@ -298,3 +298,28 @@ def test_registered_commands_end_to_end(logs, tmp_path, capsys):
     assert not bad.exists()
     with pytest.raises(SystemExit):
         ap.parse_args(["identify", "--log", "x", "--out", "y", "--speed", "tacho"])
+
+
+def test_identify_over_held_out_seeds(tmp_path):
+    """Not one lucky seed: seeds 8-13 (none used to choose IDENTIFY_SIGMA_A).
+
+    Measured (J, b, fc errors in %), aaKF speed / encoder differencing:
+      8: +0.4 -24.4 -3.1 / +2.2 -78.1  -6.3    11: +0.5  +7.1 -4.8 / +2.4  -3.9 -10.0
+      9: +0.4  -4.7 -3.6 / +2.2 -20.8  -8.1    12: +0.4 -13.6 -2.8 / +2.1 -30.5  -6.6
+     10: +0.3  -2.5 -3.4 / +2.3  -3.2  -8.4    13: +0.2  -3.7 -3.4 / +2.2 -20.8  -7.0
+    J and fc meet the thesis's +-10 % on every seed; b (a viscous torque of ~1.6e-4 N m
+    beside fc = 3e-3 N m) misses it on 2 of 6 with the aaKF and on 4 of 6 with
+    differencing: the assertion states exactly that, so a regression shows.
+    """
+    b_ok = {"aakf": 0, "encoder": 0}
+    for seed in range(8, 14):
+        p = simulate_ballscrew_log(tmp_path / f"id{seed}", "identification", duration_s=10.0, seed=seed)
+        err = {}
+        for speed in ("aakf", "encoder"):
+            r = identify(p, tmp_path / f"{speed}{seed}.json", speed=speed)
+            err[speed] = {k: r["final"][k] / TRUE[k] - 1.0 for k in TRUE}
+            b_ok[speed] += abs(err[speed]["b"]) < 0.10
+        assert abs(err["aakf"]["J"]) < 0.10 and abs(err["aakf"]["fc"]) < 0.10, (seed, err)
+        assert abs(err["aakf"]["J"]) < abs(err["encoder"]["J"]), (seed, err)
+        assert abs(err["aakf"]["fc"]) < abs(err["encoder"]["fc"]), (seed, err)
+    assert b_ok["aakf"] >= 4 and b_ok["aakf"] > b_ok["encoder"], b_ok

@@ -88,9 +88,11 @@ def run_rls(speed_source: str, seed: int = 1, T_s: float = 10.0, plant=None,
     rls = RLSIdentifier(rls_params)
     kf = None
     if speed_source == "aakf":
-        from cosim.algorithms.aakf import AaKF
+        from cosim.algorithms.aakf import AaKF, AakfParams
+        from cosim.offline import IDENTIFY_SIGMA_A
 
-        kf = AaKF()
+        # identification excites far more jerk than reaching: the aaKF is tuned for it
+        kf = AaKF(AakfParams(sigma_a=IDENTIFY_SIGMA_A))
         acc_noise = kf.params.acc_noise_std_m_s2
         bias = 0.3  # m/s^2, constant accelerometer bias the aaKF must estimate
     enc_prev = encoder(ax.theta)
@@ -231,16 +233,16 @@ def _aakf_available() -> bool:
 
 @pytest.mark.skipif(not _aakf_available(), reason="cosim.algorithms.aakf.AaKF not available")
 def test_rls_with_aakf_speed():
-    # aaKF (default AakfParams of cosim.algorithms.aakf as found when this was written)
-    # fed with the rounded encoder and a simulated ADXL335 (true nut acceleration + 0.3
-    # m/s^2 bias + white noise of the data-sheet density). Its speed error is 0.14 rad/s
-    # std here (encoder difference: 0.27). Measured after 10 s, seeds 0-4: J +0.4..+0.7 %,
-    # fc -3.2..-4.1 %, b +4..+13 % (inside +-10 % from 4.9-10 s on, b being the last).
-    for seed in (0, 1):
+    # aaKF with the identification tuning (cosim.offline.IDENTIFY_SIGMA_A = 2e4 rad/s^3/
+    # sqrt(Hz): the 50 Hz current excites far more jerk than reaching), fed with the
+    # rounded encoder and a simulated ADXL335 (true nut acceleration + 0.3 m/s^2 bias +
+    # data-sheet white noise). Measured after 10 s (J, b, fc errors in %):
+    #   aaKF    seeds 0-4: J +0.2..+0.4, b -2.6..+8.1, fc -3.1..-4.4
+    #   encoder seeds 0-4: J +2.0..+2.5, b -23..+18 (4 of 5 outside 10 %), fc -6.5..-9.7
+    for seed in (0, 1, 2):
         err_k = rel_err(run_rls("aakf", seed=seed)[0][-1])
         err_e = rel_err(run_rls("encoder", seed=seed)[0][-1])
-        assert np.all(np.abs(err_k[[0, 2]]) < 0.10), err_k
-        assert abs(err_k[1]) < 0.25, err_k
+        assert np.all(np.abs(err_k) < 0.10), (seed, err_k)          # thesis: +-10 % in 10 s
         # J and fc better than with the encoder difference (thesis Fig. 26)
         assert np.all(np.abs(err_k[[0, 2]]) < np.abs(err_e[[0, 2]])), (err_k, err_e)
 
