@@ -1,8 +1,10 @@
-"""Build binary FMI 2.0 Co-Simulation FMUs from the Modelica package.
+"""Build binary FMI 2.0 or FMI 3.0 Co-Simulation FMUs from the Modelica package.
 
 Pipeline per model: pymoca flattening -> explicit ODE (CasADi SX) -> CasADi C
-code -> generated ``model.h`` + the generic wrapper ``c/fmi2_cs_wrapper.c`` ->
-gcc -> zip with a modelDescription.xml generated from the declarations.
+code -> generated ``model.h`` + the generic wrapper (``c/fmi2_cs_wrapper.c`` or
+``c/fmi3_cs_wrapper.c``, both on the shared ``c/model_core.h``: the same model
+code and solver in both) -> gcc -> zip with a modelDescription.xml generated
+from the declarations.
 
 Builds are cached by a hash of everything that determines the result (Modelica
 sources, wrapper, this generator, tool versions, compiler version, flags), and
@@ -29,7 +31,12 @@ from .modelica import FlatModel, ModelicaError, load_model, package_files
 from .units import BASES, UnitError, parse_unit
 
 HERE = Path(__file__).resolve().parent
-WRAPPER = HERE / "c" / "fmi2_cs_wrapper.c"
+CORE = HERE / "c" / "model_core.h"
+WRAPPERS = {"2.0": HERE / "c" / "fmi2_cs_wrapper.c", "3.0": HERE / "c" / "fmi3_cs_wrapper.c"}
+WRAPPER = WRAPPERS["2.0"]
+FMI_VERSIONS = tuple(WRAPPERS)
+FMI_HEADERS = {"2.0": ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+               "3.0": ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")}
 CFLAGS = ["-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-std=gnu99",
           "-Wall", "-Wno-unused-variable", "-Wno-unused-function", "-Wno-unused-but-set-variable"]
 SOLVER_PARAMS = [
@@ -53,11 +60,30 @@ def platform_dir() -> str:
     return "win" + bits
 
 
-def fmi_headers() -> Path:
+def platform_tuple() -> str:
+    """FMI 3.0 platform tuple of this machine (binaries/<tuple>/), e.g. x86_64-linux."""
+    m = platform.machine().lower()
+    arch = {"amd64": "x86_64", "x86_64": "x86_64", "arm64": "aarch64", "aarch64": "aarch64",
+            "i386": "x86", "i686": "x86"}.get(m, m)
+    system = {"Linux": "linux", "Darwin": "darwin", "Windows": "windows"}.get(platform.system(),
+                                                                          platform.system().lower())
+    return f"{arch}-{system}"
+
+
+def _check_fmi_version(fmi_version: str) -> str:
+    if fmi_version not in WRAPPERS:
+        raise BuildError(f"FMI version {fmi_version!r} not supported (choose from "
+                         f"{', '.join(FMI_VERSIONS)})")
+    return fmi_version
+
+
+def fmi_headers(fmi_version: str = "2.0") -> Path:
     import fmpy
     d = Path(fmpy.__file__).parent / "c-code"
-    if not (d / "fmi2Functions.h").exists():
-        raise BuildError(f"FMI 2 headers not found in {d} (fmpy installation incomplete)")
+    missing = [h for h in FMI_HEADERS[fmi_version] if not (d / h).exists()]
+    if missing:
+        raise BuildError(f"FMI {fmi_version} headers {', '.join(missing)} not found in {d} "
+                         "(fmpy installation incomplete)")
     return d
 
 
@@ -77,15 +103,16 @@ def _compiler_version(cc: str) -> str:
         raise BuildError(f"cannot run {cc}: {exc}") from None
 
 
-def build_key(files: list[Path], model: str, cc: str) -> str:
+def build_key(files: list[Path], model: str, cc: str, fmi_version: str = "2.0") -> str:
     import pymoca
     h = hashlib.sha256()
     for f in files:
         h.update(f.name.encode()); h.update(f.read_bytes())
-    for f in (WRAPPER, Path(__file__), HERE / "modelica.py", HERE / "units.py"):
+    for f in (WRAPPERS[fmi_version], CORE, Path(__file__), HERE / "modelica.py", HERE / "units.py"):
         h.update(f.read_bytes())
-    h.update(f"{model}|casadi {ca.__version__}|pymoca {pymoca.__version__}|"
-             f"{_compiler_version(cc)}|{' '.join(CFLAGS)}|{platform_dir()}".encode())
+    plat = platform_dir() if fmi_version == "2.0" else platform_tuple()
+    h.update(f"{model}|FMI {fmi_version}|casadi {ca.__version__}|pymoca {pymoca.__version__}|"
+             f"{_compiler_version(cc)}|{' '.join(CFLAGS)}|{plat}".encode())
     return h.hexdigest()
 
 
@@ -129,8 +156,7 @@ def _start_value(row) -> float:
     return 0.0
 
 
-def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> str:
-    import pymoca
+def _units(fm: FlatModel, rows: list[dict]) -> dict:
     units = {}
     for r in rows:
         u = r["var"].unit if r["type"] == "Real" else ""
@@ -139,27 +165,49 @@ def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> s
                 units[u] = parse_unit(u)
             except UnitError as exc:
                 raise ModelicaError(fm.name, f"variable {r['name']}: {exc}") from None
+    return units
+
+
+def _unit_definitions(units: dict) -> list[str]:
+    """<UnitDefinitions> (same element in FMI 2.0 and 3.0)."""
+    if not units:
+        return []
+    out = ["  <UnitDefinitions>"]
+    for u, (factor, offset, exps) in sorted(units.items()):
+        attrs = "".join(f' {b}="{exps[b]}"' for b in BASES if exps.get(b))
+        if factor != 1.0:
+            attrs += f' factor="{_fmt(factor)}"'
+        if offset:
+            attrs += f' offset="{_fmt(offset)}"'
+        out.append(f'    <Unit name="{escape(u)}"><BaseUnit{attrs}/></Unit>')
+    out.append("  </UnitDefinitions>")
+    return out
+
+
+def _initial_unknowns(rows: list[dict]) -> list[dict]:
+    return sorted((r for r in rows if r["causality"] in ("output", "calculatedParameter")),
+                  key=lambda r: r["vr"])
+
+
+def _generation_tool() -> str:
+    import pymoca
+    return f"rehab-cosim fmubuild (pymoca {pymoca.__version__}, casadi {ca.__version__})"
+
+
+def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> str:
+    units = _units(fm, rows)
     ident = fm.identifier
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
            '<fmiModelDescription fmiVersion="2.0"'
            f' modelName="{escape(fm.name)}" guid="{guid}"'
            f' description="{escape(fm.description, {chr(34): "&quot;"})}"'
-           f' generationTool="rehab-cosim fmubuild (pymoca {pymoca.__version__}, casadi {ca.__version__})"'
+           f' generationTool="{_generation_tool()}"'
            ' variableNamingConvention="structured" numberOfEventIndicators="0">',
            f'  <CoSimulation modelIdentifier="{ident}" canHandleVariableCommunicationStepSize="true"'
            ' canInterpolateInputs="false" canBeInstantiatedOnlyOncePerProcess="false"'
            ' canNotUseMemoryManagementFunctions="false" canGetAndSetFMUstate="true"'
            ' canSerializeFMUstate="true" providesDirectionalDerivative="false"/>']
-    if units:
-        out.append("  <UnitDefinitions>")
-        for u, (factor, offset, exps) in sorted(units.items()):
-            attrs = "".join(f' {b}="{exps[b]}"' for b in BASES if exps.get(b))
-            if factor != 1.0:
-                attrs += f' factor="{_fmt(factor)}"'
-            if offset:
-                attrs += f' offset="{_fmt(offset)}"'
-            out.append(f'    <Unit name="{escape(u)}"><BaseUnit{attrs}/></Unit>')
-        out.append("  </UnitDefinitions>")
+    out += _unit_definitions(units)
     out.append(f'  <DefaultExperiment startTime="0.0" stopTime="1.0" stepSize="0.001"/>')
     out.append("  <ModelVariables>")
     for r in rows:
@@ -204,14 +252,98 @@ def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> s
         out.append("    <Outputs>")
         out += [f'      <Unknown index="{r["vr"] + 1}"/>' for r in outputs]
         out.append("    </Outputs>")
-    initial = [r for r in rows if r["causality"] in ("output", "calculatedParameter")]
+    initial = _initial_unknowns(rows)
     if initial:
         out.append("    <InitialUnknowns>")
-        out += [f'      <Unknown index="{r["vr"] + 1}"/>' for r in sorted(initial, key=lambda r: r["vr"])]
+        out += [f'      <Unknown index="{r["vr"] + 1}"/>' for r in initial]
         out.append("    </InitialUnknowns>")
     out.append("  </ModelStructure>")
     out.append("</fmiModelDescription>")
     return "\n".join(out) + "\n"
+
+
+FMI3_TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean"}
+
+
+def model_description_fmi3(fm: FlatModel, rows: list[dict], token: str, key: str) -> str:
+    """FMI 3.0 modelDescription.xml: same variables and value references as the
+    FMI 2.0 one, plus the independent variable ``time`` (value reference len(rows),
+    the first one after the wrapper's v[] layout)."""
+    units = _units(fm, rows)
+    units.setdefault("s", parse_unit("s"))       # unit of the independent variable
+    ident = fm.identifier
+    q = {chr(34): "&quot;"}
+    out = ['<?xml version="1.0" encoding="UTF-8"?>',
+           '<fmiModelDescription fmiVersion="3.0"'
+           f' modelName="{escape(fm.name)}" instantiationToken="{token}"'
+           f' description="{escape(fm.description, q)}"'
+           f' generationTool="{_generation_tool()}"'
+           ' variableNamingConvention="structured">',
+           f'  <CoSimulation modelIdentifier="{ident}" canHandleVariableCommunicationStepSize="true"'
+           ' canBeInstantiatedOnlyOncePerProcess="false" canGetAndSetFMUState="true"'
+           ' canSerializeFMUState="true" providesDirectionalDerivatives="false"'
+           ' providesAdjointDerivatives="false" providesPerElementDependencies="false"'
+           ' maxOutputDerivativeOrder="0" providesIntermediateUpdate="false"'
+           ' mightReturnEarlyFromDoStep="false" canReturnEarlyAfterIntermediateUpdate="false"'
+           ' hasEventMode="false" providesEvaluateDiscreteStates="false"/>']
+    out += _unit_definitions(units)
+    out.append('  <DefaultExperiment startTime="0.0" stopTime="1.0" stepSize="0.001"/>')
+    out.append("  <ModelVariables>")
+    out.append(f'    <Float64 name="time" valueReference="{len(rows)}" description="simulation time"'
+               ' causality="independent" variability="continuous" unit="s"/>')
+    for r in rows:
+        v = r["var"]
+        t = FMI3_TYPES[r["type"]]
+        a = f'name="{escape(r["name"])}" valueReference="{r["vr"]}"'
+        if v.description:
+            a += f' description="{escape(v.description, q)}"'
+        a += f' causality="{r["causality"]}" variability="{r["variability"]}"'
+        if r["initial"]:
+            a += f' initial="{r["initial"]}"'
+        has_start = r["causality"] in ("parameter", "input")
+        if t == "Float64":
+            if v.unit:
+                a += f' unit="{escape(v.unit)}"'
+            if v.min is not None:
+                a += f' min="{_fmt(v.min)}"'
+            if v.max is not None:
+                a += f' max="{_fmt(v.max)}"'
+            if v.nominal is not None and v.nominal > 0:
+                a += f' nominal="{_fmt(v.nominal)}"'
+            if has_start:
+                a += f' start="{_fmt(_start_value(r))}"'
+        elif t == "Int32":
+            if v.min is not None:
+                a += f' min="{int(v.min)}"'
+            if v.max is not None:
+                a += f' max="{int(v.max)}"'
+            if has_start:
+                a += f' start="{int(_start_value(r))}"'
+        else:
+            if has_start:
+                a += f' start="{"true" if _start_value(r) else "false"}"'
+        out.append(f'    <{t} {a}/>')
+    out.append("  </ModelVariables>")
+    out.append("  <ModelStructure>")
+    out += [f'    <Output valueReference="{r["vr"]}"/>' for r in rows if r["causality"] == "output"]
+    out += [f'    <InitialUnknown valueReference="{r["vr"]}"/>' for r in _initial_unknowns(rows)]
+    out.append("  </ModelStructure>")
+    out.append("</fmiModelDescription>")
+    return "\n".join(out) + "\n"
+
+
+def build_description_fmi3(ident: str) -> str:
+    """sources/buildDescription.xml of an FMI 3.0 FMU (how to recompile the binary)."""
+    return "\n".join([
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        '<fmiBuildDescription fmiVersion="3.0">',
+        f'  <BuildConfiguration modelIdentifier="{ident}">',
+        '    <SourceFileSet language="C99">',
+        '      <SourceFile name="fmi3_cs_wrapper.c"/>',
+        '    </SourceFileSet>',
+        '    <Library name="m"/>',
+        '  </BuildConfiguration>',
+        '</fmiBuildDescription>', ""])
 
 
 def model_header(fm: FlatModel, rows: list[dict], guid: str, key: str, funcs_c: str,
@@ -287,28 +419,46 @@ def _zip_deterministic(src_dir: Path, dest: Path) -> None:
             tmp.unlink()
 
 
+def fmu_path(out_dir: Path, model: str, fmi_version: str = "2.0") -> Path:
+    """Where build_fmu puts the FMU: out_dir/<Id>.fmu (FMI 2.0) or out_dir/fmi3/<Id>.fmu."""
+    ident = model.split(".")[-1]
+    sub = Path(out_dir) if fmi_version == "2.0" else Path(out_dir) / "fmi3"
+    return sub / f"{ident}.fmu"
+
+
 def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = False,
-              cache_dir: Path | None = None, log=print) -> Path:
-    """Build (or take from cache) the FMU of ``model``; return its path."""
+              cache_dir: Path | None = None, log=print, fmi_version: str = "2.0") -> Path:
+    """Build (or take from cache) the FMU of ``model``; return its path.
+
+    ``fmi_version`` "2.0" (default) writes out_dir/<Id>.fmu, "3.0" writes
+    out_dir/fmi3/<Id>.fmu; both from the same generated model code and solver.
+    The cache (default out_dir/build/cache) is keyed by everything that determines
+    the FMU, including the FMI version.
+    """
+    fmi_version = _check_fmi_version(str(fmi_version))
+    fmi3 = fmi_version == "3.0"
     package_dir, out_dir = Path(package_dir), Path(out_dir)
     files = package_files(package_dir)
     cc = compiler()
-    key = build_key(files, model, cc)
+    key = build_key(files, model, cc, fmi_version)
     ident = model.split(".")[-1]
+    tag = " [FMI 3.0]" if fmi3 else ""
     cache_dir = Path(cache_dir) if cache_dir else out_dir / "build" / "cache"
-    cached = cache_dir / f"{ident}-{key[:16]}.fmu"
-    dest = out_dir / f"{ident}.fmu"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    cached = cache_dir / (f"{ident}-fmi3-{key[:16]}.fmu" if fmi3 else f"{ident}-{key[:16]}.fmu")
+    dest = fmu_path(out_dir, model, fmi_version)
+    dest.parent.mkdir(parents=True, exist_ok=True)
     if cached.exists() and not force:
         if not dest.exists() or dest.read_bytes() != cached.read_bytes():
             tmp = dest.with_name(dest.name + ".tmp")
             shutil.copyfile(cached, tmp); os.replace(tmp, dest)
-        log(f"{ident}: up to date ({key[:16]})")
+        log(f"{ident}: up to date ({key[:16]}){tag}")
         return dest
 
     fm = load_model(package_dir, model)
     rows = layout(fm)
     guid = "{" + str(uuid.UUID(key[:32])) + "}"
+    wrapper = WRAPPERS[fmi_version]
+    headers = fmi_headers(fmi_version)
     cache_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f"fmubuild-{ident}-") as td:
         td = Path(td)
@@ -316,24 +466,28 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
         src = td / "fmu" / "sources"
         src.mkdir(parents=True)
         (src / "model.h").write_text(model_header(fm, rows, guid, key, funcs_c, sizes))
-        shutil.copyfile(WRAPPER, src / "fmi2_cs_wrapper.c")
-        for h in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
-            shutil.copyfile(fmi_headers() / h, src / h)
-        bindir = td / "fmu" / "binaries" / platform_dir()
+        shutil.copyfile(CORE, src / CORE.name)
+        shutil.copyfile(wrapper, src / wrapper.name)
+        for h in FMI_HEADERS[fmi_version]:
+            shutil.copyfile(headers / h, src / h)
+        if fmi3:
+            (src / "buildDescription.xml").write_text(build_description_fmi3(ident))
+        bindir = td / "fmu" / "binaries" / (platform_tuple() if fmi3 else platform_dir())
         bindir.mkdir(parents=True)
         so = bindir / (ident + (".dll" if os.name == "nt" else ".dylib"
                                 if platform.system() == "Darwin" else ".so"))
-        cmd = [cc, *CFLAGS, f"-I{src}", "-o", str(so), str(src / "fmi2_cs_wrapper.c"), "-lm"]
+        cmd = [cc, *CFLAGS, f"-I{src}", "-o", str(so), str(src / wrapper.name), "-lm"]
         proc = subprocess.run(cmd, capture_output=True, text=True, cwd=src)
         if proc.returncode != 0:
             raise BuildError(f"model {model}: C compilation failed:\n{proc.stderr[-4000:]}")
-        (td / "fmu" / "modelDescription.xml").write_text(model_description(fm, rows, guid, key))
+        md = (model_description_fmi3 if fmi3 else model_description)(fm, rows, guid, key)
+        (td / "fmu" / "modelDescription.xml").write_text(md)
         res = td / "fmu" / "resources" / "modelica"
         res.mkdir(parents=True)
         for f in files:
             shutil.copyfile(f, res / f.name)
         (td / "fmu" / "resources" / "build-info.json").write_text(json.dumps({
-            "model": model, "build_key": key, "guid": guid,
+            "model": model, "build_key": key, "guid": guid, "fmi_version": fmi_version,
             "states": [v.name for v in fm.states],
             "discrete": [s.__dict__ for s in fm.discrete_specs],
             "solver": "ROS2(3) Rosenbrock (Shampine-Reichelt), adaptive step",
@@ -341,7 +495,7 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
         _zip_deterministic(td / "fmu", cached)
     tmp = dest.with_name(dest.name + ".tmp")
     shutil.copyfile(cached, tmp); os.replace(tmp, dest)
-    log(f"{ident}: built {dest} ({len(rows)} variables, {len(fm.states)} states)")
+    log(f"{ident}: built {dest} ({len(rows)} variables, {len(fm.states)} states){tag}")
     return dest
 
 
@@ -359,6 +513,10 @@ def read_manifest(package_dir: Path) -> list[str]:
 
 
 def build_all(package_dir: Path, out_dir: Path, models: list[str] | None = None, *,
-              force: bool = False, log=print) -> list[Path]:
+              force: bool = False, log=print, fmi_version: str = "2.0") -> list[Path]:
+    """Build every model of ``models`` (default: modelica/fmus.txt) for one FMI version
+    ("2.0" -> out_dir/<Id>.fmu, "3.0" -> out_dir/fmi3/<Id>.fmu)."""
+    fmi_version = _check_fmi_version(str(fmi_version))
     models = models or read_manifest(package_dir)
-    return [build_fmu(package_dir, m, out_dir, force=force, log=log) for m in models]
+    return [build_fmu(package_dir, m, out_dir, force=force, log=log, fmi_version=fmi_version)
+            for m in models]

@@ -1,7 +1,7 @@
 """Run one FMU open-loop through two independent importers.
 
-``run_fmpy`` drives FMPy's FMI 2.0 slave directly (inputs set before every
-communication step, zero-order hold); ``run_libcosim`` does the same through the
+``run_fmpy`` drives FMPy's FMI 2.0 or FMI 3.0 slave directly (inputs set before
+every communication step, zero-order hold); ``run_libcosim`` does the same through the
 Open Simulation Platform's libcosim (``libcosimpy``), a separate FMI
 implementation (FMI Library). Used to check that our FMUs behave identically
 under both, and usable on any user FMI 2.0 CS FMU.
@@ -29,11 +29,17 @@ def _input_array(inputs: Mapping[str, object], n: int, t: np.ndarray) -> dict[st
 
 def run_fmpy(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, object] | None = None,
              params: Mapping[str, float] | None = None, outputs: list[str] | None = None) -> dict:
-    """Simulate with FMPy's FMU2Slave. Returns {'time': ..., name: array} at t_k = k*h."""
+    """Simulate with FMPy's FMU2Slave (FMI 2.0) or FMU3Slave (FMI 3.0).
+
+    Returns {'time': ..., name: array} at t_k = k*h. Both versions are driven by the
+    same call sequence (start time 0, no tolerance, parameters set before
+    initialisation, inputs at t_k before the step from t_k)."""
     import fmpy
     from fmpy.fmi2 import FMU2Slave
 
     md = fmpy.read_model_description(str(fmu))
+    if md.fmiVersion.startswith("3"):
+        return _run_fmpy3(fmu, md, t_end, h, inputs, params, outputs)
     var = {v.name: v for v in md.modelVariables}
     outputs = outputs or [v.name for v in md.modelVariables if v.causality == "output"]
     n = int(round(t_end / h))
@@ -66,6 +72,54 @@ def run_fmpy(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, objec
     out = {"time": t}
     out.update({name: res[:, i] for i, name in enumerate(outputs)})
     return out
+
+
+def _run_fmpy3(fmu, md, t_end, h, inputs, params, outputs) -> dict:
+    import fmpy
+    from fmpy.fmi3 import FMU3Slave
+
+    var = {v.name: v for v in md.modelVariables}
+    outputs = outputs or [v.name for v in md.modelVariables if v.causality == "output"]
+    n = int(round(t_end / h))
+    t = np.arange(n + 1) * h
+    ins = _input_array(inputs or {}, n + 1, t)
+    unzip = fmpy.extract(str(fmu))
+    s = FMU3Slave(guid=md.guid, unzipDirectory=unzip,
+                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmpy")
+    try:
+        s.instantiate()
+        for k, v in (params or {}).items():
+            _set3(s, var[k], v)
+        s.enterInitializationMode(startTime=0.0)
+        in_vr = [var[k].valueReference for k in ins]
+        if in_vr:
+            s.setFloat64(in_vr, [ins[k][0] for k in ins])
+        s.exitInitializationMode()
+        out_vr = [var[k].valueReference for k in outputs]
+        res = np.empty((n + 1, len(outputs)))
+        res[0] = s.getFloat64(out_vr)
+        for k in range(n):
+            if in_vr:
+                s.setFloat64(in_vr, [ins[name][k] for name in ins])
+            s.doStep(currentCommunicationPoint=k * h, communicationStepSize=h)
+            res[k + 1] = s.getFloat64(out_vr)
+        s.terminate()
+    finally:
+        s.freeInstance()
+    out = {"time": t}
+    out.update({name: res[:, i] for i, name in enumerate(outputs)})
+    return out
+
+
+def _set3(slave, v, value):
+    if v.type == "Float64":
+        slave.setFloat64([v.valueReference], [float(value)])
+    elif v.type == "Int32":
+        slave.setInt32([v.valueReference], [int(value)])
+    elif v.type == "Boolean":
+        slave.setBoolean([v.valueReference], [bool(value)])
+    else:
+        raise TypeError(f"cannot set {v.name} of type {v.type}")
 
 
 def _set(slave, v, value):
