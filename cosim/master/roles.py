@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .fmu import FMUSlave
+from .fmu import FMUSlave, suggest
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,21 +51,21 @@ def _norm_unit(u: str) -> str:
 
 
 def check_contract(slave: FMUSlave, contract: RoleContract) -> list[str]:
-    """Every difference between the FMU's interface and the role's contract."""
+    """Every difference between the FMU's interface and the role's contract: missing
+    variables, wrong causality, non-Real type, wrong unit (one line each)."""
     diffs = []
-    name = slave.path.name
     for kind, req in (("input", contract.inputs), ("output", contract.outputs)):
         for var, unit in req.items():
             v = slave.variables.get(var)
             if v is None:
-                diffs.append(f"missing {kind} {var!r} [{unit}]")
+                close = suggest(var, slave.names(kind), 3)
+                diffs.append(f"missing {kind} {var!r} [{unit}]"
+                             + (f" (the FMU has {kind}s {', '.join(map(repr, close))})" if close else ""))
                 continue
             if v.causality != kind:
                 diffs.append(f"{var!r} has causality {v.causality!r}, role needs {kind!r}")
             if v.type != "Real":
-                diffs.append(f"{var!r} is of type {v.type}, role needs Real")
+                diffs.append(f"{var!r} is of type {v.fmi_type or v.type}, role needs Real")
             if _norm_unit(v.unit) != _norm_unit(unit):
                 diffs.append(f"{var!r} has unit {v.unit or '(none)'!r}, role needs {unit!r}")
-    if slave.kind == "me" and slave.md.numberOfContinuousStates is None:
-        diffs.append(f"{name}: Model Exchange FMU without continuous states information")
     return diffs
