@@ -17,6 +17,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 import shutil
 import subprocess
 import tempfile
@@ -194,7 +195,54 @@ def _generation_tool() -> str:
     return f"rehab-cosim fmubuild (pymoca {pymoca.__version__}, casadi {ca.__version__})"
 
 
+def _der_unit(unit: str) -> str:
+    """Unit of the time derivative of a variable of unit ``unit`` ('' if unknown)."""
+    if not unit:
+        return ""
+    try:
+        factor, offset, exps = parse_unit(unit)
+    except UnitError:
+        return ""
+    if offset:
+        return "K/s" if exps == {"K": 1} else ""
+    if unit.strip() == "1":
+        cand = "1/s"
+    elif "/" not in unit:
+        cand = unit + "/s"
+    else:
+        num, den = unit.split("/", 1)
+        den = den[1:-1] if den.startswith("(") and den.endswith(")") else den
+        m = re.fullmatch(r"s(\d+)?", den)
+        cand = f"{num}/s{int(m.group(1) or 1) + 1}" if m else f"{num}/({den}.s)"
+    expect = dict(exps)
+    expect["s"] = expect.get("s", 0) - 1
+    expect = {k: v for k, v in expect.items() if v}
+    try:
+        f2, o2, e2 = parse_unit(cand)
+    except UnitError:
+        return ""
+    return cand if (f2 == factor and not o2 and e2 == expect) else ""
+
+
+def derivative_rows(fm: FlatModel, rows: list[dict]) -> list[dict]:
+    """Model Exchange: one variable der(x) per state, value references after the v[]
+    layout (len(rows) + i, as the FMI 2 wrapper's VR_DER0 + i), in state order."""
+    from .modelica import Var
+    state_vr = {r["name"]: r["vr"] for r in rows if r["var"].kind == "state"}
+    out = []
+    for i, x in enumerate(fm.states):
+        v = Var(f"der({x.name})", "derivative", "Real", _der_unit(x.unit),
+                f"time derivative of {x.name}")
+        out.append(dict(var=v, name=v.name, type="Real", causality="local",
+                        variability="continuous", initial="calculated", vr=len(rows) + i,
+                        derivative=state_vr[x.name] + 1))
+    return out
+
+
 def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> str:
+    """FMI 2.0 modelDescription.xml with Co-Simulation and Model Exchange."""
+    ders = derivative_rows(fm, rows)
+    rows = rows + ders
     units = _units(fm, rows)
     ident = fm.identifier
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
@@ -203,6 +251,10 @@ def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> s
            f' description="{escape(fm.description, {chr(34): "&quot;"})}"'
            f' generationTool="{_generation_tool()}"'
            ' variableNamingConvention="structured" numberOfEventIndicators="0">',
+           f'  <ModelExchange modelIdentifier="{ident}" completedIntegratorStepNotNeeded="true"'
+           ' canBeInstantiatedOnlyOncePerProcess="false" canNotUseMemoryManagementFunctions="false"'
+           ' canGetAndSetFMUstate="true" canSerializeFMUstate="true"'
+           ' providesDirectionalDerivative="false"/>',
            f'  <CoSimulation modelIdentifier="{ident}" canHandleVariableCommunicationStepSize="true"'
            ' canInterpolateInputs="false" canBeInstantiatedOnlyOncePerProcess="false"'
            ' canNotUseMemoryManagementFunctions="false" canGetAndSetFMUstate="true"'
@@ -232,6 +284,8 @@ def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> s
                 inner += f' nominal="{_fmt(v.nominal)}"'
             if has_start:
                 inner += f' start="{_fmt(_start_value(r))}"'
+            if r.get("derivative"):
+                inner += f' derivative="{r["derivative"]}"'
         elif t == "Integer":
             if v.min is not None:
                 inner += f' min="{int(v.min)}"'
@@ -252,7 +306,14 @@ def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> s
         out.append("    <Outputs>")
         out += [f'      <Unknown index="{r["vr"] + 1}"/>' for r in outputs]
         out.append("    </Outputs>")
-    initial = _initial_unknowns(rows)
+    if ders:
+        out.append("    <Derivatives>")
+        out += [f'      <Unknown index="{r["vr"] + 1}"/>' for r in ders]
+        out.append("    </Derivatives>")
+    # states (initial = calculated from parameters) and derivatives are initial unknowns too
+    initial = sorted(_initial_unknowns(rows) + [r for r in rows if r["var"].kind == "state"
+                                                and r["causality"] != "output"] + ders,
+                     key=lambda r: r["vr"])
     if initial:
         out.append("    <InitialUnknowns>")
         out += [f'      <Unknown index="{r["vr"] + 1}"/>' for r in initial]

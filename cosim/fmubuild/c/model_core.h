@@ -21,6 +21,7 @@
  * and after the include it defines
  *   static void wrapper_log(Instance *c, int status, const char *category, const char *msg);
  * Status codes are the numeric values shared by fmi2Status and fmi3Status.
+ * Model Exchange primitives (derivatives, time events) are at the end.
  * Functions of the core return 0 on success and -1 on error (already logged).
  */
 #ifndef MODEL_CORE_H
@@ -495,6 +496,43 @@ static int core_do_step(Instance *inst, double tc, double h, const char *fn) {
             inst->mode = MODE_ERROR;
             return -1;
         }
+    return 0;
+}
+
+/* ---- Model Exchange primitives ---------------------------------------------
+ * The importer integrates x' = f(t, x, u, p, d) itself; noise draws and samples
+ * are time events at the same instants t0 + n * period as in core_do_step, and
+ * core_event_update performs exactly what core_do_step does at such an instant. */
+static int core_prepare(Instance *c) {
+    if ((c->mode == MODE_INIT || c->mode == MODE_INSTANTIATED) && update_params(c)) return -1;
+    return 0;
+}
+
+static int core_derivatives(Instance *c, double *dx) {
+    if (core_prepare(c)) return -1;
+    if (NX == 0) return 0;
+    return eval5(c, model_ode, c->t, &c->v[OFF_X], dx, NULL) ? -1 : 0;
+}
+
+/* earliest pending noise/sample instant; 0 if the model has none */
+static int core_next_event_time(Instance *c, double *tnext) {
+    int j, defined = 0;
+    for (j = 0; j < ND; j++) {
+        double tn = next_event(c, j);
+        if (!defined || tn < *tnext) *tnext = tn;
+        defined = 1;
+    }
+    return defined;
+}
+
+/* the events due at the current time; *more: an instant is still due (the
+ * importer skipped one), call again */
+static int core_event_update(Instance *c, int *more) {
+    int j;
+    if (do_events(c)) { c->mode = MODE_ERROR; return -1; }
+    *more = 0;
+    for (j = 0; j < ND; j++)
+        if (due(c, j)) *more = 1;
     return 0;
 }
 
