@@ -23,7 +23,8 @@ class CliError(Exception):
 
 def _cmd_fmus_build(a) -> int:
     from .fmubuild.build import build_all
-    paths = build_all(Path(a.modelica), Path(a.out), a.models or None, force=a.force)
+    paths = build_all(Path(a.modelica), Path(a.out), a.models or None, force=a.force,
+                      fmi_version=a.fmi_version)
     print(f"{len(paths)} FMU(s) in {a.out}")
     return 0
 
@@ -53,6 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--modelica", default=str(DEFAULT_MODELICA), help="Modelica package folder")
     b.add_argument("--out", default=str(DEFAULT_FMUS), help="output folder for the .fmu files")
     b.add_argument("--force", action="store_true", help="rebuild even if the cache is valid")
+    b.add_argument("--fmi-version", choices=("2.0", "3.0"), default="2.0",
+                   help="FMI 2.0 (CS + ME, fmus/<Id>.fmu) or 3.0 (CS, fmus/fmi3/<Id>.fmu)")
     b.set_defaults(func=_cmd_fmus_build)
     c = fsub.add_parser("check", help="print an FMU's interface and validate it")
     c.add_argument("fmu")

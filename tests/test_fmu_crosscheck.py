@@ -14,8 +14,8 @@
 4. Friction: sub-breakaway loads hold the ball screw and the X-Y table at rest,
    super-breakaway loads move them at the analytic sliding speed.
 5. Accelerometer noise: density, aliased rms, bias and random walk, seeding.
-   One strict xfail documents a wrapper bug: the two noise streams of the
-   accelerometer overlap (eta_b is eta_w shifted by one uniform draw).
+   A regression test checks the accelerometer's two noise streams are independent
+   (they once overlapped: eta_b was eta_w shifted by one uniform draw).
 
 Every check states its tolerance in the assertion message. Measured errors are
 printed (pytest -s) and summarised in a table at the end of the module.
@@ -828,9 +828,9 @@ def test_accelerometer_seed_reproducible(fmus):
     assert abs(np.corrcoef(a["eta_w"], c["eta_w"])[0, 1]) < 0.1, "seeds 7 and 8 uncorrelated"
 
 
-@pytest.mark.xfail(strict=True, reason="wrapper bug (reported): seed_streams() starts stream j "
-                   "at seed*C + (j+1)*gamma and gamma is SplitMix64's own increment, so the "
-                   "eta_b stream is the eta_w stream shifted by one uniform draw")
+# Regression test of a fixed wrapper bug: seed_streams() used to start stream j at
+# seed*C + (j+1)*gamma with gamma SplitMix64's own increment, so eta_b was eta_w
+# shifted by one uniform draw.
 def test_accelerometer_noise_streams_are_independent(fmus):
     """docs/modelica-subset.md: one independent stream per noise variable (SplitMix64 +
     Box-Muller). Box-Muller turns the uniforms (u1, u2) into the pair

@@ -43,6 +43,9 @@ def run_fmpy(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, objec
     var = {v.name: v for v in md.modelVariables}
     outputs = outputs or [v.name for v in md.modelVariables if v.causality == "output"]
     n = int(round(t_end / h))
+    # communication points on libcosim's integer-nanosecond grid, t_k = k*h_ns/1e9,
+    # so both importers hand the FMU the very same doubles
+    h_ns = int(round(h * 1e9))
     t = np.arange(n + 1) * h
     ins = _input_array(inputs or {}, n + 1, t)
     unzip = fmpy.extract(str(fmu))
@@ -64,7 +67,7 @@ def run_fmpy(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, objec
         for k in range(n):
             if in_vr:
                 s.setReal(in_vr, [ins[name][k] for name in ins])
-            s.doStep(currentCommunicationPoint=k * h, communicationStepSize=h)
+            s.doStep(currentCommunicationPoint=(k * h_ns) / 1e9, communicationStepSize=h_ns / 1e9)
             res[k + 1] = s.getReal(out_vr)
         s.terminate()
     finally:
@@ -81,6 +84,9 @@ def _run_fmpy3(fmu, md, t_end, h, inputs, params, outputs) -> dict:
     var = {v.name: v for v in md.modelVariables}
     outputs = outputs or [v.name for v in md.modelVariables if v.causality == "output"]
     n = int(round(t_end / h))
+    # communication points on libcosim's integer-nanosecond grid, t_k = k*h_ns/1e9,
+    # so both importers hand the FMU the very same doubles
+    h_ns = int(round(h * 1e9))
     t = np.arange(n + 1) * h
     ins = _input_array(inputs or {}, n + 1, t)
     unzip = fmpy.extract(str(fmu))
@@ -101,7 +107,7 @@ def _run_fmpy3(fmu, md, t_end, h, inputs, params, outputs) -> dict:
         for k in range(n):
             if in_vr:
                 s.setFloat64(in_vr, [ins[name][k] for name in ins])
-            s.doStep(currentCommunicationPoint=k * h, communicationStepSize=h)
+            s.doStep(currentCommunicationPoint=(k * h_ns) / 1e9, communicationStepSize=h_ns / 1e9)
             res[k + 1] = s.getFloat64(out_vr)
         s.terminate()
     finally:

@@ -151,9 +151,14 @@ static void seed_streams(Instance *c) {
     int j;
     uint64_t seed = (uint64_t)(int64_t)(SEED_VR >= 0 ? c->v[SEED_VR >= 0 ? SEED_VR : 0] : 0.0);
     for (j = 0; j < ND; j++) {
-        uint64_t s = seed * 0x2545F4914F6CDD1DULL + (uint64_t)(j + 1) * 0x9E3779B97F4A7C15ULL;
-        splitmix64(&s); /* decorrelate neighbouring seeds */
-        c->rng[j] = s;
+        /* Each stream starts from a SplitMix64 *output* of (seed, j): a well-mixed
+           64-bit state unrelated to the other streams' states. (Offsetting the state
+           by multiples of SplitMix64's own increment would make stream j+1 a shifted
+           copy of stream j.) */
+        uint64_t s = seed ^ 0x6A09E667F3BCC909ULL;
+        uint64_t mixed = splitmix64(&s);
+        uint64_t sj = mixed + (uint64_t)(j + 1) * 0xD1B54A32D192ED03ULL;
+        c->rng[j] = splitmix64(&sj);
         c->has_spare[j] = 0;
         c->ev_count[j] = 0;
     }
