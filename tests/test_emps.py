@@ -23,7 +23,9 @@ from cosim.emps import (
 )
 from cosim.trial_log import read_trial_log, require_columns
 
-EMPS_DIR = Path(os.environ.get("COSIM_EMPS_DIR", "/work/shared/data/real/emps"))
+# CI and developers have shared/ beside the repository clone
+_DEFAULT_EMPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "emps"
+EMPS_DIR = Path(os.environ.get("COSIM_EMPS_DIR", _DEFAULT_EMPS))
 GTAU = 35.15065188248547
 needs_data = pytest.mark.skipif(not (EMPS_DIR / "DATA_EMPS.mat").is_file(),
                                 reason=f"EMPS data not found in {EMPS_DIR} (set COSIM_EMPS_DIR)")
