@@ -85,7 +85,7 @@ step changes of acceleration with a slow tuning.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
@@ -277,6 +277,103 @@ def _check_params(p: AakfParams) -> None:
         raise ValueError("reset_stage must be 'prediction' or 'posterior'")
 
 
+#: Riccati steps computed per chunk of the shared gain sequence
+_RICCATI_CHUNK = 2048
+#: the gain is held once max_ij |K_k - K_k-1|_ij / |K_k|_ij <= _RICCATI_RTOL for
+#: _RICCATI_RUN consecutive steps, or after _RICCATI_CAP steps in any case
+_RICCATI_RTOL = 1e-13
+_RICCATI_RUN = 300
+_RICCATI_CAP = 200_000
+#: number of parameter sets whose gain sequences are kept (oldest dropped first)
+_GAIN_CACHE_SIZE = 8
+_GAIN_CACHE: dict[AakfParams, "_GainSequence"] = {}
+
+
+class _GainSequence:
+    """Data-independent K_k, P_k|k-1, P_k|k of :meth:`AaKF.step` (eq. 99, 100, 103).
+
+    The reset never touches P, so these do not depend on the measurements. They are
+    computed lazily, chunk by chunk, with exactly the numpy operations the filter
+    used to run at every step (so they are bitwise the values of the per-step
+    recursion), until the gain has converged (see ``_RICCATI_*``); from then on the
+    last computed K, P_pred and P are held. Arrays are stored read-only in chunks of
+    shape (n, 4, 2) / (n, 4, 4) and shared by all filters with the same model.
+    """
+
+    def __init__(self, model: AakfModel) -> None:
+        self._model = model
+        self.K: list[np.ndarray] = []       # chunks (n, 4, 2)
+        self.P_pred: list[np.ndarray] = []  # chunks (n, 4, 4)
+        self.P: list[np.ndarray] = []       # chunks (n, 4, 4)
+        self.K_tuples: list[list[tuple[float, ...]]] = []  # per chunk: (K00, K01, ..., K31)
+        self.n = 0                          # steps computed
+        self.done = False                   # converged (or cap reached): hold entry n - 1
+        self._P_last: np.ndarray | None = None
+        self._K_last: np.ndarray | None = None
+        self._run = 0
+
+    def extend(self) -> None:
+        """Compute the next chunk of the recursion."""
+        if self.done:
+            return
+        m = self._model
+        Ad, AdT, Qd, C, R = m.Ad, m.Ad.T, m.Qd, m.Cd, m.Rd
+        CT = C.T
+        I4 = np.eye(4)
+        P, Kprev, run, k = self._P_last, self._K_last, self._run, self.n
+        Ks, Pps, Ps = [], [], []
+        while len(Ks) < _RICCATI_CHUNK:
+            if k == 0:
+                P_pred = m.P0.copy()
+            else:
+                P_pred = Ad @ P @ AdT + Qd                                # eq. 99
+            PCt = P_pred @ CT
+            S = C @ PCt + R
+            K = np.linalg.solve(S, PCt.T).T                               # eq. 100
+            IKC = I4 - K @ C
+            P = IKC @ P_pred @ IKC.T + K @ R @ K.T                        # eq. 103, Joseph
+            P = 0.5 * (P + P.T)
+            Ks.append(K)
+            Pps.append(P_pred)
+            Ps.append(P)
+            if Kprev is not None:
+                ch = float(np.max(np.abs(K - Kprev) / np.abs(K)))       # per entry
+                run = run + 1 if ch <= _RICCATI_RTOL else 0
+            Kprev = K
+            k += 1
+            if run >= _RICCATI_RUN or k >= _RICCATI_CAP:
+                self.done = True
+                break
+        Kc, Ppc, Pc = np.array(Ks), np.array(Pps), np.array(Ps)
+        for arr in (Kc, Ppc, Pc):
+            arr.flags.writeable = False
+        self.K.append(Kc)
+        self.P_pred.append(Ppc)
+        self.P.append(Pc)
+        self.K_tuples.append([tuple(r) for r in Kc.reshape(len(Ks), 8).tolist()])
+        self.n, self._P_last, self._K_last, self._run = k, P, Kprev, run
+
+    def index(self, k: int) -> tuple[int, int]:
+        """(chunk, offset) of step k (the held last entry once converged)."""
+        if k >= self.n:
+            k = self.n - 1
+        return divmod(k, _RICCATI_CHUNK)
+
+
+def _gain_sequence(p: AakfParams, model: AakfModel) -> _GainSequence:
+    """The shared gain sequence of ``p`` (fields that only affect the reset or the
+    initial state are normalised out of the cache key)."""
+    key = replace(p, reset_enabled=True, reset_speed_bound="eq31", reset_stage="prediction",
+                  init_from_first_measurement=True)
+    seq = _GAIN_CACHE.get(key)
+    if seq is None:
+        seq = _GainSequence(model)
+        while len(_GAIN_CACHE) >= _GAIN_CACHE_SIZE:
+            _GAIN_CACHE.pop(next(iter(_GAIN_CACHE)))
+        _GAIN_CACHE[key] = seq
+    return seq
+
+
 class AaKF:
     """Accelerometer-aided time-varying Kalman filter with state reset (Sec. 2.2).
 
@@ -309,26 +406,110 @@ class AaKF:
                                    "reset_lo", "reset_hi")
 
     def __init__(self, params: AakfParams | None = None) -> None:
-        self.params = params if params is not None else AakfParams()
-        _check_params(self.params)
-        self.model = discretise(self.params)
+        self.params = p = params if params is not None else AakfParams()
+        _check_params(p)
+        self.model = m = discretise(p)
+        self._seq = _gain_sequence(p, m)
+        # constants of the hot path, computed as the original expressions compute them
+        self._half_delta = 0.5 * p.delta_rad
+        self._delta = p.delta_rad
+        self._floor = p.encoder_quantiser == "floor"
+        self._accel_bound = p.reset_speed_bound == "eq31_accel"
+        self._half_Ts = 0.5 * p.Ts
+        self._Ts = p.Ts
+        self._dv = p.delta_rad / p.Ts
+        self._reset_pred = p.reset_enabled and p.reset_stage == "prediction"
+        self._reset_post = p.reset_enabled and p.reset_stage == "posterior"
+        self._s = p.m_per_rad
+        self._s_row = float(m.Cd[1, 2]), float(m.Cd[1, 3])
+        A = m.Ad
+        self._Ad = tuple(float(v) for v in A.ravel())
+        # A_d = expm(A_c Ts) of the triple integrator + constant bias: only the upper
+        # triangle of the 3x3 block and A_d[3, 3] are non-zero (checked, else general)
+        zero = [(1, 0), (2, 0), (2, 1), (0, 3), (1, 3), (2, 3), (3, 0), (3, 1), (3, 2)]
+        self._Ad_sparse = all(A[i, j] == 0.0 for i, j in zero)
+        Cd = m.Cd
+        self._C_std = bool(np.array_equal(Cd[0], [1.0, 0.0, 0.0, 0.0])
+                           and Cd[1, 0] == 0.0 and Cd[1, 1] == 0.0)
         self.reset()
 
     def reset(self) -> None:
-        m = self.model
         self.k = 0
-        self.x_post = np.zeros(4)
-        self.P = m.P0.copy()
-        self.x_pred = np.zeros(4)
-        self.P_pred = m.P0.copy()
-        self.gain = np.zeros((4, 2))
-        self.innovation = np.zeros(2)
+        self._x_post = (0.0, 0.0, 0.0, 0.0)
+        self._x_pred = (0.0, 0.0, 0.0, 0.0)
+        self._innov = (0.0, 0.0)
+        self._P0 = self.model.P0.copy()
+        self._P0_pred = self.model.P0.copy()
+        self._gain0 = np.zeros((4, 2))
+        self._gk = -1                       # index of the gain sequence entry in use
+        self._cs = 0                        # current chunk: start index, end index, K tuples
+        self._ce = 0
+        self._kf: list[tuple[float, ...]] = []
+        self._kss: tuple[float, ...] | None = None   # held (steady-state) gain
         self.reset_lo = math.nan
         self.reset_hi = math.nan
         self._enc_prev: float | None = None
 
+    # --- recordable attributes (views of the shared, read-only gain sequence) ---
+    @property
+    def gain(self) -> np.ndarray:
+        """K_k (4x2) of the last step."""
+        if self._gk < 0:
+            return self._gain0
+        c, o = self._seq.index(self._gk)
+        return self._seq.K[c][o]
+
+    @property
+    def P(self) -> np.ndarray:
+        """P_k|k (4x4) of the last step."""
+        if self._gk < 0:
+            return self._P0
+        c, o = self._seq.index(self._gk)
+        return self._seq.P[c][o]
+
+    @property
+    def P_pred(self) -> np.ndarray:
+        """P_k|k-1 (4x4) of the last step."""
+        if self._gk < 0:
+            return self._P0_pred
+        c, o = self._seq.index(self._gk)
+        return self._seq.P_pred[c][o]
+
+    @property
+    def x_post(self) -> np.ndarray:
+        """x_k|k (after the reset when it acts on the posterior)."""
+        return np.array(self._x_post)
+
+    @property
+    def x_pred(self) -> np.ndarray:
+        """x_k|k-1 (after the reset when it acts on the prediction)."""
+        return np.array(self._x_pred)
+
+    @property
+    def innovation(self) -> np.ndarray:
+        """e_k = y_k - C x_k|k-1 (eq. 101)."""
+        return np.array(self._innov)
+
+    def _next_gain(self, k: int) -> tuple[float, ...]:
+        """Gain of step k when it lies beyond the current chunk."""
+        seq = self._seq
+        while k >= seq.n and not seq.done:
+            seq.extend()
+        if k >= seq.n:                       # converged: hold the last gain
+            c, o = seq.index(k)
+            self._kss = seq.K_tuples[c][o]
+            return self._kss
+        c, o = seq.index(k)
+        self._kf = seq.K_tuples[c]
+        self._cs = c * _RICCATI_CHUNK
+        self._ce = self._cs + len(self._kf)
+        return self._kf[o]
+
     def _state_reset(self, x: np.ndarray, enc: float) -> tuple[bool, bool]:
-        """Sec. 2.2.2 pseudocode, in place on ``x``; returns (position, speed) fired."""
+        """Sec. 2.2.2 pseudocode, in place on ``x``; returns (position, speed) fired.
+
+        (Reference form on an array; :meth:`step` runs the same comparisons inline
+        on floats.)"""
         p = self.params
         lo, hi = _position_bounds(p, enc)
         self.reset_lo, self.reset_hi = lo, hi
@@ -351,63 +532,123 @@ class AaKF:
         return pos_fired, speed_fired
 
     def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
-        p, m = self.params, self.model
+        """One sample (eq. 98-103 with the Sec. 2.2.2 reset).
+
+        The gain K_k comes from the shared precomputed sequence (it does not depend on
+        the data); the state arithmetic runs on Python floats (4 states, 2 outputs)."""
         enc = float(measurements["theta_enc"])
         acc = float(measurements["acc_meas"])
-        y_enc = enc + 0.5 * p.delta_rad if p.encoder_quantiser == "floor" else enc
-        y = np.array([y_enc, acc])
+        y_enc = enc + self._half_delta if self._floor else enc
+        k = self.k
 
-        # --- prediction (eq. 98-99; u = 0) ---
-        if self.k == 0:
-            x_pred = np.zeros(4)
-            if p.init_from_first_measurement:
-                x_pred[0] = y_enc
-            P_pred = m.P0.copy()
+        # --- gain K_k (eq. 99, 100, 103 precomputed) ---
+        if k < self._ce:
+            K = self._kf[k - self._cs]
+        elif self._kss is not None:
+            K = self._kss
         else:
-            x_pred = m.Ad @ self.x_post                                   # eq. 98
-            P_pred = m.Ad @ self.P @ m.Ad.T + m.Qd                        # eq. 99 (Q_d of eq. 28)
+            K = self._next_gain(k)
 
-        # --- state estimation reset (Sec. 2.2.2) on the prediction, as in the thesis ---
-        fired = (False, False)
-        if p.reset_enabled and p.reset_stage == "prediction":
-            fired = self._state_reset(x_pred, enc)
+        # --- prediction (eq. 98; u = 0) ---
+        if k == 0:
+            x0 = y_enc if self.params.init_from_first_measurement else 0.0
+            x1 = x2 = x3 = 0.0
         else:
-            self.reset_lo, self.reset_hi = _position_bounds(p, enc)
+            u0, u1, u2, u3 = self._x_post
+            A = self._Ad
+            if self._Ad_sparse:
+                x0 = (A[0] * u0 + A[2] * u2) + A[1] * u1
+                x1 = A[5] * u1 + A[6] * u2
+                x2 = A[10] * u2
+                x3 = A[15] * u3
+            else:
+                x0 = A[0] * u0 + A[1] * u1 + A[2] * u2 + A[3] * u3
+                x1 = A[4] * u0 + A[5] * u1 + A[6] * u2 + A[7] * u3
+                x2 = A[8] * u0 + A[9] * u1 + A[10] * u2 + A[11] * u3
+                x3 = A[12] * u0 + A[13] * u1 + A[14] * u2 + A[15] * u3
 
-        # --- update (eq. 100-103) ---
-        C, R = m.Cd, m.Rd
-        PCt = P_pred @ C.T
-        S = C @ PCt + R
-        K = np.linalg.solve(S, PCt.T).T                                   # eq. 100 (S symmetric)
-        e = y - C @ x_pred                                                # eq. 101
-        x_post = x_pred + K @ e                                           # eq. 102
-        IKC = np.eye(4) - K @ C
-        P_post = IKC @ P_pred @ IKC.T + K @ R @ K.T                       # eq. 103, Joseph form
-        P_post = 0.5 * (P_post + P_post.T)
+        # --- eq. 29 interval; state reset (Sec. 2.2.2) on the prediction (thesis) ---
+        if self._floor:
+            lo, hi = enc, enc + self._delta
+        else:
+            lo, hi = enc - self._half_delta, enc + self._half_delta
+        self.reset_lo, self.reset_hi = lo, hi
+        enc_prev = self._enc_prev
+        pos_fired = speed_fired = False
+        if self._reset_pred:
+            if x0 > hi:                                                   # eq. 29, upper
+                x0 = hi
+                pos_fired = True
+            elif x0 < lo:                                                 # eq. 29, lower
+                x0 = lo
+                pos_fired = True
+            if enc_prev is not None:
+                v = (enc - enc_prev) / self._Ts                           # eq. 30
+                if self._accel_bound:
+                    v += self._half_Ts * x2
+                dv = self._dv
+                if x1 > v + dv:                                           # eq. 31, upper
+                    x1 = v + dv
+                    speed_fired = True
+                elif x1 < v - dv:                                         # eq. 31, lower
+                    x1 = v - dv
+                    speed_fired = True
 
-        if p.reset_enabled and p.reset_stage == "posterior":              # variant, not thesis
-            fired = self._state_reset(x_post, enc)
+        # --- update (eq. 101-102) ---
+        if self._C_std:
+            c2, c3 = self._s_row
+            e0 = y_enc - x0                                               # eq. 101
+            e1 = acc - (c2 * x2 + c3 * x3)
+        else:
+            C = self.model.Cd
+            e0 = y_enc - float(C[0] @ np.array((x0, x1, x2, x3)))
+            e1 = acc - float(C[1] @ np.array((x0, x1, x2, x3)))
+        k00, k01, k10, k11, k20, k21, k30, k31 = K
+        self._x_pred = (x0, x1, x2, x3)
+        x0 = x0 + (k00 * e0 + k01 * e1)                                   # eq. 102
+        x1 = x1 + (k10 * e0 + k11 * e1)
+        x2 = x2 + (k20 * e0 + k21 * e1)
+        x3 = x3 + (k30 * e0 + k31 * e1)
 
-        self.x_pred, self.P_pred = x_pred, P_pred
-        self.x_post, self.P = x_post, P_post
-        self.gain, self.innovation = K, e
+        if self._reset_post:                                              # variant, not thesis
+            if x0 > hi:
+                x0 = hi
+                pos_fired = True
+            elif x0 < lo:
+                x0 = lo
+                pos_fired = True
+            if enc_prev is not None:
+                v = (enc - enc_prev) / self._Ts
+                if self._accel_bound:
+                    v += self._half_Ts * x2
+                dv = self._dv
+                if x1 > v + dv:
+                    x1 = v + dv
+                    speed_fired = True
+                elif x1 < v - dv:
+                    x1 = v - dv
+                    speed_fired = True
+
+        self._x_post = (x0, x1, x2, x3)
+        self._innov = (e0, e1)
+        self._gk = k
         self._enc_prev = enc
-        self.k += 1
+        self.k = k + 1
 
-        s = p.m_per_rad
+        s = self._s
         return {
-            "theta_rad": float(x_post[0]),
-            "omega_rad_s": float(x_post[1]),
-            "alpha_rad_s2": float(x_post[2]),
-            "x_m": float(s * x_post[0]),
-            "v_m_s": float(s * x_post[1]),
-            "a_m_s2": float(s * x_post[2]),
-            "bias_m_s2": float(x_post[3]),
-            "innov_enc_rad": float(e[0]),
-            "innov_acc_m_s2": float(e[1]),
-            "reset_fired": float(fired[0] or fired[1]),
-            "reset_pos_fired": float(fired[0]),
-            "reset_speed_fired": float(fired[1]),
+            "theta_rad": x0,
+            "omega_rad_s": x1,
+            "alpha_rad_s2": x2,
+            "x_m": s * x0,
+            "v_m_s": s * x1,
+            "a_m_s2": s * x2,
+            "bias_m_s2": x3,
+            "innov_enc_rad": e0,
+            "innov_acc_m_s2": e1,
+            "reset_fired": 1.0 if (pos_fired or speed_fired) else 0.0,
+            "reset_pos_fired": 1.0 if pos_fired else 0.0,
+            "reset_speed_fired": 1.0 if speed_fired else 0.0,
         }
 
 
