@@ -21,7 +21,6 @@ sums in Python floats where numpy uses FMA).
 from __future__ import annotations
 
 import math
-import timeit
 from dataclasses import replace
 from typing import Mapping
 
@@ -245,15 +244,5 @@ def test_gain_sequence_shared_and_read_only():
     c, o = divmod(seq.n - 1, aakf_mod._RICCATI_CHUNK)
     assert f1.gain is not None and np.array_equal(f1.gain, seq.K[c][o])
 
-
-def _us_per_step(cls) -> float:
-    f = cls(AakfParams())
-    m = {"theta_enc": 0.1, "acc_meas": 0.2}
-    for _ in range(30000):               # past convergence of the gain sequence
-        f.step(m)
-    return min(timeit.repeat(lambda: f.step(m), number=20000, repeat=5)) / 20000 * 1e6
-
-
-def test_fast_step_is_faster():
-    # loose bound (timings vary with the machine load); figures in the module docstring
-    assert _us_per_step(AaKF) < 0.5 * _us_per_step(_ReferenceAaKF)
+# Speed is measured by bench/bench_aakf.py (a ratio against the reference step in
+# the same run), never asserted in a unit test: these machines are shared and noisy.
