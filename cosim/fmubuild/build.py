@@ -40,6 +40,7 @@ FMI_HEADERS = {"2.0": ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatf
                "3.0": ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")}
 CFLAGS = ["-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-std=gnu99",
           "-Wall", "-Wno-unused-variable", "-Wno-unused-function", "-Wno-unused-but-set-variable"]
+LTI_NMAX = 8   # = LTI_NMAX of c/model_core.h: largest LTI model integrated exactly
 SOLVER_PARAMS = [
     ("_rtol", 1e-6, "relative tolerance of the internal Rosenbrock solver", "1"),
     ("_atol", 1e-9, "absolute tolerance of the internal solver (times each state's nominal)", "1"),
@@ -434,6 +435,7 @@ def model_header(fm: FlatModel, rows: list[dict], guid: str, key: str, funcs_c: 
         f"#define NU {len(fm.inputs)}", f"#define NX {len(fm.states)}",
         f"#define NZ {len(fm.algebraics)}", f"#define ND {nd}",
         f"#define SEED_VR {by_name.get('seed', -1)}",
+        f"#define MODEL_LTI {1 if fm.lti else 0}",
         f"#define SZ_ARG {max(sizes['arg'], 5)}", f"#define SZ_RES {max(sizes['res'], 2)}",
         f"#define SZ_IW {max(sizes['iw'], 1)}", f"#define SZ_W {max(sizes['w'], 1)}",
         "#define CASADI_SYMBOL_EXPORT",
@@ -551,7 +553,10 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
             "model": model, "build_key": key, "guid": guid, "fmi_version": fmi_version,
             "states": [v.name for v in fm.states],
             "discrete": [s.__dict__ for s in fm.discrete_specs],
-            "solver": "ROS2(3) Rosenbrock (Shampine-Reichelt), adaptive step",
+            "solver": ("exact matrix exponential between events (linear time-invariant ODE), "
+                       "ROS2(3) Rosenbrock fallback" if fm.lti and len(fm.states) <= LTI_NMAX
+                       else "ROS2(3) Rosenbrock (Shampine-Reichelt), adaptive step"),
+            "lti": fm.lti,
         }, indent=1, sort_keys=True))
         _zip_deterministic(td / "fmu", cached)
     tmp = dest.with_name(dest.name + ".tmp")

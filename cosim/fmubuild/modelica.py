@@ -97,6 +97,13 @@ class FlatModel:
     def identifier(self) -> str:
         return self.name.split(".")[-1]
 
+    @property
+    def lti(self) -> bool:
+        """The ODE is linear time-invariant between events: xdot = A x + b with A and b
+        independent of x and of time (they may depend on parameters, inputs and the
+        held discrete variables, all constant over an integration interval)."""
+        return bool(self.states) and self.f_ode is not None and is_lti(self.f_ode, self.f_jac)
+
     def all_vars(self) -> list[Var]:
         return (self.params + self.calculated + self.inputs + self.states
                 + self.algebraics + self.discretes)
@@ -445,6 +452,57 @@ def load_model(package_dir: Path, model: str) -> FlatModel:
         states=[v for v, _, _ in states], algebraics=[v for v, _ in algs],
         discretes=[v for v, _ in discretes], discrete_specs=specs,
         f_calc=f_calc, f_x0=f_x0, f_ode=f_ode, f_jac=f_jac, f_alg=f_alg)
+
+
+_AFFINE_OPS = {ca.OP_ADD, ca.OP_SUB, ca.OP_NEG, ca.OP_ASSIGN, ca.OP_TWICE}
+
+
+def _structurally_affine(f: ca.Function, i_var: int) -> bool:
+    """True if every output of the SX function ``f`` is affine in its input ``i_var``:
+    walking f's instructions, the input only passes through +, -, negation and
+    products/quotients with factors that do not depend on it. No false positives
+    (unlike a Jacobian test, which floor/ceil/sign of the input would pass)."""
+    dep = {}                            # work index -> depends on input i_var
+    for k in range(f.n_instructions()):
+        op, ins, outs = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
+        if op == ca.OP_OUTPUT:
+            continue
+        if op == ca.OP_INPUT:
+            dep[outs[0]] = ins[0] == i_var
+            continue
+        if op in (ca.OP_CONST, ca.OP_PARAMETER):
+            dep[outs[0]] = False
+            continue
+        d = [dep.get(j, False) for j in ins]
+        if any(d):
+            if op in _AFFINE_OPS:
+                pass
+            elif op == ca.OP_MUL and not (d[0] and d[1]):
+                pass
+            elif op == ca.OP_DIV and not d[1]:
+                pass
+            else:
+                return False
+        for o in outs:
+            dep[o] = any(d)
+    return True
+
+
+def is_lti(f_ode: ca.Function, f_jac: ca.Function) -> bool:
+    """Is xdot = f(t, x, u, p, d) affine in x with df/dx independent of x and t and no
+    explicit dependence on t?  (The Jacobian tests as CasADi's depends_on, confirmed
+    by a structural walk of f, since a Jacobian of floor(x) is zero.)"""
+    if not (f_ode.is_a("SXFunction") and f_jac.is_a("SXFunction")):
+        return False
+    t, x = f_ode.sx_in(0), f_ode.sx_in(1)
+    if x.numel() == 0:
+        return False
+    xdot = f_ode.call(f_ode.sx_in())[0]
+    J, _ = f_jac.call(f_jac.sx_in())
+    J = ca.substitute(J, ca.vertcat(f_jac.sx_in(0), f_jac.sx_in(1)), ca.vertcat(t, x))
+    if ca.depends_on(xdot, t) or ca.depends_on(J, x) or ca.depends_on(J, t):
+        return False
+    return _structurally_affine(f_ode, 1)
 
 
 def _causalise(model: str, r: ca.SX, w: ca.SX, eq_text: list[str], w_names: list[str]) -> ca.SX:

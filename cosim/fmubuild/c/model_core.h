@@ -15,6 +15,9 @@
  * core_do_step integrates with Shampine's L-stable Rosenbrock ROS2(3) (ode23s)
  * with step-size control, stopping at every noise/sample instant in the interval.
  * Inputs are held constant over the communication step.
+ * A model flagged MODEL_LTI by the build (xdot = A x + b, A and b independent of x
+ * and t) with at most LTI_NMAX states is instead advanced exactly over each
+ * interval between events: x(t+h) = x + h phi1(A h) f(x) (see integrate_lti).
  *
  * Contract with the including wrapper: before #include "model_core.h" it defines
  *   typedef ... WrapperCallbacks;   the importer's callbacks, kept in the instance
@@ -49,6 +52,11 @@
 #define NV (OFF_S + 3)
 #define NXA (NX > 0 ? NX : 1)
 #define NDA (ND > 0 ? ND : 1)
+#ifndef MODEL_LTI
+#define MODEL_LTI 0
+#endif
+#define LTI_NMAX 8
+#define USE_LTI (MODEL_LTI && NX > 0 && NX <= LTI_NMAX)
 
 /* numeric values of fmi2Status / fmi3Status (identical in both standards) */
 enum { ST_OK = 0, ST_WARNING = 1, ST_DISCARD = 2, ST_ERROR = 3, ST_FATAL = 4 };
@@ -65,6 +73,13 @@ typedef struct Instance {
     int alg_valid, params_dirty, logging;
     Mode mode;
     long n_steps, n_rejected;
+#if USE_LTI
+    /* exact LTI step, cached for one (A, h): A as model_jac returns it (column-major),
+       F = exp(A h) - I and G = h phi1(A h), row-major */
+    int lti_valid;
+    double lti_h;
+    double lti_A[NXA * NXA], lti_F[NXA * NXA], lti_G[NXA * NXA];
+#endif
     WrapperCallbacks cb;
     char name[256];
     const casadi_real *arg[SZ_ARG];
@@ -230,7 +245,7 @@ static void lu_solve(const double *A, const int *piv, double *b, int n) {
 }
 
 /* ---- ROS2(3), Shampine & Reichelt 1997 (MATLAB ode23s) ----------------- */
-static int integrate(Instance *c, double tend) {
+static int integrate_ros(Instance *c, double tend) {
     const double d = 1.0 / (2.0 + M_SQRT2), e32 = 6.0 + M_SQRT2;
     double *x = &c->v[OFF_X];
     double F0[NXA], F1[NXA], F2[NXA], k1[NXA], k2[NXA], k3[NXA], xn[NXA];
@@ -302,6 +317,130 @@ static int integrate(Instance *c, double tend) {
             return -1;
         }
     return 0;
+}
+
+#if USE_LTI
+/* ---- exact step of a linear time-invariant ODE ---------------------------
+ * Between events xdot = A x + b with A, b constant, so over [t, t + h]
+ *   x(t + h) = x + G f(x),  G = int_0^h exp(A s) ds = h phi1(A h),  f(x) = A x + b,
+ * phi1(z) = (e^z - 1)/z. F = exp(A h) - I and G are the blocks of the exponential of
+ * the augmented matrix [[A h, h I], [0, 0]] (the f-independent form of the
+ * [[A h, f h], [0, 0]] trick, so that it can be cached across intervals), computed by
+ * scaling and squaring: Taylor series at h / 2^s with |A h / 2^s| <= 1/2, then
+ * s doublings  G(2k) = (I + exp(A k)) G(k),  exp(2 A k) - I = 2 F + F F.
+ * Carrying F instead of exp(A h) keeps the small-step accuracy. */
+static void lti_matmul(const double *X, const double *Y, double *Z) {
+    int i, j, k;
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) {
+            double acc = 0.0;
+            for (k = 0; k < NX; k++) acc += X[i * NX + k] * Y[k * NX + j];
+            Z[i * NX + j] = acc;
+        }
+}
+
+/* J: model_jac's df/dx (column-major); F, G: row-major. 0 on success */
+static int lti_expm(const double *J, double h, double *F, double *G) {
+    double M[NXA * NXA], P[NXA * NXA], T[NXA * NXA], U[NXA * NXA];
+    double norm = 0.0, hs;
+    int i, j, k, s = 0;
+    for (i = 0; i < NX; i++) {
+        double row = 0.0;
+        for (j = 0; j < NX; j++) row += fabs(J[i + j * NX]);
+        if (row > norm) norm = row;
+    }
+    norm *= h;
+    if (!isfinite(norm)) return -1;
+    while (norm > 0.5 && s < 1100) { norm *= 0.5; s++; }
+    hs = ldexp(h, -s);
+    for (i = 0; i < NX; i++)
+        for (j = 0; j < NX; j++) {
+            M[i * NX + j] = J[i + j * NX] * hs;
+            P[i * NX + j] = (i == j);           /* M^k / k!, k = 0 */
+            F[i * NX + j] = 0.0;                /* sum_{k>=1} M^k / k! */
+            G[i * NX + j] = (i == j);           /* sum_{k>=0} M^k / (k+1)! */
+        }
+    for (k = 1; k <= 40; k++) {
+        double pn = 0.0;
+        lti_matmul(P, M, T);
+        for (i = 0; i < NX * NX; i++) {
+            P[i] = T[i] / k;
+            F[i] += P[i];
+            G[i] += P[i] / (k + 1);
+            if (fabs(P[i]) > pn) pn = fabs(P[i]);
+        }
+        if (pn < 1e-18) break;                  /* |M| <= 1/2: remaining terms below 2 pn */
+    }
+    for (i = 0; i < NX * NX; i++) G[i] *= hs;
+    for (k = 0; k < s; k++) {
+        lti_matmul(F, G, T);                    /* G <- 2 G + F G */
+        lti_matmul(F, F, U);                    /* F <- 2 F + F F */
+        for (i = 0; i < NX * NX; i++) { G[i] = 2.0 * G[i] + T[i]; F[i] = 2.0 * F[i] + U[i]; }
+    }
+    for (i = 0; i < NX * NX; i++)
+        if (!isfinite(F[i]) || !isfinite(G[i])) return -1;
+    return 0;
+}
+
+static int integrate_lti(Instance *c, double tend) {
+    double *x = &c->v[OFF_X];
+    double J[NXA * NXA + NXA], f[NXA], g[NXA], dx[NXA];
+    double h = tend - c->t, delta;
+    int i, j;
+    if (!(h > 0)) { c->t = tend; c->alg_valid = 0; return 0; }
+    if (eval5(c, model_jac, c->t, x, J, J + NX * NX)) return -1;
+    if (eval5(c, model_ode, c->t, x, f, NULL)) return -1;
+    /* the cache holds F, G for (A, h_c): A compared bit for bit (it changes only with
+       parameters, inputs or held discrete values entering it); h within 1e-8 relative,
+       as the event grid t0 + n T gives intervals that differ in the last bits */
+    if (!c->lti_valid || memcmp(J, c->lti_A, sizeof(double) * NX * NX) != 0
+        || !(fabs(h - c->lti_h) <= 1e-8 * c->lti_h)) {
+        c->lti_valid = 0;
+        if (lti_expm(J, h, c->lti_F, c->lti_G)) return integrate_ros(c, tend);
+        memcpy(c->lti_A, J, sizeof(double) * NX * NX);
+        c->lti_h = h;
+        c->lti_valid = 1;
+    }
+    /* G(h_c + delta) = G(h_c) + exp(A h_c) G(delta),  G(delta) = delta (I + A delta / 2)
+       + O(delta^3 |A|^2), so  dx = G(h_c) f + delta (I + F) (f + delta/2 A f) */
+    delta = h - c->lti_h;
+    for (i = 0; i < NX; i++) {
+        double acc = 0.0;
+        for (j = 0; j < NX; j++) acc += c->lti_G[i * NX + j] * f[j];
+        dx[i] = acc;
+    }
+    if (delta != 0.0) {
+        for (i = 0; i < NX; i++) {
+            double acc = 0.0;
+            for (j = 0; j < NX; j++) acc += J[i + j * NX] * f[j];
+            g[i] = f[i] + 0.5 * delta * acc;
+        }
+        for (i = 0; i < NX; i++) {
+            double acc = g[i];
+            for (j = 0; j < NX; j++) acc += c->lti_F[i * NX + j] * g[j];
+            dx[i] += delta * acc;
+        }
+    }
+    for (i = 0; i < NX; i++) x[i] += dx[i];
+    c->t = tend;
+    c->n_steps++;
+    c->alg_valid = 0;
+    for (i = 0; i < NX; i++)
+        if (!isfinite(x[i])) {
+            logmsg(c, ST_ERROR, "logStatusError", "state %d is not finite at t = %.17g", i, c->t);
+            return -1;
+        }
+    return 0;
+}
+#endif
+
+/* integrate from c->t to tend with inputs and discrete variables held */
+static int integrate(Instance *c, double tend) {
+#if USE_LTI
+    return integrate_lti(c, tend);
+#else
+    return integrate_ros(c, tend);
+#endif
 }
 
 /* ---- life cycle --------------------------------------------------------- */
