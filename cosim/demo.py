@@ -65,7 +65,6 @@ def run_demo(out: Path, modelica: Path, fmus: Path, duration_s: float = 6.0) -> 
     w = s["plant.w"][skip]
     err_kf = s["aakf.omega_rad_s"][skip] - w
     err_enc = s["encdiff.omega_rad_s"][skip] - w
-    true_bias = None
     summary = {
         "trial": "free motion (thesis Sec. 2.5.1), demo",
         "duration_s": duration_s, "step_s": sys_.Ts,

@@ -71,7 +71,6 @@ with ``os.replace``, so a failure never leaves a partial or stale-looking file.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import math
 import os
@@ -87,7 +86,7 @@ from .algorithms.aakf import AakfParams, AaKF, EncoderDifferentiator
 from .algorithms.aakf import EncoderDifferentiatorParams
 from .algorithms.rls import RLSIdentifier, RLSParams
 from .algorithms.whiteness import cumulative_periodogram
-from .trial_log import TrialLog, TrialLogError, read_trial_log, require_columns
+from .trial_log import TrialLog, TrialLogError, format_csv, read_trial_log, require_columns
 
 __all__ = [
     "DEVICE",
@@ -314,13 +313,7 @@ def estimate(log_path: str | os.PathLike, out_csv: str | os.PathLike,
         "final_speed_rad_s": float(kf["omega_rad_s"][-1]),
         "columns": list(ESTIMATE_COLUMNS),
     }
-    buf = io.StringIO()
-    buf.write(",".join(ESTIMATE_COLUMNS) + "\n")
-    rep = float.__repr__
-    for row in arr.tolist():
-        buf.write(",".join(map(rep, row)))
-        buf.write("\n")
-    _atomic_write_text(out_p, buf.getvalue())
+    _atomic_write_text(out_p, format_csv(ESTIMATE_COLUMNS, arr))
     return _jsonable(summary)
 
 

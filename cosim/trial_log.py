@@ -40,7 +40,7 @@ import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -465,6 +465,18 @@ def _as_column(name: str, values: Any, cfile: Any) -> np.ndarray:
     return a
 
 
+def format_csv(header: Sequence[str], arr: np.ndarray) -> str:
+    """CSV text: one header row, then each float64 as its shortest round-trip repr
+    (reads back bit-exact)."""
+    buf = io.StringIO()
+    buf.write(",".join(header) + "\n")
+    rep = float.__repr__
+    for row in arr.tolist():
+        buf.write(",".join(map(rep, row)))
+        buf.write("\n")
+    return buf.getvalue()
+
+
 def write_trial_log(path_stem: str | os.PathLike, device: str, data: Mapping[str, Any],
                     signals: Mapping[str, str], sample_time: float,
                     nominal: Mapping[str, Any] | None = None, **meta: Any) -> Path:
@@ -519,14 +531,7 @@ def write_trial_log(path_stem: str | os.PathLike, device: str, data: Mapping[str
     _check_finite(header, arr, cfile)
     _check_time(arr[:, 0], ts, cfile)
 
-    # format: shortest round-trip repr of each float64
-    buf = io.StringIO()
-    buf.write(",".join(header) + "\n")
-    rep = float.__repr__
-    for row in arr.tolist():
-        buf.write(",".join(map(rep, row)))
-        buf.write("\n")
-    csv_text = buf.getvalue()
+    csv_text = format_csv(header, arr)
 
     stem.parent.mkdir(parents=True, exist_ok=True)
     umask = os.umask(0)

@@ -505,32 +505,6 @@ class AaKF:
         self._ce = self._cs + len(self._kf)
         return self._kf[o]
 
-    def _state_reset(self, x: np.ndarray, enc: float) -> tuple[bool, bool]:
-        """Sec. 2.2.2 pseudocode, in place on ``x``; returns (position, speed) fired.
-
-        (Reference form on an array; :meth:`step` runs the same comparisons inline
-        on floats.)"""
-        p = self.params
-        lo, hi = _position_bounds(p, enc)
-        self.reset_lo, self.reset_hi = lo, hi
-        pos_fired = speed_fired = False
-        if x[0] > hi:                                                     # eq. 29, upper
-            x[0] = hi
-            pos_fired = True
-        elif x[0] < lo:                                                   # eq. 29, lower
-            x[0] = lo
-            pos_fired = True
-        if self._enc_prev is not None:
-            v = _speed_centre(p, enc, self._enc_prev, float(x[2]))
-            dv = p.delta_rad / p.Ts
-            if x[1] > v + dv:                                             # eq. 31, upper
-                x[1] = v + dv
-                speed_fired = True
-            elif x[1] < v - dv:                                           # eq. 31, lower
-                x[1] = v - dv
-                speed_fired = True
-        return pos_fired, speed_fired
-
     def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
         """One sample (eq. 98-103 with the Sec. 2.2.2 reset).
 

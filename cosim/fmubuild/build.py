@@ -240,6 +240,52 @@ def derivative_rows(fm: FlatModel, rows: list[dict]) -> list[dict]:
     return out
 
 
+_QUOT = {chr(34): "&quot;"}
+
+
+def _common_attrs(r: dict) -> str:
+    """Attributes every variable has, FMI 2.0 and 3.0 alike."""
+    v = r["var"]
+    a = f'name="{escape(r["name"])}" valueReference="{r["vr"]}"'
+    if v.description:
+        a += f' description="{escape(v.description, _QUOT)}"'
+    a += f' causality="{r["causality"]}" variability="{r["variability"]}"'
+    if r["initial"]:
+        a += f' initial="{r["initial"]}"'
+    return a
+
+
+def _type_attrs(r: dict) -> str:
+    """Type-specific attributes (unit, min, max, nominal, start, derivative), each with
+    a leading space; the same for FMI 2.0 <Real> and FMI 3.0 <Float64> etc."""
+    v, t = r["var"], r["type"]
+    has_start = r["causality"] in ("parameter", "input")
+    a = ""
+    if t == "Real":
+        if v.unit:
+            a += f' unit="{escape(v.unit)}"'
+        if v.min is not None:
+            a += f' min="{_fmt(v.min)}"'
+        if v.max is not None:
+            a += f' max="{_fmt(v.max)}"'
+        if v.nominal is not None and v.nominal > 0:
+            a += f' nominal="{_fmt(v.nominal)}"'
+        if has_start:
+            a += f' start="{_fmt(_start_value(r))}"'
+        if r.get("derivative"):
+            a += f' derivative="{r["derivative"]}"'
+    elif t == "Integer":
+        if v.min is not None:
+            a += f' min="{int(v.min)}"'
+        if v.max is not None:
+            a += f' max="{int(v.max)}"'
+        if has_start:
+            a += f' start="{int(_start_value(r))}"'
+    elif has_start:                                   # Boolean
+        a += f' start="{"true" if _start_value(r) else "false"}"'
+    return a
+
+
 def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> str:
     """FMI 2.0 modelDescription.xml with Co-Simulation and Model Exchange."""
     ders = derivative_rows(fm, rows)
@@ -264,39 +310,7 @@ def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> s
     out.append(f'  <DefaultExperiment startTime="0.0" stopTime="1.0" stepSize="0.001"/>')
     out.append("  <ModelVariables>")
     for r in rows:
-        v = r["var"]
-        a = f'name="{escape(r["name"])}" valueReference="{r["vr"]}"'
-        if v.description:
-            a += f' description="{escape(v.description, {chr(34): "&quot;"})}"'
-        a += f' causality="{r["causality"]}" variability="{r["variability"]}"'
-        if r["initial"]:
-            a += f' initial="{r["initial"]}"'
-        has_start = r["causality"] in ("parameter", "input")
-        t = r["type"]
-        inner = ""
-        if t == "Real":
-            if v.unit:
-                inner += f' unit="{escape(v.unit)}"'
-            if v.min is not None:
-                inner += f' min="{_fmt(v.min)}"'
-            if v.max is not None:
-                inner += f' max="{_fmt(v.max)}"'
-            if v.nominal is not None and v.nominal > 0:
-                inner += f' nominal="{_fmt(v.nominal)}"'
-            if has_start:
-                inner += f' start="{_fmt(_start_value(r))}"'
-            if r.get("derivative"):
-                inner += f' derivative="{r["derivative"]}"'
-        elif t == "Integer":
-            if v.min is not None:
-                inner += f' min="{int(v.min)}"'
-            if v.max is not None:
-                inner += f' max="{int(v.max)}"'
-            if has_start:
-                inner += f' start="{int(_start_value(r))}"'
-        elif t == "Boolean":
-            if has_start:
-                inner += f' start="{"true" if _start_value(r) else "false"}"'
+        a, inner, t = _common_attrs(r), _type_attrs(r), r["type"]
         out.append(f'    <ScalarVariable {a}>')
         out.append(f'      <{t}{inner}/>')
         out.append('    </ScalarVariable>')
@@ -354,36 +368,7 @@ def model_description_fmi3(fm: FlatModel, rows: list[dict], token: str, key: str
     out.append(f'    <Float64 name="time" valueReference="{len(rows)}" description="simulation time"'
                ' causality="independent" variability="continuous" unit="s"/>')
     for r in rows:
-        v = r["var"]
-        t = FMI3_TYPES[r["type"]]
-        a = f'name="{escape(r["name"])}" valueReference="{r["vr"]}"'
-        if v.description:
-            a += f' description="{escape(v.description, q)}"'
-        a += f' causality="{r["causality"]}" variability="{r["variability"]}"'
-        if r["initial"]:
-            a += f' initial="{r["initial"]}"'
-        has_start = r["causality"] in ("parameter", "input")
-        if t == "Float64":
-            if v.unit:
-                a += f' unit="{escape(v.unit)}"'
-            if v.min is not None:
-                a += f' min="{_fmt(v.min)}"'
-            if v.max is not None:
-                a += f' max="{_fmt(v.max)}"'
-            if v.nominal is not None and v.nominal > 0:
-                a += f' nominal="{_fmt(v.nominal)}"'
-            if has_start:
-                a += f' start="{_fmt(_start_value(r))}"'
-        elif t == "Int32":
-            if v.min is not None:
-                a += f' min="{int(v.min)}"'
-            if v.max is not None:
-                a += f' max="{int(v.max)}"'
-            if has_start:
-                a += f' start="{int(_start_value(r))}"'
-        else:
-            if has_start:
-                a += f' start="{"true" if _start_value(r) else "false"}"'
+        a, t = _common_attrs(r) + _type_attrs(r), FMI3_TYPES[r["type"]]
         out.append(f'    <{t} {a}/>')
     out.append("  </ModelVariables>")
     out.append("  <ModelStructure>")

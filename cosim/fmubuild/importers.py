@@ -36,51 +36,10 @@ def run_fmpy(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, objec
     initialisation, inputs at t_k before the step from t_k)."""
     import fmpy
     from fmpy.fmi2 import FMU2Slave
-
-    md = fmpy.read_model_description(str(fmu))
-    if md.fmiVersion.startswith("3"):
-        return _run_fmpy3(fmu, md, t_end, h, inputs, params, outputs)
-    var = {v.name: v for v in md.modelVariables}
-    outputs = outputs or [v.name for v in md.modelVariables if v.causality == "output"]
-    n = int(round(t_end / h))
-    # communication points on libcosim's integer-nanosecond grid, t_k = k*h_ns/1e9,
-    # so both importers hand the FMU the very same doubles
-    h_ns = int(round(h * 1e9))
-    t = np.arange(n + 1) * h
-    ins = _input_array(inputs or {}, n + 1, t)
-    unzip = fmpy.extract(str(fmu))
-    s = FMU2Slave(guid=md.guid, unzipDirectory=unzip,
-                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmpy")
-    try:
-        s.instantiate()
-        s.setupExperiment(startTime=0.0)
-        for k, v in (params or {}).items():
-            _set(s, var[k], v)
-        s.enterInitializationMode()
-        in_vr = [var[k].valueReference for k in ins]
-        if in_vr:
-            s.setReal(in_vr, [ins[k][0] for k in ins])
-        s.exitInitializationMode()
-        out_vr = [var[k].valueReference for k in outputs]
-        res = np.empty((n + 1, len(outputs)))
-        res[0] = s.getReal(out_vr)
-        for k in range(n):
-            if in_vr:
-                s.setReal(in_vr, [ins[name][k] for name in ins])
-            s.doStep(currentCommunicationPoint=(k * h_ns) / 1e9, communicationStepSize=h_ns / 1e9)
-            res[k + 1] = s.getReal(out_vr)
-        s.terminate()
-    finally:
-        s.freeInstance()
-    out = {"time": t}
-    out.update({name: res[:, i] for i, name in enumerate(outputs)})
-    return out
-
-
-def _run_fmpy3(fmu, md, t_end, h, inputs, params, outputs) -> dict:
-    import fmpy
     from fmpy.fmi3 import FMU3Slave
 
+    md = fmpy.read_model_description(str(fmu))
+    fmi3 = md.fmiVersion.startswith("3")
     var = {v.name: v for v in md.modelVariables}
     outputs = outputs or [v.name for v in md.modelVariables if v.causality == "output"]
     n = int(round(t_end / h))
@@ -89,52 +48,54 @@ def _run_fmpy3(fmu, md, t_end, h, inputs, params, outputs) -> dict:
     h_ns = int(round(h * 1e9))
     t = np.arange(n + 1) * h
     ins = _input_array(inputs or {}, n + 1, t)
-    unzip = fmpy.extract(str(fmu))
-    s = FMU3Slave(guid=md.guid, unzipDirectory=unzip,
-                  modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmpy")
+    s = (FMU3Slave if fmi3 else FMU2Slave)(
+        guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
+        modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmpy")
+    set_real, get_real = (s.setFloat64, s.getFloat64) if fmi3 else (s.setReal, s.getReal)
     try:
         s.instantiate()
+        if not fmi3:
+            s.setupExperiment(startTime=0.0)
         for k, v in (params or {}).items():
-            _set3(s, var[k], v)
-        s.enterInitializationMode(startTime=0.0)
+            _set(s, var[k], v)
+        if fmi3:
+            s.enterInitializationMode(startTime=0.0)
+        else:
+            s.enterInitializationMode()
         in_vr = [var[k].valueReference for k in ins]
         if in_vr:
-            s.setFloat64(in_vr, [ins[k][0] for k in ins])
+            set_real(in_vr, [ins[k][0] for k in ins])
         s.exitInitializationMode()
         out_vr = [var[k].valueReference for k in outputs]
         res = np.empty((n + 1, len(outputs)))
-        res[0] = s.getFloat64(out_vr)
+        res[0] = get_real(out_vr)
         for k in range(n):
             if in_vr:
-                s.setFloat64(in_vr, [ins[name][k] for name in ins])
-            s.doStep(currentCommunicationPoint=(k * h_ns) / 1e9, communicationStepSize=h_ns / 1e9)
-            res[k + 1] = s.getFloat64(out_vr)
+                set_real(in_vr, [ins[name][k] for name in ins])
+            tk, tk1 = (k * h_ns) / 1e9, ((k + 1) * h_ns) / 1e9
+            s.doStep(currentCommunicationPoint=tk, communicationStepSize=tk1 - tk)
+            res[k + 1] = get_real(out_vr)
         s.terminate()
     finally:
         s.freeInstance()
     out = {"time": t}
     out.update({name: res[:, i] for i, name in enumerate(outputs)})
     return out
-
-
-def _set3(slave, v, value):
-    if v.type == "Float64":
-        slave.setFloat64([v.valueReference], [float(value)])
-    elif v.type == "Int32":
-        slave.setInt32([v.valueReference], [int(value)])
-    elif v.type == "Boolean":
-        slave.setBoolean([v.valueReference], [bool(value)])
-    else:
-        raise TypeError(f"cannot set {v.name} of type {v.type}")
 
 
 def _set(slave, v, value):
+    """Set one start value through FMI 2.0 (Real/Integer) or 3.0 (Float64/Int32) calls."""
+    vr = [v.valueReference]
     if v.type == "Real":
-        slave.setReal([v.valueReference], [float(value)])
+        slave.setReal(vr, [float(value)])
+    elif v.type == "Float64":
+        slave.setFloat64(vr, [float(value)])
     elif v.type == "Integer":
-        slave.setInteger([v.valueReference], [int(value)])
+        slave.setInteger(vr, [int(value)])
+    elif v.type == "Int32":
+        slave.setInt32(vr, [int(value)])
     elif v.type == "Boolean":
-        slave.setBoolean([v.valueReference], [bool(value)])
+        slave.setBoolean(vr, [bool(value)])
     else:
         raise TypeError(f"cannot set {v.name} of type {v.type}")
 
@@ -186,8 +147,6 @@ def run_libcosim(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, o
         if in_vr:
             man.slave_real_values(idx, in_vr, [float(ins[name][k]) for name in ins])
         ex.step(1)
-        if k == 0:
-            pass
         res[k + 1] = obs.last_real_values(idx, out_vr)
     # libcosim initialises on the first step; the initial outputs are those of FMPy's
     # t = 0, taken from a zero-length look: re-run is not possible, so report NaN

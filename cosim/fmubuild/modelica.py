@@ -370,7 +370,6 @@ def load_model(package_dir: Path, model: str) -> FlatModel:
         raise ModelicaError(model, f"system is not balanced: {res_mx.numel()} equations for "
                             f"{n_unknown} unknowns (derivatives + algebraic variables)")
     F = ca.Function("F", all_in, [res_mx]).expand()
-    sx = lambda sym, nm: ca.SX.sym(nm)
     T = ca.SX.sym("time")
     X = [ca.SX.sym(v.name) for v, _, _ in states]
     XD = [ca.SX.sym(f"der({v.name})") for v, _, _ in states]

@@ -244,6 +244,17 @@ static void lu_solve(const double *A, const int *piv, double *b, int n) {
     }
 }
 
+/* 0 if every state is finite, else logs the first bad one and returns -1 */
+static int check_states_finite(Instance *c) {
+    int i;
+    for (i = 0; i < NX; i++)
+        if (!isfinite(c->v[OFF_X + i])) {
+            logmsg(c, ST_ERROR, "logStatusError", "state %d is not finite at t = %.17g", i, c->t);
+            return -1;
+        }
+    return 0;
+}
+
 /* ---- ROS2(3), Shampine & Reichelt 1997 (MATLAB ode23s) ----------------- */
 static int integrate_ros(Instance *c, double tend) {
     const double d = 1.0 / (2.0 + M_SQRT2), e32 = 6.0 + M_SQRT2;
@@ -311,12 +322,7 @@ static int integrate_ros(Instance *c, double tend) {
         }
     }
     c->alg_valid = 0;
-    for (i = 0; i < NX; i++)
-        if (!isfinite(x[i])) {
-            logmsg(c, ST_ERROR, "logStatusError", "state %d is not finite at t = %.17g", i, c->t);
-            return -1;
-        }
-    return 0;
+    return check_states_finite(c);
 }
 
 #if USE_LTI
@@ -425,12 +431,7 @@ static int integrate_lti(Instance *c, double tend) {
     c->t = tend;
     c->n_steps++;
     c->alg_valid = 0;
-    for (i = 0; i < NX; i++)
-        if (!isfinite(x[i])) {
-            logmsg(c, ST_ERROR, "logStatusError", "state %d is not finite at t = %.17g", i, c->t);
-            return -1;
-        }
-    return 0;
+    return check_states_finite(c);
 }
 #endif
 
