@@ -17,6 +17,13 @@ DEFAULT_MODELICA = REPO / "modelica" / "RehabSim"
 DEFAULT_FMUS = REPO / "fmus"
 
 
+# Modules that define ``add_commands(subparsers)``; their handlers return an exit code
+# and report bad input themselves (exit 2), naming the file/field at fault.
+COMMAND_MODULES = (
+    ".offline",          # cosim estimate / cosim identify (trial logs)
+)
+
+
 class CliError(Exception):
     pass
 
@@ -68,8 +75,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--fmus", default=str(DEFAULT_FMUS))
     d.set_defaults(func=_cmd_demo)
 
-    from .offline import add_offline_commands
-    add_offline_commands(sub)      # cosim estimate / cosim identify (trial logs)
+    # Each command module adds its own subcommands (one line per module here, so that
+    # modules can be developed without touching each other's parsers).
+    import importlib
+    for mod in COMMAND_MODULES:
+        importlib.import_module(mod, __package__).add_commands(sub)
     return p
 
 

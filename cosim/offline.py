@@ -2,7 +2,7 @@
 
 Two operations, each reading one trial log (``spec/trial-log.md``) and writing one
 result file, used by the ``cosim estimate`` and ``cosim identify`` subcommands
-(registered by :func:`add_offline_commands`):
+(registered by :func:`add_commands`):
 
 :func:`estimate`
     Runs the aaKF (:class:`cosim.algorithms.aakf.AaKF`, thesis Sec. 2.2, state reset of
@@ -95,7 +95,7 @@ __all__ = [
     "estimate",
     "identify",
     "settling_time",
-    "add_offline_commands",
+    "add_commands",
 ]
 
 DEVICE = "ballscrew-1dof"
@@ -459,7 +459,7 @@ def _cmd_identify(a: argparse.Namespace) -> int:
     return 0
 
 
-def add_offline_commands(subparsers: Any) -> None:
+def add_commands(subparsers: Any) -> None:
     """Register ``estimate`` and ``identify`` on an argparse ``subparsers`` object.
 
     Each parser gets ``func`` (set_defaults) taking the parsed namespace and

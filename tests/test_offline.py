@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from cosim.algorithms.aakf import ADXL335_NOISE_STD_M_S2, AakfParams
-from cosim.offline import (ESTIMATE_COLUMNS, add_offline_commands, estimate, identify,
+from cosim.offline import (ESTIMATE_COLUMNS, add_commands, estimate, identify,
                            settling_time)
 from cosim.synth import simulate_ballscrew, simulate_ballscrew_log
 from cosim.trial_log import TrialLogError, read_trial_log, write_trial_log
@@ -267,7 +267,7 @@ def test_failure_keeps_an_existing_output_untouched(logs, tmp_path):
 def _parser():
     ap = argparse.ArgumentParser(prog="cosim")
     sub = ap.add_subparsers(dest="cmd", required=True)
-    add_offline_commands(sub)
+    add_commands(sub)
     return ap
 
 
