@@ -1,0 +1,348 @@
+"""Registry of the building blocks a scenario file names by ``type``.
+
+A scenario file (see ``docs/scenario-format.md``) is declarative: it names
+controllers/estimators, stimuli, metrics, a procedure and a figure set. The code
+behind each name is registered here by the trial modules in :mod:`cosim.trials`
+(every module of that package is imported automatically, so a trial author just
+drops a module there).
+
+Signatures (stable; later additions are keyword-only and optional)
+------------------------------------------------------------------
+``@controller(name, params=ParamsDataclass | None)``
+    on a **class** ``Block(params_instance)`` (a DiscreteBlock): the YAML ``params``
+    are validated against the dataclass fields and the block is built as
+    ``Block(ParamsDataclass(**params))``; or on a **function**
+    ``f(params: dict, ctx: BuildContext) -> DiscreteBlock`` (``params`` validated
+    against the dataclass if one is given, and passed as the dict the file gave).
+    ``register_controller(name, obj, params=...)`` does the same without a decorator
+    (to register a class you do not own, e.g. ``AaKF`` with ``AakfParams``).
+``@stimulus(name, params=None)``
+    on ``f(params: dict, ctx: BuildContext) -> Callable[[float], float]`` (time in s).
+``@metric(name, params=None, scope="run")``
+    on ``f(params: dict, ctx: MetricContext) -> float``. ``scope="run"``: computed on
+    each run's recorded signals (``ctx.signals``, time first; ``ctx.values``: the
+    scalars the procedure returned for that run); ``scope="scenario"``: computed once
+    over all runs (``ctx.runs``), e.g. a ratio between cases.
+``@procedure(name)``
+    on ``f(run: RunSpec, build: Callable, ctx: BuildContext) -> ProcedureResult``:
+    how one run of a scenario is executed. ``build(overrides=None)`` returns
+    ``(System, record)`` built from the file's declarative system/controllers/stimuli
+    with ``run.overrides`` (case, sweep point, Monte-Carlo draw) and then ``overrides``
+    (a nested dict in the file's own structure, e.g. for a phase) applied.
+    The default ``"single"`` procedure builds once and runs ``run.duration`` seconds.
+    ``ctx.state`` is a dict that lives for the whole run (all phases), so a factory
+    can take e.g. a stiffness map that an earlier phase left there.
+``@figures(name)``
+    on ``f(runs: list[RunView], info: dict) -> list[tuple[str, matplotlib.figure.Figure]]``
+    (title, figure), drawn by the report from the STORED results of a scenario whose
+    ``trial:`` is ``name``. ``info``: scenario name, description, parameters, values.
+
+Example (a trial module ``cosim/trials/my_trial.py``)::
+
+    from dataclasses import dataclass
+    from cosim.master import Master
+    from cosim.scenarios.registry import (controller, stimulus, metric, procedure,
+                                          figures, ProcedureResult)
+
+    @dataclass(frozen=True)
+    class GainParams:
+        k_N_per_m: float = 100.0          # stiffness [N/m]
+
+    @controller("spring", params=GainParams)
+    class Spring:                          # a DiscreteBlock
+        inputs, outputs = ("x",), ("f",)
+        def __init__(self, p: GainParams): self.p = p
+        def reset(self): pass
+        def step(self, m): return {"f": -self.p.k_N_per_m * m["x"]}
+
+    @stimulus("ramp")
+    def ramp(params, ctx):
+        slope = float(params.get("slope", 1.0))
+        return lambda t: slope * t
+
+    @metric("final")
+    def final(params, ctx):
+        return float(ctx.signals[params["signal"]][-1])
+
+    @procedure("two-phase")
+    def two_phase(run, build, ctx):
+        out = ProcedureResult()
+        for phase, motors in (("off", 0.0), ("on", 1.0)):
+            system, record = build({"controllers": {"ctl": {"params": {"gain": motors}}}})
+            out.runs[phase] = Master(system, record).run(run.duration)
+        return out
+
+    @figures("my-trial")
+    def my_figures(runs, info):
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots()
+        for r in runs:
+            ax.plot(r.signals["time"], r.signals["plant.x"], label=r.label)
+        ax.legend()
+        return [("position", fig)]
+"""
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import importlib
+import inspect
+import pkgutil
+import types
+import typing
+from typing import Any, Callable, Mapping
+
+
+class RegistryError(ValueError):
+    """A name registered twice, or an unusable registration."""
+
+
+# --------------------------------------------------------------------------- types
+@dataclasses.dataclass
+class BuildContext:
+    """What factories and procedures get besides their parameters."""
+    scenario: str = ""
+    case: str = ""
+    run_label: str = ""
+    seed: int = 0
+    step_s: float = 1e-3
+    duration_s: float = 0.0
+    fmu_dir: str = ""
+    #: per-run state shared by the phases of a procedure (e.g. a stiffness map)
+    state: dict = dataclasses.field(default_factory=dict)
+    #: the current phase name, set by a procedure before ``build`` (informational)
+    phase: str = ""
+
+    def rng(self, stream: int = 0):
+        """A numpy Generator seeded from the run's seed and a stream number, so two
+        factories drawing noise get independent but reproducible streams."""
+        import numpy as np
+        return np.random.default_rng([int(self.seed), int(stream)])
+
+
+@dataclasses.dataclass
+class RunSpec:
+    """One expanded run of a scenario (a case x sweep point x Monte-Carlo draw x seed)."""
+    label: str
+    case: str
+    seed: int
+    duration: float
+    step: float
+    overrides: dict = dataclasses.field(default_factory=dict)   # merged, file structure
+    point: dict = dataclasses.field(default_factory=dict)       # swept/drawn values by path
+
+
+@dataclasses.dataclass
+class ProcedureResult:
+    """What a procedure returns: named RunResults (one per phase; the default procedure
+    uses ``"main"``), scalar values (usable by requirements through the ``value``
+    metric) and anything JSON-serialisable for the figures (``artifacts``)."""
+    runs: dict = dataclasses.field(default_factory=dict)       # phase -> RunResult
+    values: dict = dataclasses.field(default_factory=dict)     # name -> float
+    artifacts: dict = dataclasses.field(default_factory=dict)  # name -> JSON-able
+
+
+@dataclasses.dataclass
+class RunView:
+    """A stored run as the metrics and figures see it (read back from Parquet)."""
+    label: str              # run label (case / sweep point / seed)
+    case: str
+    phase: str
+    seed: int
+    signals: dict           # name -> numpy array, "time" first
+    values: dict            # the procedure's scalar values for this run
+    artifacts: dict
+    point: dict             # swept / drawn values
+
+
+@dataclasses.dataclass
+class MetricContext:
+    signals: dict            # scope "run": the signals of the run's first phase ("main")
+    values: dict
+    runs: list               # list[RunView]: this run's phases (scope run) or all runs
+    run: RunView | None = None
+
+
+@dataclasses.dataclass
+class Entry:
+    kind: str
+    name: str
+    obj: Any                               # the class or function registered
+    params: type | None = None             # a dataclass validating the params
+    scope: str = "run"                     # metrics only
+    module: str = ""
+
+    @property
+    def doc(self) -> str:
+        return (inspect.getdoc(self.obj) or "").split("\n")[0]
+
+    def make(self, params: dict, ctx: BuildContext):
+        """Build the object (block, stimulus function) from validated params."""
+        if inspect.isclass(self.obj):
+            if self.params is not None:
+                return self.obj(self.params(**{k: (tuple(v) if isinstance(v, list) else v)
+                                               for k, v in params.items()}))
+            return self.obj(**params)
+        return self.obj(dict(params), ctx)
+
+
+KINDS = ("controller", "stimulus", "metric", "procedure", "figures")
+_REG: dict[str, dict[str, Entry]] = {k: {} for k in KINDS}
+
+
+def _register(kind: str, name: str, obj, params=None, scope="run"):
+    if not isinstance(name, str) or not name:
+        raise RegistryError(f"{kind} name must be a non-empty string, got {name!r}")
+    if params is not None and not dataclasses.is_dataclass(params):
+        raise RegistryError(f"{kind} {name!r}: params must be a dataclass, got {params!r}")
+    if scope not in ("run", "scenario"):
+        raise RegistryError(f"metric {name!r}: scope must be 'run' or 'scenario'")
+    old = _REG[kind].get(name)
+    mod = getattr(obj, "__module__", "")
+    if old is not None and (old.module, getattr(old.obj, "__qualname__", "")) != \
+            (mod, getattr(obj, "__qualname__", "")):
+        raise RegistryError(f"{kind} {name!r} registered twice ({old.module} and {mod})")
+    _REG[kind][name] = Entry(kind, name, obj, params, scope, mod)
+    return obj
+
+
+def controller(name: str, params: type | None = None):
+    """Register a controller/estimator block class or factory function under ``name``."""
+    return lambda obj: _register("controller", name, obj, params)
+
+
+def register_controller(name: str, obj, params: type | None = None):
+    """Non-decorator form of :func:`controller` (for classes defined elsewhere)."""
+    return _register("controller", name, obj, params)
+
+
+def stimulus(name: str, params: type | None = None):
+    """Register ``f(params, ctx) -> Callable[[t_s], float]`` under ``name``."""
+    return lambda obj: _register("stimulus", name, obj, params)
+
+
+def metric(name: str, params: type | None = None, scope: str = "run"):
+    """Register ``f(params, ctx: MetricContext) -> float`` under ``name``."""
+    return lambda obj: _register("metric", name, obj, params, scope)
+
+
+def procedure(name: str):
+    """Register ``f(run: RunSpec, build, ctx: BuildContext) -> ProcedureResult``."""
+    return lambda obj: _register("procedure", name, obj)
+
+
+def figures(name: str):
+    """Register ``f(runs: list[RunView], info: dict) -> list[(title, Figure)]``."""
+    return lambda obj: _register("figures", name, obj)
+
+
+# --------------------------------------------------------------------------- lookup
+_loaded = False
+
+
+def load_trials() -> list[str]:
+    """Import the built-in registrations and every module of :mod:`cosim.trials`
+    (once). A trial module that fails to import is an error naming the module."""
+    global _loaded
+    if _loaded:
+        return []
+    _loaded = True
+    from . import builtins  # noqa: F401  (stimuli, metrics, procedures of the framework)
+    import cosim.trials as pkg
+    names = []
+    for info in pkgutil.iter_modules(pkg.__path__):
+        try:
+            importlib.import_module(f"cosim.trials.{info.name}")
+        except Exception as exc:
+            _loaded = False
+            raise RegistryError(f"trial module cosim.trials.{info.name} failed to import: "
+                                f"{type(exc).__name__}: {exc}") from exc
+        names.append(info.name)
+    return names
+
+
+def get(kind: str, name: str) -> Entry | None:
+    load_trials()
+    return _REG[kind].get(name)
+
+
+def names(kind: str) -> list[str]:
+    load_trials()
+    return sorted(_REG[kind])
+
+
+def suggest(name: str, choices) -> str | None:
+    close = difflib.get_close_matches(str(name), [str(c) for c in choices], n=1, cutoff=0.6)
+    return close[0] if close else None
+
+
+# --------------------------------------------------------------------------- params
+def _type_ok(value, tp) -> bool:
+    """Is a YAML value acceptable for a dataclass field annotated ``tp``?"""
+    if tp is Any or tp is inspect.Parameter.empty:
+        return True
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        return any(_type_ok(value, a) for a in args)
+    if tp is type(None):
+        return value is None
+    if tp is bool:
+        return isinstance(value, bool)
+    if tp is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if tp is float:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
+    if tp is str:
+        return isinstance(value, str)
+    if origin is typing.Literal:
+        return value in args
+    if origin in (tuple, list) or tp in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            return False
+        if not args:
+            return True
+        if origin is tuple and not (len(args) == 2 and args[1] is Ellipsis):
+            return len(value) == len(args) and all(_type_ok(v, a) for v, a in zip(value, args))
+        return all(_type_ok(v, args[0]) for v in value)
+    if origin is dict or tp is dict:
+        return isinstance(value, dict)
+    if inspect.isclass(tp):
+        return isinstance(value, tp)
+    return True
+
+
+def _type_name(tp) -> str:
+    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+def check_params(entry: Entry, params: Mapping) -> list[tuple[str | None, str]]:
+    """Problems of ``params`` against the entry's dataclass: (key or None, message).
+    Unknown fields (with a suggestion) and values of the wrong type."""
+    if entry.params is None:
+        return []
+    hints = typing.get_type_hints(entry.params)
+    fields = {f.name: f for f in dataclasses.fields(entry.params) if f.init}
+    out = []
+    for key, value in params.items():
+        if key not in fields:
+            close = suggest(key, fields)
+            out.append((key, f"{entry.kind} {entry.name!r}: unknown parameter {key!r}"
+                        + (f"; did you mean {close!r}?" if close else
+                           f" (parameters: {', '.join(fields)})")))
+            continue
+        tp = hints.get(key, Any)
+        if not _type_ok(value, tp):
+            out.append((key, f"{entry.kind} {entry.name!r}: parameter {key!r} must be "
+                        f"{_type_name(tp)}, got {type(value).__name__} {value!r}"))
+    if not out:
+        # construct once: the dataclass's own __post_init__ checks (ranges) apply
+        try:
+            inst = entry.params(**{k: (tuple(v) if isinstance(v, list) else v)
+                                   for k, v in params.items()})
+            check = getattr(inst, "validate", None)
+            if callable(check):
+                check()
+        except Exception as exc:
+            out.append((None, f"{entry.kind} {entry.name!r}: invalid parameters: {exc}"))
+    return out
