@@ -338,6 +338,16 @@ def load_model(package_dir: Path, model: str) -> FlatModel:
             if var.start is None:
                 var.start = _num(iv.start) if _num(iv.start) is not None else 0.0
             inputs.append((var, iv.symbol))
+    # a component's annotated input (e.g. the noise of a load cell inside a rig) is
+    # not a top-level input for pymoca, it appears as an algebraic unknown without an
+    # equation: the annotation is what defines it, so it becomes a discrete too
+    nested_discrete = set()
+    for av in m.alg_states:
+        name = av.symbol.name()
+        if name in discrete_specs and "." in name:
+            var = meta(name, "discrete"); var.start = var.start or 0.0
+            discretes.append((var, av.symbol))
+            nested_discrete.add(name)
     for name in discrete_specs:
         if name not in [v.name for v, _ in discretes]:
             raise ModelicaError(model, f"__RehabSim variable {name} is not an input of the model")
@@ -349,6 +359,8 @@ def load_model(package_dir: Path, model: str) -> FlatModel:
         states.append((var, sv.symbol, sv.start))
     algs = []
     for av in m.alg_states:
+        if av.symbol.name() in nested_discrete:
+            continue
         var = meta(av.symbol.name(), "algebraic")
         var.is_output = var.name in outputs
         var.start = None

@@ -43,6 +43,17 @@ CONTRACTS: dict[str, RoleContract] = {c.name: c for c in [
                  outputs={"f_meas": "N", "f_lc": "N"}),
     RoleContract("wall", "rigid wall (stiff unilateral contact)",
                  inputs={"x": "m", "v": "m/s"}, outputs={"f_wall": "N"}),
+    # Rigs: bodies joined by a stiff element (load cell, wall: 2e5 N/m) are solved in one
+    # FMU, because exchanging such a coupling explicitly at 1 ms is unstable.
+    RoleContract("zero_force_rig", "zero-force bench (Fig. 27): unit under test and "
+                 "partner unit joined by a load cell",
+                 inputs={"i": "A", "i_p": "A"},
+                 outputs={"theta_enc": "rad", "x_enc": "m", "a": "m/s2", "x": "m", "v": "m/s",
+                          "x_enc_p": "m", "x_p": "m", "f_lc": "N", "f_meas": "N"}),
+    RoleContract("wall_rig", "bilateral slave unit against a rigid wall (Sec. 2.5.4)",
+                 inputs={"i": "A", "f_ext": "N"},
+                 outputs={"theta_enc": "rad", "x_enc": "m", "a": "m/s2", "x": "m", "v": "m/s",
+                          "f_wall": "N"}),
 ]}
 
 

@@ -1,0 +1,37 @@
+within RehabSim;
+model WallUnitRig "Slave unit of the bilateral test meeting a rigid wall (thesis Sec. 2.5.4, Fig. 32); unit and 2e5 N/m contact are solved together because such a contact cannot be exchanged explicitly at 1 ms"
+  parameter Real J_u(unit = "kg.m2", min = 0) = 1.7e-5 "inertia of the slave unit at the motor shaft (Table 1)";
+  parameter Real b_u(unit = "N.m.s/rad", min = 0) = 1.6e-5 "viscous friction of the slave unit (Table 1)";
+  parameter Real fc_u(unit = "N.m", min = 0) = 3e-3 "Coulomb friction torque of the slave unit (Table 1)";
+  parameter Real Kt_u(unit = "N.m/A", min = 0) = 0.0603 "torque constant of the slave unit (Table 1)";
+  parameter Real x_w(unit = "m") = 0.02 "wall position";
+  parameter Real k_w(unit = "N/m", min = 0) = 2e5 "wall stiffness";
+  parameter Real d_w(unit = "N.s/m", min = 0) = 500 "wall damping, acting only while penetrating";
+  input Real i(unit = "A") "current of the slave unit";
+  input Real f_ext(unit = "N") "other external force on the slave handle along +x (0 in the thesis's test)";
+  output Real theta(unit = "rad") "motor angle of the slave unit";
+  output Real theta_enc(unit = "rad") "encoder reading of the slave unit (21600 pulses/rev)";
+  output Real x_enc(unit = "m") "slave handle position from its encoder, lead/(2 pi) theta_enc";
+  output Real w(unit = "rad/s") "motor speed of the slave unit";
+  output Real x(unit = "m") "slave handle position";
+  output Real v(unit = "m/s") "slave handle speed";
+  output Real a(unit = "m/s2") "slave nut acceleration (what its accelerometer feels)";
+  output Real f_wall(unit = "N") "force of the wall on the slave handle along +x";
+  output Real pen(unit = "m") "penetration into the wall (0 out of contact)";
+  RehabSim.BallScrewUnit unit(J = J_u, b = b_u, fc = fc_u, fs = fc_u, Kt = Kt_u) "slave unit";
+  RehabSim.RigidWall wall(x_wall = x_w, k_wall = k_w, d_wall = d_w) "rigid wall blocking motion towards +x";
+equation
+  unit.i = i;
+  wall.x = unit.x;
+  wall.v = unit.v;
+  unit.f_ext = wall.f_wall + f_ext;
+  theta = unit.theta;
+  theta_enc = unit.theta_enc;
+  x_enc = unit.r * unit.theta_enc;
+  w = unit.w;
+  x = unit.x;
+  v = unit.v;
+  a = unit.a;
+  f_wall = wall.f_wall;
+  pen = wall.pen;
+end WallUnitRig;
