@@ -172,3 +172,18 @@ def _single(run, build, ctx):
     from cosim.master import Master
     system, record = build()
     return ProcedureResult(runs={"main": Master(system, record).run(run.duration)})
+
+
+# =========================================================================== estimators
+# The estimators of Sec. 2.2 are generic (every trial with a ball-screw unit uses them),
+# so the framework registers them; the AakfParams / EncoderDifferentiatorParams fields
+# validate the YAML ``params``.
+def _register_estimators():
+    from cosim.algorithms.aakf import (AaKF, AakfParams, EncoderDifferentiator,
+                                       EncoderDifferentiatorParams)
+    from .registry import register_controller
+    register_controller("aakf", AaKF, params=AakfParams)
+    register_controller("encoder_diff", EncoderDifferentiator, params=EncoderDifferentiatorParams)
+
+
+_register_estimators()

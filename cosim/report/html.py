@@ -1,0 +1,196 @@
+"""HTML pages of a scenario and of a suite (no external assets; PNG figures inline)."""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+
+COLOURS = {"pass": ("#1b7f2a", "#e3f4e5"), "fail": ("#b3261e", "#fbe4e2"),
+           "error": ("#8a5a00", "#fff1d6")}
+
+CSS = """
+body{font-family:DejaVu Sans,Arial,Helvetica,sans-serif;margin:24px;color:#222;max-width:1200px}
+h1{font-size:22px;margin-bottom:4px} h2{font-size:18px;border-bottom:2px solid #ccd;
+padding-bottom:3px;margin-top:28px} h3{font-size:15px}
+table{border-collapse:collapse;margin:8px 0;font-size:13px} th,td{border:1px solid #bbc;
+padding:4px 8px;text-align:left;vertical-align:top} th{background:#e8eaf2}
+.badge{display:inline-block;padding:2px 10px;border-radius:10px;font-weight:bold;color:#fff}
+.pass{background:#1b7f2a}.fail{background:#b3261e}.error{background:#c07c00}
+tr.pass td{background:#e3f4e5} tr.fail td{background:#fbe4e2} tr.error td{background:#fff1d6}
+code,pre{font-family:DejaVu Sans Mono,monospace;font-size:12px} pre{background:#f5f5f8;
+padding:8px;overflow-x:auto;white-space:pre-wrap} .fig{margin:10px 0}
+.fig img{max-width:100%;border:1px solid #dde} .muted{color:#666;font-size:12px}
+"""
+
+
+def esc(x) -> str:
+    return html.escape(str(x))
+
+
+def badge(status: str) -> str:
+    return f'<span class="badge {esc(status)}">{esc(status.upper())}</span>'
+
+
+def fig_png(fig) -> str:
+    """A matplotlib figure as an inline <img> (base64 PNG); the figure is closed."""
+    import matplotlib.pyplot as plt
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return ('<img alt="figure" src="data:image/png;base64,'
+            + base64.b64encode(buf.getvalue()).decode() + '">')
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return esc(v)
+
+
+def requirements_table(verdict: dict) -> str:
+    rows = ["<table><tr><th>id</th><th>requirement (thesis)</th><th>metric</th><th>case</th>"
+            "<th>rule</th><th>limit</th><th>value</th><th>verdict</th></tr>"]
+    for r in verdict["requirements"]:
+        msg = f'<br><span class="muted">{esc(r["message"])}</span>' if r.get("message") else ""
+        rows.append(f'<tr class="{esc(r["status"])}"><td><b>{esc(r["id"])}</b></td>'
+                    f'<td>{esc(r["description"])}</td><td>{esc(r["metric"])}</td>'
+                    f'<td>{esc(r.get("case") or "all")}</td><td>{esc(r["rule"])}</td>'
+                    f'<td>{_fmt(r["limit"])}</td><td>{_fmt(r["value"])}</td>'
+                    f'<td>{badge(r["status"])} {esc(r["status"])}{msg}</td></tr>')
+    rows.append("</table>")
+    return "\n".join(rows)
+
+
+def provenance_html(verdict: dict) -> str:
+    out = ["<h3>FMUs used</h3><table><tr><th>role</th><th>model</th><th>path</th>"
+           "<th>sha256</th><th>FMI</th><th>kind</th><th>generation tool</th></tr>"]
+    for p in verdict.get("provenance") or []:
+        out.append(f"<tr><td>{esc(p.get('role'))}</td><td>{esc(p.get('model_name'))}</td>"
+                   f"<td><code>{esc(p.get('path'))}</code></td>"
+                   f"<td><code>{esc(str(p.get('sha256'))[:16])}&hellip;</code></td>"
+                   f"<td>{esc(p.get('fmi_version'))}</td><td>{esc(p.get('kind'))}</td>"
+                   f"<td>{esc(p.get('generation_tool'))}</td></tr>")
+    out.append("</table>")
+    if verdict.get("fmu_swaps"):
+        out.append("<p>FMUs swapped in with <code>--fmu</code>: "
+                   + ", ".join(f"{esc(k)} = <code>{esc(v)}</code>"
+                               for k, v in verdict["fmu_swaps"].items()) + "</p>")
+    out.append("<h3>Versions and seeds</h3><p>" + ", ".join(
+        f"{esc(k)} {esc(v)}" for k, v in (verdict.get("versions") or {}).items())
+        + f"<br>seeds: {esc(verdict.get('seeds'))}</p>")
+    return "\n".join(out)
+
+
+def runs_table(verdict: dict) -> str:
+    rows = ["<table><tr><th>run</th><th>case</th><th>seed</th><th>point</th><th>status</th>"
+            "<th>wall [s]</th><th>values</th></tr>"]
+    for r in verdict.get("runs", []):
+        st = r.get("status") or "error"
+        err = f'<br><span class="muted">{esc(r.get("error"))}</span>' if r.get("error") else ""
+        vals = ", ".join(f"{esc(k)} = {_fmt(v)}" for k, v in (r.get("values") or {}).items())
+        rows.append(f'<tr class="{"pass" if st == "ok" else "error"}"><td>{esc(r.get("label"))}'
+                    f'</td><td>{esc(r.get("case"))}</td><td>{esc(r.get("seed"))}</td>'
+                    f'<td>{esc(r.get("point") or "")}</td><td>{esc(st)}{err}</td>'
+                    f'<td>{_fmt(r.get("wall_s"))}</td><td>{vals}</td></tr>')
+    rows.append("</table>")
+    return "\n".join(rows)
+
+
+def _generic_figures(runs) -> list:
+    """Time series of every recorded signal of the first run (up to 8 panels)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    if not runs:
+        return []
+    r = runs[0]
+    names = [n for n in r.signals if n != "time"][:8]
+    if not names:
+        return []
+    fig, ax = plt.subplots(len(names), 1, figsize=(9, 1.6 * len(names) + 0.6), sharex=True,
+                           squeeze=False)
+    for a, n in zip(ax[:, 0], names):
+        for v in runs:
+            if v.phase == r.phase and n in v.signals:
+                a.plot(v.signals["time"], v.signals[n], lw=0.8, label=v.label)
+        a.set_ylabel(n, fontsize=8)
+    ax[-1, 0].set_xlabel("time [s]")
+    if len({v.label for v in runs}) > 1:
+        ax[0, 0].legend(fontsize=7, loc="upper right")
+    return [("recorded signals", fig)]
+
+
+def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None) -> str:
+    import matplotlib
+    matplotlib.use("Agg")
+    from cosim.scenarios import registry as reg
+    from cosim.scenarios.runner import read_runs
+    runs, _ = read_runs(sc, out_dir)
+    ok = [v for v in runs if any(r.get("label") == v.label and r.get("status") == "ok"
+                                 for r in verdict.get("runs", []))]
+    figs_html = []
+    entry = reg.get("figures", sc.trial)
+    info = {"scenario": sc.name, "description": sc.data.get("description", ""),
+            "data": sc.data, "verdict": verdict}
+    try:
+        figs = entry.obj(ok, info) if entry is not None and ok else _generic_figures(ok)
+    except Exception as exc:
+        figs = []
+        figs_html.append(f"<p class='error'>figures of {esc(sc.trial)} failed: "
+                         f"{esc(type(exc).__name__)}: {esc(exc)}</p>")
+    for title, fig in figs:
+        figs_html.append(f'<div class="fig"><h3>{esc(title)}</h3>{fig_png(fig)}</div>')
+    errs = "".join(f"<li><code>{esc(e)}</code></li>" for e in verdict.get("errors", []))
+    body = [f"<h1>{esc(sc.name)} {badge(verdict['status'])}</h1>",
+            f"<p>{esc(sc.data.get('description', ''))}</p>",
+            f'<p class="muted">scenario file <code>{esc(sc.path)}</code>; trial '
+            f'<code>{esc(sc.trial)}</code>; procedure <code>{esc(sc.procedure)}</code>; '
+            f'duration {esc(sc.data["duration"])} s, step {esc(sc.data.get("step", 1e-3))} s</p>']
+    if back_link:
+        body.insert(0, f'<p><a href="{esc(back_link)}">&larr; suite overview</a></p>')
+    if errs:
+        body.append(f"<h2>Errors</h2><ul>{errs}</ul>")
+    body += ["<h2>Requirements</h2>", requirements_table(verdict),
+             "<h2>Figures</h2>", "\n".join(figs_html) or "<p>(no figures: no finished run)</p>",
+             "<h2>Runs</h2>", runs_table(verdict),
+             "<h2>Provenance</h2>", provenance_html(verdict),
+             "<h2>Configuration</h2><pre>" + esc(sc.text) + "</pre>"]
+    return page(f"{sc.name}: verification report", "\n".join(body))
+
+
+def page(title: str, body: str) -> str:
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{esc(title)}</title>"
+            f"<style>{CSS}</style></head><body>{body}</body></html>")
+
+
+def suite_page(summary: dict, links: dict) -> str:
+    """Overview: one row per scenario with its status and a link to its page."""
+    c = summary["counts"]
+    rows = ["<table><tr><th>scenario</th><th>file</th><th>status</th><th>requirements "
+            "(pass/fail/error)</th><th>runs (cached)</th><th>message</th></tr>"]
+    for s in summary["scenarios"]:
+        reqs = s.get("requirements", [])
+        n = {k: sum(r["status"] == k for r in reqs) for k in ("pass", "fail", "error")}
+        link = links.get(s["scenario"])
+        name = f'<a href="{esc(link)}">{esc(s["scenario"])}</a>' if link else esc(s["scenario"])
+        msg = "; ".join(s.get("errors", [])[:3])
+        rows.append(f'<tr class="{esc(s["status"])}"><td>{name}</td><td><code>{esc(s["file"])}'
+                    f'</code></td><td>{badge(s["status"])} {esc(s["status"])}</td>'
+                    f'<td>{n["pass"]} / {n["fail"]} / {n["error"]}</td>'
+                    f'<td>{len(s.get("runs", []))} ({s.get("cached_runs", 0)})</td>'
+                    f'<td class="muted">{esc(msg)}</td></tr>')
+    rows.append("</table>")
+    body = [f"<h1>Verification suite {badge(summary['status'])}</h1>",
+            f"<p>{c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
+            f"{c['error']} error; {c['requirements']} requirement(s). Wall time "
+            f"{summary.get('wall_s', 0):.1f} s on {esc(summary.get('cluster'))}.</p>",
+            "\n".join(rows),
+            "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
+            + "</pre>"]
+    return page("cosim verification suite", "\n".join(body))

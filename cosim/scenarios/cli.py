@@ -1,0 +1,84 @@
+"""``cosim run`` and ``cosim suite`` (scenario files, see docs/scenario-format.md).
+
+    cosim run SCENARIO --out DIR [--fmu ROLE=PATH ...]
+    cosim suite PATH... --out DIR [--scheduler ADDRESS] [--workers N] [--fmu ROLE=PATH ...]
+
+Exit codes: 0 all requirements pass, 1 a requirement fails or a scenario errors,
+2 bad input (scenario file, --fmu, scheduler).
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def _err(msg: str) -> int:
+    print(f"cosim: error: {msg}", file=sys.stderr)
+    return 2
+
+
+def _cmd_run(a) -> int:
+    from cosim.master.fmu import FMUError
+    from cosim.master.system import SystemError_
+    from .loader import ScenarioError
+    from .registry import RegistryError
+    from .runner import parse_fmu_swaps, run_scenario
+    try:
+        swaps = parse_fmu_swaps(a.fmu)
+        v = run_scenario(a.scenario, a.out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache)
+    except (ScenarioError, RegistryError, SystemError_, FMUError) as exc:
+        return _err(str(exc))
+    for r in v["requirements"]:
+        print(f"{r['status'].upper():5s} {r['id']}: value {r['value']} {r['rule']} {r['limit']}"
+              + (f" ({r['message']})" if r.get("message") else ""))
+    for e in v["errors"]:
+        print(f"ERROR {e}")
+    print(f"{v['scenario']}: {v['status']} -> {Path(a.out) / 'verdict.json'}, "
+          f"{Path(a.out) / 'report.html'}")
+    return 0 if v["status"] == "pass" else 1
+
+
+def _cmd_suite(a) -> int:
+    from cosim.master.fmu import FMUError
+    from cosim.master.system import SystemError_
+    from .loader import ScenarioError
+    from .registry import RegistryError
+    from .runner import parse_fmu_swaps
+    from .suite import SuiteError, run_suite
+    try:
+        swaps = parse_fmu_swaps(a.fmu)
+        s = run_suite(a.paths, a.out, scheduler=a.scheduler, workers=a.workers,
+                      fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
+                      progress=not a.no_progress)
+    except (ScenarioError, RegistryError, SystemError_, FMUError, SuiteError) as exc:
+        return _err(str(exc))
+    c = s["counts"]
+    print(f"suite: {c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
+          f"{c['error']} error; {s['runs_executed']} run(s) executed, {s['runs_cached']} "
+          f"cached; {s['wall_s']:.1f} s -> {Path(a.out) / 'report.html'}")
+    return 0 if s["status"] == "pass" else 1
+
+
+def add_commands(sub) -> None:
+    r = sub.add_parser("run", help="run one scenario file: results, verdict.json, report.html")
+    r.add_argument("scenario", help="scenario file (YAML, docs/scenario-format.md)")
+    r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--fmu", action="append", metavar="ROLE=PATH",
+                   help="use this FMU for ROLE (checked against the role's contract)")
+    r.add_argument("--fmus", default=None, help="folder of the default FMUs (default: fmus/)")
+    r.add_argument("--no-cache", action="store_true", help="rerun finished runs")
+    r.set_defaults(func=_cmd_run)
+    s = sub.add_parser("suite", help="run scenario files/folders on Dask: summary.json, "
+                       "junit.xml, report.html")
+    s.add_argument("paths", nargs="+", help="scenario files or folders of *.yaml")
+    s.add_argument("--out", required=True, help="output folder")
+    s.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler (e.g. tcp://host:8786); default: a local cluster")
+    s.add_argument("--workers", type=int, default=None,
+                   help="local cluster worker processes (default: the machine's cores)")
+    s.add_argument("--fmu", action="append", metavar="ROLE=PATH",
+                   help="use this FMU for ROLE in every scenario that has the role")
+    s.add_argument("--fmus", default=None, help="folder of the default FMUs (default: fmus/)")
+    s.add_argument("--no-cache", action="store_true", help="rerun finished runs")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    s.set_defaults(func=_cmd_suite)

@@ -1,0 +1,676 @@
+"""Scenario files: YAML with line numbers, validation, expansion into runs, and the
+builder of a :class:`~cosim.master.System` from the declarative description.
+
+The format is documented in ``docs/scenario-format.md``. Every error names the file
+and the line (PyYAML node marks) and, where a name is close to a known one, says
+"did you mean ...".
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+import re
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from . import registry as reg
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_FMU_DIR = REPO / "fmus"
+
+
+class ScenarioError(ValueError):
+    """A scenario file that cannot run; the message starts with ``file:line:``."""
+
+
+# =========================================================================== YAML + marks
+class _Marked:
+    """Plain Python data of a YAML document and the line of every path in it."""
+
+    def __init__(self, file: str, text: str):
+        self.file = file
+        self.lines: dict[tuple, int] = {}
+        try:
+            node = yaml.compose(text, Loader=yaml.SafeLoader)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            line = mark.line + 1 if mark else 1
+            raise ScenarioError(f"{file}:{line}: invalid YAML: "
+                                f"{getattr(exc, 'problem', None) or exc}") from None
+        self.data = self._conv(node, ()) if node is not None else {}
+
+    def _conv(self, node, path):
+        self.lines[path] = node.start_mark.line + 1
+        if isinstance(node, yaml.MappingNode):
+            out = {}
+            for k, v in node.value:
+                key = _scalar(k, self.file)
+                if not isinstance(key, (str, int, float)):
+                    raise ScenarioError(f"{self.file}:{k.start_mark.line + 1}: mapping keys "
+                                        f"must be scalars")
+                if key in out:
+                    raise ScenarioError(f"{self.file}:{k.start_mark.line + 1}: duplicate key "
+                                        f"{key!r}")
+                self.lines[path + (key,)] = k.start_mark.line + 1
+                out[key] = self._conv(v, path + (key,))
+                self.lines[path + (key,)] = k.start_mark.line + 1
+            return out
+        if isinstance(node, yaml.SequenceNode):
+            return [self._conv(v, path + (i,)) for i, v in enumerate(node.value)]
+        return _scalar(node, self.file)
+
+
+def _scalar(node, file):
+    loader = yaml.SafeLoader("")
+    try:
+        return loader.construct_object(node, deep=True)
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f"{file}:{node.start_mark.line + 1}: {exc}") from None
+    finally:
+        loader.dispose()
+
+
+# =========================================================================== schema
+# key -> (types, required, description); checked recursively with line numbers.
+NUM = (int, float)
+TOP = {
+    "scenario": (str, True), "description": (str, False), "trial": (str, False),
+    "procedure": (str, False), "duration": (NUM, True), "step": (NUM, False),
+    "seeds": ((int, list), False), "system": (dict, True), "controllers": (dict, False),
+    "stimuli": (dict, False), "record": (list, False), "cases": (dict, False),
+    "metrics": (dict, False), "requirements": (list, False), "sweep": (dict, False),
+    "monte_carlo": (dict, False), "parameters": (dict, False),
+}
+ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
+        "human_profile": (str, False), "grasp": (str, False), "kind": (str, False)}
+CONN = {"from": (str, True), "to": (str, True), "scale": (NUM, False)}
+CTRL = {"type": (str, True), "params": (dict, False), "wiring": (dict, False),
+        "outputs": (dict, False), "record": (list, False)}
+STIM = {"type": (str, True), "params": (dict, False)}
+METRIC = {"type": (str, True), "phase": (str, False)}
+REQ = {"id": (str, True), "description": (str, True), "metric": (str, True),
+       "rule": (str, True), "limit": ((int, float, list), True), "case": (str, False),
+       "aggregate": (str, False)}
+CASE_KEYS = {"description", "system", "controllers", "stimuli", "duration", "record",
+             "parameters"}
+RULES = ("<=", ">=", "<", ">", "within", "outside")
+AGGREGATES = ("worst", "mean", "max", "min")
+CITATION = re.compile(r"\b(Fig\.?|Figure|Table|eq\.?|Eq\.?|Sec\.?|Section|Chapter)\s*\(?\d",
+                      re.IGNORECASE)
+
+
+def _tname(t) -> str:
+    if isinstance(t, tuple):
+        return " or ".join(_tname(x) for x in t if x is not float or int not in t)
+    return {int: "integer", float: "number", str: "string", dict: "mapping", list: "list",
+            type(None): "null", bool: "boolean"}.get(t, t.__name__)
+
+
+@dataclasses.dataclass
+class Requirement:
+    id: str
+    description: str
+    metric: str
+    rule: str
+    limit: Any
+    case: str | None = None
+    aggregate: str = "worst"
+
+
+@dataclasses.dataclass
+class Scenario:
+    """A validated scenario file."""
+    path: str
+    name: str
+    data: dict                     # the file's content (plain data)
+    lines: dict                    # path tuple -> line
+    text: str                      # the file's text (hashed for the cache)
+
+    @property
+    def trial(self) -> str:
+        return self.data.get("trial", self.name)
+
+    @property
+    def procedure(self) -> str:
+        return self.data.get("procedure", "single")
+
+    @property
+    def requirements(self) -> list[Requirement]:
+        return [Requirement(**{k: r[k] for k in r}) for r in self.data.get("requirements", [])]
+
+    @property
+    def metrics(self) -> dict:
+        return self.data.get("metrics", {})
+
+    def where(self, path: tuple) -> str:
+        p = tuple(path)
+        while p and p not in self.lines:
+            p = p[:-1]
+        return f"{self.path}:{self.lines.get(p, 1)}"
+
+    def content_hash(self) -> str:
+        return hashlib.sha256(self.text.encode()).hexdigest()
+
+
+class _Checker:
+    def __init__(self, sc: Scenario):
+        self.sc = sc
+
+    def err(self, path, msg):
+        raise ScenarioError(f"{self.sc.where(path)}: {msg}")
+
+    def keys(self, obj, schema, path, what, extra_ok=()):
+        if not isinstance(obj, dict):
+            self.err(path, f"{what} must be a mapping, got {type(obj).__name__}")
+        for k in obj:
+            if k not in schema and k not in extra_ok:
+                close = reg.suggest(k, list(schema) + list(extra_ok))
+                self.err(path + (k,), f"unknown key {k!r} in {what}"
+                         + (f"; did you mean {close!r}?" if close else
+                            f" (allowed: {', '.join(list(schema) + list(extra_ok))})"))
+        for k, (types, required) in schema.items():
+            if k not in obj:
+                if required:
+                    self.err(path, f"{what}: missing required key {k!r}")
+                continue
+            v = obj[k]
+            ok = isinstance(v, types) and not (isinstance(v, bool) and bool not in
+                                                (types if isinstance(types, tuple) else (types,)))
+            if not ok:
+                self.err(path + (k,), f"{what}: {k!r} must be {_tname(types)}, got "
+                         f"{type(v).__name__} {v!r}")
+
+    def positive(self, v, path, what):
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and v > 0):
+            self.err(path, f"{what} must be a finite number > 0, got {v!r}")
+
+
+def load(path, fmu_dir=None) -> Scenario:
+    """Read and validate a scenario file (structure, registry names, parameters,
+    requirement rules, sweeps; FMU variable names are checked by :func:`check_build`)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read: {exc.strerror}") from None
+    m = _Marked(str(path), text)
+    sc = Scenario(str(path), "", m.data, m.lines, text)
+    c = _Checker(sc)
+    d = m.data
+    c.keys(d, TOP, (), "scenario")
+    sc.name = d["scenario"]
+    c.positive(d["duration"], ("duration",), "duration [s]")
+    step = d.get("step", 1e-3)
+    c.positive(step, ("step",), "step [s]")
+    n = d["duration"] / step
+    if abs(n - round(n)) > 1e-6 * max(1.0, n):
+        c.err(("duration",), f"duration {d['duration']} s is not a whole number of steps of "
+              f"{step} s")
+    seeds = d.get("seeds", [0])
+    seeds = [seeds] if isinstance(seeds, int) else seeds
+    if not seeds:
+        c.err(("seeds",), "seeds is empty: the scenario would expand to zero runs")
+    for i, s in enumerate(seeds):
+        if not isinstance(s, int) or isinstance(s, bool) or s < 0:
+            c.err(("seeds", i), f"seed must be an integer >= 0, got {s!r}")
+    if reg.get("procedure", sc.procedure) is None:
+        close = reg.suggest(sc.procedure, reg.names("procedure"))
+        c.err(("procedure",), f"unknown procedure {sc.procedure!r}"
+              + (f"; did you mean {close!r}?" if close else
+                 f" (registered: {reg.names('procedure')})"))
+    _check_parts(c, d, ())
+    cases = d.get("cases", {})
+    for name, case in cases.items():
+        if case is None:
+            continue
+        if not isinstance(case, dict):
+            c.err(("cases", name), f"case {name!r} must be a mapping")
+        for k in case:
+            if k not in CASE_KEYS:
+                close = reg.suggest(k, CASE_KEYS)
+                c.err(("cases", name, k), f"unknown key {k!r} in case {name!r}"
+                      + (f"; did you mean {close!r}?" if close else
+                         f" (allowed: {', '.join(sorted(CASE_KEYS))})"))
+        merged = deep_merge(d, {k: v for k, v in case.items() if k != "description"})
+        _check_parts(c, merged, ("cases", name), base=d)
+    # metrics
+    for name, spec in d.get("metrics", {}).items():
+        p = ("metrics", name)
+        c.keys(spec, METRIC, p, f"metric {name!r}", extra_ok=_metric_param_names(spec))
+        e = reg.get("metric", spec["type"])
+        if e is None:
+            close = reg.suggest(spec["type"], reg.names("metric"))
+            c.err(p + ("type",), f"unknown metric type {spec['type']!r}"
+                  + (f"; did you mean {close!r}?" if close else
+                     f" (registered: {', '.join(reg.names('metric'))})"))
+        params = {k: v for k, v in spec.items() if k not in METRIC}
+        for key, msg in reg.check_params(e, params):
+            c.err(p + ((key,) if key else ()), msg)
+        if e.params is None or "signal" in params:
+            sig = params.get("signal")
+            if sig is not None:
+                _check_signal_head(c, d, sig, p + ("signal",))
+    # requirements
+    ids = set()
+    for i, r in enumerate(d.get("requirements", [])):
+        p = ("requirements", i)
+        c.keys(r, REQ, p, "requirement")
+        if r["id"] in ids:
+            c.err(p + ("id",), f"requirement id {r['id']!r} is used twice")
+        ids.add(r["id"])
+        if not CITATION.search(r["description"]):
+            c.err(p + ("description",), f"requirement {r['id']}: the description must cite "
+                  f"the thesis (e.g. 'Fig. 26', 'Table 7', 'eq. 54', 'Sec. 2.5.2')")
+        if r["metric"] not in d.get("metrics", {}):
+            close = reg.suggest(r["metric"], d.get("metrics", {}))
+            c.err(p + ("metric",), f"requirement {r['id']}: unknown metric {r['metric']!r}"
+                  + (f"; did you mean {close!r}?" if close else
+                     f" (metrics: {', '.join(d.get('metrics', {}))})"))
+        if r["rule"] not in RULES:
+            c.err(p + ("rule",), f"requirement {r['id']}: rule must be one of {RULES}, got "
+                  f"{r['rule']!r}")
+        lim = r["limit"]
+        if r["rule"] in ("within", "outside"):
+            if not (isinstance(lim, list) and len(lim) == 2 and all(
+                    isinstance(x, NUM) and not isinstance(x, bool) for x in lim) and lim[0] <= lim[1]):
+                c.err(p + ("limit",), f"requirement {r['id']}: rule {r['rule']!r} needs limit "
+                      f"[low, high] with low <= high, got {lim!r}")
+        elif not isinstance(lim, NUM) or isinstance(lim, bool) or not math.isfinite(lim):
+            c.err(p + ("limit",), f"requirement {r['id']}: limit must be a finite number, "
+                  f"got {lim!r}")
+        if "case" in r and r["case"] not in cases:
+            close = reg.suggest(r["case"], cases)
+            c.err(p + ("case",), f"requirement {r['id']}: unknown case {r['case']!r}"
+                  + (f"; did you mean {close!r}?" if close else f" (cases: {list(cases)})"))
+        if r.get("aggregate", "worst") not in AGGREGATES:
+            c.err(p + ("aggregate",), f"aggregate must be one of {AGGREGATES}")
+    expand(sc)          # sweeps / Monte Carlo: shapes and zero-run checks
+    return sc
+
+
+def _metric_param_names(spec):
+    e = reg.get("metric", spec.get("type", "")) if isinstance(spec, dict) else None
+    if e is None or e.params is None:
+        return [k for k in spec if k not in METRIC] if isinstance(spec, dict) else []
+    return [f.name for f in dataclasses.fields(e.params)]
+
+
+def _check_signal_head(c, d, name, path, cases_merged=None):
+    if not isinstance(name, str) or "." not in name:
+        c.err(path, f"signal {name!r} is not of the form 'role.var', 'controller.output' or "
+              f"'stim.name'")
+    head, _, tail = name.partition(".")
+    roles = d["system"].get("fmus", {})
+    ctrls = d.get("controllers") or {}
+    stims = d.get("stimuli") or {}
+    if head == "stim":
+        if tail not in stims:
+            close = reg.suggest(tail, stims)
+            c.err(path, f"unknown stimulus {name!r}" + (f"; did you mean 'stim.{close}'?"
+                                                        if close else f" (stimuli: {list(stims)})"))
+    elif head not in roles and head not in ctrls:
+        close = reg.suggest(head, list(roles) + list(ctrls) + ["stim"])
+        c.err(path, f"unknown role or controller {head!r} in {name!r}"
+              + (f"; did you mean {close!r}?" if close else
+                 f" (roles: {list(roles)}, controllers: {list(ctrls)})"))
+
+
+def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
+    """system / controllers / stimuli / record of the scenario (or of a case merged
+    over it: errors then point at the case's lines where it set them)."""
+    def P(*p):
+        # the case's own line if the case set (part of) this item, else the base file's
+        if prefix and any(prefix + p[:i] in c.sc.lines for i in range(len(p), 0, -1)):
+            return prefix + p
+        return p
+    sysd = d["system"]
+    c.keys(sysd, {"fmus": (dict, True), "connections": (list, False)}, P("system"), "system")
+    for role, spec in sysd["fmus"].items():
+        if spec is None:
+            continue
+        c.keys(spec, ROLE, P("system", "fmus", role), f"role {role!r}")
+        if not str(role).isidentifier() or role == "stim":
+            c.err(P("system", "fmus", role), f"role name {role!r} must be an identifier")
+        if spec.get("kind", "auto") not in ("auto", "cs", "me"):
+            c.err(P("system", "fmus", role, "kind"), "kind must be auto, cs or me")
+        if "human_profile" in spec:
+            from cosim.profiles import GRASPS, HUMAN_PROFILES
+            if spec["human_profile"] not in HUMAN_PROFILES:
+                close = reg.suggest(spec["human_profile"], HUMAN_PROFILES)
+                c.err(P("system", "fmus", role, "human_profile"),
+                      f"unknown human profile {spec['human_profile']!r}"
+                      + (f"; did you mean {close!r}?" if close else
+                         f" (profiles: {sorted(HUMAN_PROFILES)})"))
+            if spec.get("grasp", "hard") not in GRASPS:
+                c.err(P("system", "fmus", role, "grasp"), f"grasp must be one of {sorted(GRASPS)}")
+        from cosim.master.roles import CONTRACTS
+        ct = spec.get("contract")
+        if ct is not None and ct not in CONTRACTS:
+            close = reg.suggest(ct, CONTRACTS)
+            c.err(P("system", "fmus", role, "contract"), f"unknown role contract {ct!r}"
+                  + (f"; did you mean {close!r}?" if close else f" (contracts: {sorted(CONTRACTS)})"))
+        for k, v in (spec.get("parameters") or {}).items():
+            if not isinstance(v, (int, float, bool)):
+                c.err(P("system", "fmus", role, "parameters", k),
+                      f"role {role!r}: parameter {k} must be a number, got {v!r}")
+    for i, conn in enumerate(sysd.get("connections", [])):
+        p = P("system", "connections", i)
+        if isinstance(conn, str):
+            m = re.fullmatch(r"\s*(\S+)\s*->\s*(\S+)\s*(?:\*\s*(\S+))?\s*", conn)
+            if not m:
+                c.err(p, f"connection {conn!r} must read 'source -> role.input' (optionally "
+                      f"'* scale')")
+            conn = {"from": m.group(1), "to": m.group(2)}
+        else:
+            c.keys(conn, CONN, p, "connection")
+        _check_signal_head(c, d, conn["from"], p)
+        head = conn["to"].partition(".")[0]
+        if head not in sysd["fmus"]:
+            close = reg.suggest(head, sysd["fmus"])
+            c.err(p, f"connection to {conn['to']!r}: unknown role {head!r}"
+                  + (f"; did you mean {close!r}?" if close else f" (roles: {list(sysd['fmus'])})"))
+    for name, spec in (d.get("controllers") or {}).items():
+        if spec is None:
+            continue
+        p = P("controllers", name)
+        c.keys(spec, CTRL, p, f"controller {name!r}")
+        e = reg.get("controller", spec["type"])
+        if e is None:
+            close = reg.suggest(spec["type"], reg.names("controller"))
+            c.err(p + ("type",), f"controller {name!r}: unknown type {spec['type']!r}"
+                  + (f"; did you mean {close!r}?" if close else
+                     f" (registered: {', '.join(reg.names('controller'))})"))
+        for key, msg in reg.check_params(e, spec.get("params") or {}):
+            c.err(P("controllers", name, "params", *((key,) if key else ())), msg)
+        for k, src in (spec.get("wiring") or {}).items():
+            _check_signal_head(c, d, src, P("controllers", name, "wiring", k))
+        for k, dest in (spec.get("outputs") or {}).items():
+            head = str(dest).partition(".")[0]
+            if head not in sysd["fmus"]:
+                close = reg.suggest(head, sysd["fmus"])
+                c.err(P("controllers", name, "outputs", k), f"controller {name!r} output "
+                      f"{k!r} -> {dest!r}: unknown role {head!r}"
+                      + (f"; did you mean {close!r}?" if close else ""))
+    for name, spec in (d.get("stimuli") or {}).items():
+        if spec is None:
+            continue
+        p = P("stimuli", name)
+        c.keys(spec, STIM, p, f"stimulus {name!r}")
+        e = reg.get("stimulus", spec["type"])
+        if e is None:
+            close = reg.suggest(spec["type"], reg.names("stimulus"))
+            c.err(p + ("type",), f"stimulus {name!r}: unknown type {spec['type']!r}"
+                  + (f"; did you mean {close!r}?" if close else
+                     f" (registered: {', '.join(reg.names('stimulus'))})"))
+        for key, msg in reg.check_params(e, spec.get("params") or {}):
+            c.err(P("stimuli", name, "params", *((key,) if key else ())), msg)
+    for i, r in enumerate(d.get("record", [])):
+        _check_signal_head(c, d, r, P("record", i))
+
+
+# =========================================================================== merging
+_DELETE = object()
+
+
+def deep_merge(base: dict, over: dict) -> dict:
+    """``over`` applied onto a deep copy of ``base``; a ``null`` value deletes a key
+    (e.g. ``controllers: {zf: null}`` for a case without that controller)."""
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if v is None:
+            out.pop(k, None)
+        elif isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def set_path(d: dict, dotted: str, value) -> dict:
+    """A nested override dict setting ``dotted`` (e.g. 'system.fmus.plant.parameters.J')."""
+    keys = dotted.split(".")
+    out: dict = {}
+    cur = out
+    for k in keys[:-1]:
+        cur = cur.setdefault(k, {})
+    cur[keys[-1]] = value
+    return deep_merge(d, out)
+
+
+def get_path(d: dict, dotted: str, default=None):
+    cur = d
+    for k in dotted.split("."):
+        if not isinstance(cur, dict) or k not in cur:
+            return default
+        cur = cur[k]
+    return cur
+
+
+# =========================================================================== expansion
+@dataclasses.dataclass(frozen=True)
+class Relative:
+    """A Monte-Carlo factor on a nominal value that the FMU supplies (start value)."""
+    factor: float
+
+
+def expand(sc: Scenario) -> list[reg.RunSpec]:
+    """Runs of a scenario: cases x sweep points x Monte-Carlo draws x seeds."""
+    d = sc.data
+    c = _Checker(sc)
+    step = float(d.get("step", 1e-3))
+    seeds = d.get("seeds", [0])
+    seeds = [seeds] if isinstance(seeds, int) else list(seeds)
+    cases = d.get("cases") or {"default": {}}
+    # sweep: path -> list of values (cartesian product)
+    sweep = d.get("sweep") or {}
+    axes = []
+    for path, values in sweep.items():
+        if not isinstance(values, list):
+            c.err(("sweep", path), f"sweep {path!r}: values must be a list, got {values!r}")
+        if not values:
+            c.err(("sweep", path), f"sweep {path!r} has no values: the scenario would expand "
+                  f"to zero runs")
+        _check_override_path(c, d, path, ("sweep", path))
+        axes.append([(path, v) for v in values])
+    points = [dict(p) for p in itertools.product(*axes)] if axes else [{}]
+    # Monte Carlo: N draws from its own seed
+    mc = d.get("monte_carlo")
+    draws: list[dict] = [{}]
+    if mc is not None:
+        c.keys(mc, {"draws": (int, True), "seed": (int, False), "vary": (dict, True)},
+               ("monte_carlo",), "monte_carlo")
+        if mc["draws"] <= 0:
+            c.err(("monte_carlo", "draws"), f"monte_carlo draws must be >= 1, got {mc['draws']} "
+                  f"(the scenario would expand to zero runs)")
+        import numpy as np
+        rng = np.random.default_rng(mc.get("seed", 0))
+        for path, spec in mc["vary"].items():
+            _check_override_path(c, d, path, ("monte_carlo", "vary", path))
+            if not (isinstance(spec, dict) and len(spec) == 1 and
+                    next(iter(spec)) in ("relative", "uniform", "normal", "choice")):
+                c.err(("monte_carlo", "vary", path), f"{path}: give one of relative: 0.1 "
+                      f"(+-10 % uniform), uniform: [lo, hi], normal: [mean, std], choice: [..]")
+            kind, arg = next(iter(spec.items()))
+            bad = (kind == "relative" and not (isinstance(arg, NUM) and 0 <= arg < 1)) or \
+                  (kind in ("uniform", "normal") and not (isinstance(arg, list) and len(arg) == 2)) or \
+                  (kind == "choice" and not (isinstance(arg, list) and arg))
+            if bad:
+                c.err(("monte_carlo", "vary", path, kind), f"{path}: bad {kind} {arg!r}")
+        draws = []
+        for _ in range(mc["draws"]):
+            pt = {}
+            for path, spec in mc["vary"].items():
+                kind, arg = next(iter(spec.items()))
+                if kind == "relative":
+                    f = float(rng.uniform(1 - arg, 1 + arg))
+                    nominal = get_path(d, path)
+                    pt[path] = f * nominal if isinstance(nominal, NUM) else Relative(f)
+                elif kind == "uniform":
+                    pt[path] = float(rng.uniform(*arg))
+                elif kind == "normal":
+                    pt[path] = float(rng.normal(*arg))
+                else:
+                    pt[path] = arg[int(rng.integers(len(arg)))]
+            draws.append(pt)
+    runs = []
+    multi_pt = len(points) > 1
+    for cname, case in cases.items():
+        case = {k: v for k, v in (case or {}).items() if k != "description"}
+        for pi, pt in enumerate(points):
+            for di, dr in enumerate(draws):
+                for seed in seeds:
+                    ov = dict(case)
+                    point = {**pt, **dr}
+                    for path, v in point.items():
+                        ov = set_path(ov, path, v)
+                    label = cname
+                    if multi_pt:
+                        label += "/" + ",".join(f"{p.split('.')[-1]}={v}" for p, v in pt.items())
+                    if mc is not None:
+                        label += f"/mc{di}"
+                    if len(seeds) > 1 or mc is None and not multi_pt and len(cases) == 1:
+                        label += f"/seed{seed}"
+                    merged = deep_merge(d, ov)
+                    runs.append(reg.RunSpec(label=label, case=cname, seed=int(seed),
+                                            duration=float(merged["duration"]), step=step,
+                                            overrides=ov,
+                                            point={k: (v.factor if isinstance(v, Relative) else v)
+                                                   for k, v in point.items()}))
+    if not runs:
+        c.err(("scenario",), "the scenario expands to zero runs")
+    return runs
+
+
+def _check_override_path(c, d, path, where):
+    head = str(path).split(".")[0]
+    if head not in ("system", "controllers", "stimuli", "duration", "parameters"):
+        close = reg.suggest(head, ("system", "controllers", "stimuli", "duration", "parameters"))
+        c.err(where, f"{path!r}: a sweep/Monte-Carlo path must start with system, controllers, "
+              f"stimuli, duration or parameters" + (f"; did you mean {close!r}?" if close else ""))
+    parts = str(path).split(".")
+    if parts[:2] == ["system", "fmus"] and len(parts) > 2 and parts[2] not in d["system"]["fmus"]:
+        close = reg.suggest(parts[2], d["system"]["fmus"])
+        c.err(where, f"{path!r}: unknown role {parts[2]!r}" + (f"; did you mean {close!r}?"
+                                                                if close else ""))
+    if parts[0] == "controllers" and len(parts) > 1 and parts[1] not in (d.get("controllers") or {}):
+        close = reg.suggest(parts[1], d.get("controllers") or {})
+        c.err(where, f"{path!r}: unknown controller {parts[1]!r}"
+              + (f"; did you mean {close!r}?" if close else ""))
+
+
+# =========================================================================== building
+def fmu_file(spec_fmu: str, fmu_dir) -> Path:
+    """An FMU by name (``BallScrewUnit`` -> ``fmus/BallScrewUnit.fmu``) or by path."""
+    p = Path(spec_fmu)
+    if p.suffix == ".fmu" or "/" in spec_fmu:
+        return p if p.is_absolute() else (REPO / p if not p.exists() else p)
+    return Path(fmu_dir or DEFAULT_FMU_DIR) / f"{spec_fmu}.fmu"
+
+
+def make_builder(sc: Scenario, run: reg.RunSpec, ctx: reg.BuildContext,
+                 fmu_swaps: dict | None = None):
+    """``build(overrides=None) -> (System, record)`` for a procedure."""
+    def build(overrides: dict | None = None):
+        d = deep_merge(sc.data, run.overrides)
+        if overrides:
+            d = deep_merge(d, overrides)
+        return build_system(sc, d, ctx, fmu_swaps)
+    return build
+
+
+def _err(sc, path, exc):
+    return ScenarioError(f"{sc.where(path)}: {exc}")
+
+
+def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict | None = None):
+    """A System from the (merged) scenario data. System errors carry the line of the
+    item that caused them."""
+    from cosim.master.fmu import FMUError
+    from cosim.master.system import System, SystemError_
+    from cosim.profiles import human_parameters
+    system = System(step_size=float(d.get("step", 1e-3)))
+    swaps = dict(fmu_swaps or {})
+    for role, spec in d["system"]["fmus"].items():
+        path = swaps.pop(role, None) or fmu_file(spec["fmu"], ctx.fmu_dir)
+        params = {}
+        if "human_profile" in spec:
+            model = "HumanArm1D" if "1D" in Path(str(spec["fmu"])).stem else "HumanArm2D"
+            params.update(human_parameters(spec["human_profile"], spec.get("grasp", "hard"), model))
+        rel = {}
+        for k, v in (spec.get("parameters") or {}).items():
+            if isinstance(v, Relative):
+                rel[k] = v.factor
+            else:
+                params[k] = v
+        try:
+            slave = system.add_fmu(role, path, contract=spec.get("contract"), parameters=params,
+                                   kind=spec.get("kind", "auto"))
+            if rel:
+                starts = {v.name: v.start for v in slave.md.modelVariables}
+                system.set_parameters(role, {k: f * float(starts[k]) for k, f in rel.items()})
+        except (SystemError_, FMUError) as exc:
+            raise _err(sc, ("system", "fmus", role), exc) from None
+    if swaps:
+        raise ScenarioError(f"--fmu: unknown role(s) {sorted(swaps)} (roles of {sc.name}: "
+                            f"{list(d['system']['fmus'])})")
+    for name, spec in (d.get("stimuli") or {}).items():
+        e = reg.get("stimulus", spec["type"])
+        try:
+            system.add_stimulus(name, e.make(spec.get("params") or {}, ctx))
+        except Exception as exc:
+            raise _err(sc, ("stimuli", name), exc) from None
+    for i, conn in enumerate(d["system"].get("connections", [])):
+        if isinstance(conn, str):
+            m = re.fullmatch(r"\s*(\S+)\s*->\s*(\S+)\s*(?:\*\s*(\S+))?\s*", conn)
+            conn = {"from": m.group(1), "to": m.group(2), "scale": float(m.group(3) or 1)}
+        try:
+            system.connect(conn["from"], conn["to"], conn.get("scale", 1.0))
+        except SystemError_ as exc:
+            raise _err(sc, ("system", "connections", i), exc) from None
+    for name, spec in (d.get("controllers") or {}).items():
+        e = reg.get("controller", spec["type"])
+        try:
+            block = e.make(spec.get("params") or {}, ctx)
+            system.add_controller(name, block, spec.get("wiring") or {}, spec.get("outputs") or {},
+                                  record=tuple(spec.get("record") or ()))
+        except (SystemError_, ValueError, TypeError) as exc:
+            raise _err(sc, ("controllers", name), exc) from None
+    record = list(d.get("record") or [])
+    return system, record
+
+
+def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None):
+    """Build every case's System once and plan it (FMU variable names, controller
+    outputs, recorded names) without running: errors name the file and line."""
+    from cosim.master.system import Master, SystemError_
+    seen = set()
+    for run in expand(sc):
+        if run.case in seen:
+            continue
+        seen.add(run.case)
+        ctx = reg.BuildContext(scenario=sc.name, case=run.case, seed=run.seed, step_s=run.step,
+                               duration_s=run.duration, fmu_dir=str(fmu_dir or ""))
+        system, record = make_builder(sc, run, ctx, fmu_swaps)()
+        try:
+            Master(system, record)._plan()
+        except SystemError_ as exc:
+            msg = str(exc)
+            m = re.search(r"'([A-Za-z_]\w*\.[\w\[\], ]+)'", msg)
+            path = ("record",)
+            if m and m.group(1) in (sc.data.get("record") or []):
+                path = ("record", sc.data["record"].index(m.group(1)))
+            raise _err(sc, path, msg) from None
+        finally:
+            for s in system.roles.values():
+                s.terminate()
+
+
+def scenario_digest(sc: Scenario) -> str:
+    return hashlib.sha256(json.dumps(sc.data, sort_keys=True, default=str).encode()).hexdigest()

@@ -1,0 +1,138 @@
+"""Free-motion trial (thesis Sec. 2.5.1): a person moves the uncontrolled unit.
+
+The wiring is that of :mod:`cosim.demo` (declared in ``scenarios/free_motion.yaml``):
+HumanArm1D drives the BallScrewUnit's handle, the Accelerometer on the nut and the
+encoder feed the aaKF and plain encoder differencing. Registered here: the metrics
+of the trial's claims (speed error ratio aaKF/encoder, Fig. 24; bias convergence,
+Fig. 24-25; innovation whiteness, Fig. 20) and its figures.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cosim.scenarios.registry import figures, metric
+
+
+@dataclass(frozen=True)
+class RmsRatioParams:
+    estimate: str = "aakf.omega_rad_s"          # the estimate whose error is the numerator
+    reference: str = "encdiff.omega_rad_s"      # the estimate of the denominator
+    truth: str = "plant.w"
+    from_s: float = 0.5
+
+
+@metric("rms_error_ratio", params=RmsRatioParams)
+def rms_error_ratio(params, ctx):
+    """RMS(estimate - truth) / RMS(reference - truth) after from_s (Fig. 24: the aaKF
+    speed is closer to the truth than encoder differencing: ratio < 1)."""
+    p = RmsRatioParams(**params)
+    s = ctx.signals
+    sel = s["time"] >= p.from_s
+    w = s[p.truth][sel]
+    num = np.sqrt(np.mean((s[p.estimate][sel] - w) ** 2))
+    den = np.sqrt(np.mean((s[p.reference][sel] - w) ** 2))
+    return float(num / den)
+
+
+@dataclass(frozen=True)
+class SettlingParams:
+    signal: str = "aakf.bias_m_s2"
+    target: float = 0.1            # the true value (Accelerometer b0 [m/s^2])
+    band: float = 0.02             # absolute band around the target
+    from_s: float = 0.0
+
+
+@metric("settling_time", params=SettlingParams)
+def settling_time(params, ctx):
+    """First time from which the signal stays within target +- band until the end
+    (the duration + one step if it never settles)."""
+    p = SettlingParams(**params)
+    t = ctx.signals["time"]
+    x = ctx.signals[p.signal]
+    sel = t >= p.from_s
+    t, x = t[sel], x[sel]
+    out = np.flatnonzero(np.abs(x - p.target) > p.band)
+    if out.size == 0:
+        return float(t[0])
+    if out[-1] + 1 >= t.size:
+        return float(t[-1] + (t[1] - t[0]))
+    return float(t[out[-1] + 1])
+
+
+@dataclass(frozen=True)
+class WhitenessParams:
+    signal: str = "aakf.innov_acc_m_s2"
+    from_s: float = 1.0
+    confidence: float = 0.95
+
+
+@metric("whiteness", params=WhitenessParams)
+def whiteness(params, ctx):
+    """Bartlett cumulative-periodogram statistic max|C_j - j/m| / KS half-width of the
+    signal after from_s (Fig. 20): <= 1 means white at the chosen confidence."""
+    from cosim.algorithms.whiteness import cumulative_periodogram
+    p = WhitenessParams(**params)
+    s = ctx.signals
+    return float(cumulative_periodogram(s[p.signal][s["time"] >= p.from_s],
+                                        p.confidence).normalised_statistic)
+
+
+@figures("free-motion")
+def free_motion_figures(runs, info):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from cosim.algorithms.whiteness import cumulative_periodogram
+    r = runs[0]
+    s = r.signals
+    t = s["time"]
+    out = []
+    fig, ax = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    ax[0].plot(t, 1e3 * s["plant.x"], label="nut position x")
+    if "stim.x_ref" in s:
+        ax[0].plot(t, 1e3 * s["stim.x_ref"], "k--", lw=1, label="target x_ref")
+    ax[0].set_ylabel("position [mm]")
+    ax[0].legend(loc="upper right", fontsize=8)
+    ax[1].plot(t, s["encdiff.omega_rad_s"], color="0.7", lw=0.8, label="encoder differencing")
+    ax[1].plot(t, s["aakf.omega_rad_s"], lw=1, label="aaKF")
+    ax[1].plot(t, s["plant.w"], "k", lw=0.8, label="true (FMU)")
+    ax[1].set_ylabel("motor speed [rad/s]")
+    ax[1].set_xlabel("time [s]")
+    ax[1].legend(loc="upper right", fontsize=8)
+    fig.suptitle(f"Speed estimates vs truth (Fig. 24 form), run {r.label}")
+    out.append(("speed estimates vs truth", fig))
+
+    b0 = next((m.get("target", 0.1) for m in info["data"].get("metrics", {}).values()
+               if m.get("type") == "settling_time"), 0.1)
+    band = next((m.get("band", 0.02) for m in info["data"].get("metrics", {}).values()
+                 if m.get("type") == "settling_time"), 0.02)
+    fig, ax = plt.subplots(figsize=(9, 3.2))
+    for v in runs:
+        ax.plot(v.signals["time"], v.signals["aakf.bias_m_s2"], lw=1, label=f"aaKF bias, {v.label}")
+    ax.axhline(b0, color="k", lw=1, label=f"true bias b0 = {b0} m/s²")
+    ax.axhspan(b0 - band, b0 + band, color="tab:green", alpha=0.15, label=f"±{band} m/s² band")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("bias [m/s²]")
+    ax.set_ylim(min(-0.05, b0 - 3 * band), b0 + 0.15)
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title("Accelerometer-bias convergence (Fig. 24-25 form)")
+    out.append(("bias convergence", fig))
+
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    for a, name in zip(ax, ("aakf.innov_acc_m_s2", "aakf.innov_enc_rad")):
+        if name not in s:
+            continue
+        cp = cumulative_periodogram(s[name][t >= 1.0], 0.95)
+        a.plot(cp.freq, cp.curve, lw=1.2, label="cumulative periodogram")
+        a.plot(cp.freq, cp.line, "k", lw=0.8, label="white noise")
+        a.plot(cp.freq, cp.lower, "r--", lw=0.8, label="95 % bands")
+        a.plot(cp.freq, cp.upper, "r--", lw=0.8)
+        a.set_xlabel("frequency [cycles/sample]")
+        a.set_title(f"{name}: stat {cp.normalised_statistic:.2f} "
+                    f"({'white' if cp.white else 'not white'})", fontsize=9)
+        a.legend(loc="lower right", fontsize=7)
+    fig.suptitle("Innovation whiteness (Fig. 20 form), after 1 s")
+    out.append(("innovation whiteness", fig))
+    return out
