@@ -1,0 +1,224 @@
+"""``cosim suite``: many scenarios on Dask, with a cache, resume, summary, JUnit, report.
+
+Layout of ``DIR``::
+
+    DIR/<scenario>/...          one scenario's folder (as ``cosim run``)
+    DIR/summary.json            per scenario: status, requirements, runs, errors
+    DIR/junit.xml               one testcase per requirement (failure / error)
+    DIR/report.html             overview linking to DIR/<scenario>/report.html
+
+Every run is a Dask task (:func:`cosim.scenarios.runner.execute_run`) that writes its
+outputs atomically; a run whose stored ``run.json`` has the same cache key (scenario
+content, FMU hashes, package source hash) is not repeated, so an interrupted suite
+rerun resumes where it stopped and an unchanged suite is not rerun at all.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+from . import registry as reg
+from .loader import Scenario, ScenarioError, check_build, expand, load
+from .runner import (atomic_write, execute_run, finish_scenario, run_done, run_key,
+                     safe_name, versions)
+
+
+class SuiteError(RuntimeError):
+    """A suite that cannot start (no scenarios, unreachable scheduler)."""
+
+
+def collect(paths) -> list[Path]:
+    files = []
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            found = sorted(list(p.glob("*.yaml")) + list(p.glob("*.yml")))
+            if not found:
+                raise SuiteError(f"{p}: folder has no *.yaml scenario files")
+            files += found
+        elif p.is_file():
+            files.append(p)
+        else:
+            raise SuiteError(f"{p}: no such scenario file or folder")
+    return list(dict.fromkeys(f.resolve() for f in files))
+
+
+class _Progress:
+    """A one-line progress bar on stderr."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.done, self.enabled, self.t0 = total, 0, enabled, time.perf_counter()
+
+    def step(self, what: str = ""):
+        self.done += 1
+        if not self.enabled:
+            return
+        n = 30
+        k = int(n * self.done / max(self.total, 1))
+        sys.stderr.write(f"\r[{'#' * k}{'.' * (n - k)}] {self.done}/{self.total} runs "
+                         f"{time.perf_counter() - self.t0:6.1f} s {what[:40]:40s}")
+        if self.done >= self.total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def _client(scheduler: str | None, workers: int | None):
+    import dask
+    from distributed import Client, LocalCluster
+    # a run that kills its worker (segfault in an FMU) is not retried forever
+    dask.config.set({"distributed.scheduler.allowed-failures": 1,
+                     "distributed.worker.daemon": False,
+                     "distributed.logging.distributed": "error"})
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="5s"), None
+        except (OSError, TimeoutError) as exc:
+            raise SuiteError(f"cannot reach the Dask scheduler {scheduler!r} within 5 s "
+                             f"({type(exc).__name__}: {exc})") from None
+        except ValueError as exc:
+            raise SuiteError(f"bad Dask scheduler address {scheduler!r}: {exc}") from None
+    n = workers or os.cpu_count() or 1
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                           dashboard_address=None, silence_logs=50)
+    return Client(cluster), cluster
+
+
+def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None = None,
+              fmu_swaps: dict | None = None, fmu_dir=None, use_cache: bool = True,
+              progress: bool = True, serial: bool = False) -> dict:
+    """Run every run of every scenario; ``serial=True`` runs in this process (no Dask;
+    used by the benchmark as the baseline)."""
+    t0 = time.perf_counter()
+    out_dir = Path(out_dir)
+    files = collect(paths)
+    scenarios: list[Scenario] = []
+    names = {}
+    for f in files:
+        sc = load(f, fmu_dir)              # a bad file is bad input: stop before running
+        if sc.name in names:
+            raise SuiteError(f"{f}: scenario name {sc.name!r} is also used by {names[sc.name]}")
+        names[sc.name] = f
+        swaps = {r: p for r, p in (fmu_swaps or {}).items()
+                 if r in sc.data["system"]["fmus"]}
+        check_build(sc, fmu_dir, swaps)    # contracts of --fmu, FMU variable names
+        scenarios.append(sc)
+    if fmu_swaps:
+        used = {r for sc in scenarios for r in sc.data["system"]["fmus"]}
+        unknown = sorted(set(fmu_swaps) - used)
+        if unknown:
+            raise SuiteError(f"--fmu: no scenario has role(s) {unknown} (roles: {sorted(used)})")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    todo = []          # (scenario, run, key, scenario dir)
+    cached = {sc.name: 0 for sc in scenarios}
+    for sc in scenarios:
+        sdir = out_dir / safe_name(sc.name)
+        swaps = {r: p for r, p in (fmu_swaps or {}).items() if r in sc.data["system"]["fmus"]}
+        for run in expand(sc):
+            key = run_key(sc, run, fmu_dir, swaps)
+            if use_cache and run_done(sdir, run, key):
+                cached[sc.name] += 1
+                continue
+            todo.append((sc, run, key, sdir, swaps))
+    bar = _Progress(len(todo), progress)
+    client = cluster = None
+    cluster_desc = "serial (this process)"
+    try:
+        if todo and not serial:
+            client, cluster = _client(scheduler, workers)
+            cluster_desc = (f"Dask scheduler {scheduler}" if scheduler else
+                            f"local Dask cluster, {len(client.scheduler_info()['workers'])} "
+                            f"worker process(es)")
+            from distributed import as_completed
+            futs = {}
+            for sc, run, key, sdir, swaps in todo:
+                f = client.submit(execute_run, str(sc.path), run.label, str(sdir), swaps,
+                                  str(fmu_dir) if fmu_dir else None, key, pure=False,
+                                  key=f"run-{safe_name(sc.name)}-{safe_name(run.label)}-{key[:8]}")
+                futs[f] = (sc, run, sdir)
+            for f in as_completed(futs):
+                sc, run, sdir = futs[f]
+                try:
+                    f.result()
+                except Exception as exc:     # the worker died (crash in native code)
+                    _record_crash(sdir, run, key=None, exc=exc)
+                bar.step(f"{sc.name}:{run.label}")
+        else:
+            for sc, run, key, sdir, swaps in todo:
+                execute_run(str(sc.path), run.label, str(sdir), swaps,
+                            str(fmu_dir) if fmu_dir else None, key)
+                bar.step(f"{sc.name}:{run.label}")
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    results = []
+    for sc in scenarios:
+        sdir = out_dir / safe_name(sc.name)
+        swaps = {r: p for r, p in (fmu_swaps or {}).items() if r in sc.data["system"]["fmus"]}
+        v = finish_scenario(sc, sdir, swaps)
+        v["cached_runs"] = cached[sc.name]
+        results.append(v)
+    statuses = [v["status"] for v in results]
+    summary = {
+        "status": "error" if "error" in statuses else "fail" if "fail" in statuses else "pass",
+        "counts": {"scenarios": len(results), "pass": statuses.count("pass"),
+                   "fail": statuses.count("fail"), "error": statuses.count("error"),
+                   "requirements": sum(len(v["requirements"]) for v in results)},
+        "runs_executed": len(todo), "runs_cached": sum(cached.values()),
+        "wall_s": time.perf_counter() - t0, "cluster": cluster_desc, "versions": versions(),
+        "scenarios": [{k: v.get(k) for k in ("scenario", "file", "status", "errors",
+                                             "requirements", "runs", "cached_runs",
+                                             "provenance", "seeds")} for v in results],
+    }
+    atomic_write(out_dir / "summary.json", json.dumps(summary, indent=1, default=str))
+    atomic_write(out_dir / "junit.xml", junit_xml(summary))
+    from cosim.report.html import suite_page
+    links = {v["scenario"]: f"{safe_name(v['scenario'])}/report.html" for v in results}
+    atomic_write(out_dir / "report.html", suite_page(summary, links))
+    return summary
+
+
+def _record_crash(sdir: Path, run: reg.RunSpec, key, exc):
+    """A run whose worker process died: store an error run.json (atomically)."""
+    d = Path(sdir) / "runs" / safe_name(run.label)
+    if (d / "run.json").is_file():
+        return
+    d.mkdir(parents=True, exist_ok=True)
+    atomic_write(d / "run.json", json.dumps({
+        "label": run.label, "case": run.case, "seed": run.seed, "status": "error",
+        "key": key, "error": f"worker crashed: {type(exc).__name__}: {exc}"}))
+
+
+def junit_xml(summary: dict) -> str:
+    """JUnit XML: a testsuite per scenario, a testcase per requirement (a scenario
+    without requirements, or one whose runs failed, adds an error testcase)."""
+    root = ET.Element("testsuites", name="cosim suite")
+    for s in summary["scenarios"]:
+        cases = []
+        for r in s["requirements"]:
+            tc = ET.Element("testcase", classname=s["scenario"], name=r["id"])
+            msg = (f"value {r['value']} {r['rule']} {r['limit']}: {r['description']}"
+                   + (f" ({r['message']})" if r.get("message") else ""))
+            if r["status"] == "fail":
+                ET.SubElement(tc, "failure", message=msg[:500]).text = msg
+            elif r["status"] == "error":
+                ET.SubElement(tc, "error", message=msg[:500]).text = msg
+            cases.append(tc)
+        if not s["requirements"] and s["status"] == "error":
+            tc = ET.Element("testcase", classname=s["scenario"], name="run")
+            ET.SubElement(tc, "error", message="; ".join(s["errors"])[:500]).text = \
+                "\n".join(s["errors"])
+            cases.append(tc)
+        ts = ET.SubElement(root, "testsuite", name=s["scenario"], tests=str(len(cases)),
+                           failures=str(sum(c.find("failure") is not None for c in cases)),
+                           errors=str(sum(c.find("error") is not None for c in cases)))
+        ts.extend(cases)
+    root.set("tests", str(sum(int(t.get("tests")) for t in root)))
+    root.set("failures", str(sum(int(t.get("failures")) for t in root)))
+    root.set("errors", str(sum(int(t.get("errors")) for t in root)))
+    return ET.tostring(root, encoding="unicode", xml_declaration=True)
