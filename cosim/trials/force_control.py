@@ -1,0 +1,260 @@
+"""Zero-force (thesis Sec. 2.5.3) and bilateral position-force (Sec. 2.5.4) trials.
+
+Registers the control blocks these trials wire by name (sine reference, partner
+position controller, zero-force controller, DOB, RFOB, bilateral controller, an
+operator intention profile), the metrics the requirements use, and the report figures.
+
+Why rigs: the unit under test is joined to its partner by a load cell, and the
+bilateral slave meets a wall, both about 2e5 N/m. Exchanging such a coupling between
+two FMUs once per 1 ms tick is explicit (each FMU sees the other's position one step
+late): a 6.7 kg unit on 2e5 N/m has omega*Ts = 0.17 and the delayed spring injects
+energy faster than the 150 N s/m of the load cell removes it (measured: the
+two-unit + LoadCell FMU system diverges). The rigs (``ZeroForceRig``,
+``WallUnitRig``) solve the stiff coupling inside one FMU with the implicit
+Rosenbrock solver; only the 1 ms controller boundary is co-simulated, as on the
+real bench.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cosim.algorithms.bilateral import BilateralController, BilateralParams
+from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams
+from cosim.algorithms.zero_force import (PositionController, PositionControllerParams,
+                                         SineReference, SineReferenceParams,
+                                         ZeroForceController, ZeroForceParams)
+from cosim.scenarios.registry import figures, metric, register_controller, stimulus
+
+register_controller("sine_reference", SineReference, params=SineReferenceParams)
+register_controller("position_controller", PositionController, params=PositionControllerParams)
+register_controller("zero_force", ZeroForceController, params=ZeroForceParams)
+register_controller("dob", DOB, params=DOBParams)
+register_controller("rfob", RFOB, params=RFOBParams)
+register_controller("bilateral", BilateralController, params=BilateralParams)
+
+
+# =========================================================================== stimuli
+@dataclass(frozen=True)
+class OperatorParams:
+    """Intention of the operator driving the master (Sec. 2.5.4, Fig. 32): free
+    back-and-forth motion, then a push beyond the wall, a hold, and a retreat.
+
+    free_centre_m, free_amplitude_m, free_frequency_hz: sine of the free phase [m, m, Hz];
+    free_until_s: end of the free phase [s]; push_to_m: target of the push (beyond the
+    wall) [m]; push_speed_m_s: approach speed [m/s]; hold_s: time held at ``push_to_m``
+    [s]; derivative: 0 position, 1 speed (for the human model's v_ref).
+    """
+    free_centre_m: float = -0.015
+    free_amplitude_m: float = 0.025
+    free_frequency_hz: float = 0.5
+    free_until_s: float = 4.0
+    push_to_m: float = 0.04
+    push_speed_m_s: float = 0.055
+    hold_s: float = 2.0
+    derivative: int = 0
+
+    def validate(self):
+        if self.push_speed_m_s <= 0 or self.free_frequency_hz <= 0 or self.hold_s < 0:
+            raise ValueError("push_speed_m_s and free_frequency_hz must be > 0, hold_s >= 0")
+        if self.derivative not in (0, 1):
+            raise ValueError("derivative must be 0 or 1")
+
+
+def operator_intention(p: OperatorParams):
+    """x_op(t) and v_op(t) of :class:`OperatorParams` (continuous, piecewise smooth)."""
+    w = 2 * math.pi * p.free_frequency_hz
+    x_free_end = p.free_centre_m + p.free_amplitude_m * math.sin(w * p.free_until_s)
+    t_push = abs(p.push_to_m - x_free_end) / p.push_speed_m_s
+    sgn = 1.0 if p.push_to_m >= x_free_end else -1.0
+    t1 = p.free_until_s + t_push            # reached the push target
+    t2 = t1 + p.hold_s                      # starts to retreat
+    t3 = t2 + t_push                        # back where the free phase ended
+
+    def x(t):
+        if t < p.free_until_s:
+            return p.free_centre_m + p.free_amplitude_m * math.sin(w * t)
+        if t < t1:
+            return x_free_end + sgn * p.push_speed_m_s * (t - p.free_until_s)
+        if t < t2:
+            return p.push_to_m
+        if t < t3:
+            return p.push_to_m - sgn * p.push_speed_m_s * (t - t2)
+        return x_free_end
+
+    def v(t):
+        if t < p.free_until_s:
+            return p.free_amplitude_m * w * math.cos(w * t)
+        if t < t1:
+            return sgn * p.push_speed_m_s
+        if t < t2:
+            return 0.0
+        if t < t3:
+            return -sgn * p.push_speed_m_s
+        return 0.0
+    return x, v
+
+
+@stimulus("operator_push", params=OperatorParams)
+def _operator_push(params, ctx):
+    """Operator intention of the bilateral trial: free motion, push into the wall, hold,
+    retreat (position, or its speed with derivative: 1)."""
+    p = OperatorParams(**params)
+    p.validate()
+    x, v = operator_intention(p)
+    return v if p.derivative else x
+
+
+# =========================================================================== metrics
+@dataclass(frozen=True)
+class HFParams:
+    """High-frequency content of a signal in a window: RMS of the signal minus its
+    centred moving average over ``smooth_s`` (a crude high-pass whose corner is about
+    0.44/smooth_s Hz, 22 Hz for 20 ms): the vibration an operator feels, not the force
+    level. ``from_s``/``to_s`` bound the window [s]; ``after_first`` (optional) starts
+    the window at the first sample where |after_first signal| exceeds ``threshold``,
+    plus ``from_s``."""
+    signal: str = ""
+    from_s: float = 0.0
+    to_s: float | None = None
+    smooth_s: float = 0.02
+    after_first: str | None = None
+    threshold: float = 0.5
+
+
+def hf_rms(x: np.ndarray, n_smooth: int) -> float:
+    """RMS of x minus its centred n-sample moving average (edges dropped)."""
+    x = np.asarray(x, float)
+    if n_smooth < 2 or x.size < 3 * n_smooth:
+        raise ValueError(f"window too short ({x.size} samples) for a {n_smooth}-sample smoother")
+    lp = np.convolve(x, np.ones(n_smooth) / n_smooth, mode="same")
+    return float(np.sqrt(np.mean((x - lp)[n_smooth:-n_smooth] ** 2)))
+
+
+@metric("hf_rms", params=HFParams)
+def _hf_rms(params, ctx):
+    """RMS of the high-frequency part (above about 0.44/smooth_s Hz) of a signal."""
+    p = HFParams(**params)
+    t = np.asarray(ctx.signals["time"])
+    start = p.from_s
+    if p.after_first:
+        hit = np.flatnonzero(np.abs(np.asarray(ctx.signals[p.after_first])) > p.threshold)
+        if hit.size == 0:
+            raise ValueError(f"{p.after_first} never exceeds {p.threshold}: no contact")
+        start = t[hit[0]] + p.from_s
+    end = t[-1] if p.to_s is None else (t[hit[0]] + p.to_s if p.after_first else p.to_s)
+    sel = (t >= start) & (t <= end)
+    dt = float(t[1] - t[0])
+    return hf_rms(np.asarray(ctx.signals[p.signal])[sel], max(2, int(round(p.smooth_s / dt))))
+
+
+@dataclass(frozen=True)
+class CaseRatioParams:
+    """Ratio of one run metric between two cases (scenario scope): the mean of
+    ``metric`` (a run-scope metric name with its ``params``) over the runs of case
+    ``numerator`` divided by its mean over the runs of case ``denominator``."""
+    metric: str = "mean_abs"
+    params: dict | None = None
+    numerator: str = ""
+    denominator: str = ""
+
+
+@metric("case_ratio", params=CaseRatioParams, scope="scenario")
+def _case_ratio(params, ctx):
+    """metric(case numerator) / metric(case denominator), averaged over their runs."""
+    from cosim.scenarios.registry import MetricContext, get
+    p = CaseRatioParams(**params)
+    entry = get("metric", p.metric)
+    if entry is None or entry.scope != "run":
+        raise ValueError(f"case_ratio: {p.metric!r} is not a run metric")
+
+    def mean_over(case):
+        runs = [r for r in ctx.runs if r.case == case and r.phase in ("main", "")]
+        if not runs:
+            raise ValueError(f"case_ratio: no run of case {case!r} "
+                             f"(cases: {sorted({r.case for r in ctx.runs})})")
+        vals = [entry.obj(dict(p.params or {}),
+                          MetricContext(signals=r.signals, values=r.values, runs=[r], run=r))
+                for r in runs]
+        return float(np.mean(vals))
+    den = mean_over(p.denominator)
+    if den == 0:
+        raise ValueError(f"case_ratio: metric is 0 for case {p.denominator!r}")
+    return mean_over(p.numerator) / den
+
+
+# =========================================================================== figures
+def _series(r, name):
+    return np.asarray(r.signals[name]) if name in r.signals else None
+
+
+@figures("zero-force")
+def _zero_force_figures(runs, info):
+    """Load-cell force per case (Fig. 29) and its mean absolute value (Fig. 30)."""
+    import matplotlib.pyplot as plt
+    settle = float((info.get("parameters") or {}).get("settle_s", 1.0))
+    out = []
+    fig, ax = plt.subplots(figsize=(9, 3.6))
+    bars = []
+    for r in runs:
+        f = _series(r, "rig.f_lc")
+        if f is None:
+            continue
+        t = np.asarray(r.signals["time"])
+        ax.plot(t, f, lw=0.8, label=r.case or r.label)
+        bars.append((r.case or r.label, float(np.mean(np.abs(f[t >= settle])))))
+    ax.set_xlabel("time [s]"); ax.set_ylabel("load-cell force f_lc [N]")
+    ax.set_title("Interaction force per case (thesis Fig. 29)")
+    ax.grid(True, alpha=0.3); ax.legend(loc="upper right")
+    out.append(("Load-cell force per case (Fig. 29)", fig))
+    if bars:
+        fig, ax = plt.subplots(figsize=(5.5, 3.6))
+        names_, vals = zip(*bars)
+        ax.bar(names_, vals, color=["#888", "#1f77b4", "#2ca02c", "#d62728"][:len(vals)])
+        for i, v in enumerate(vals):
+            ax.text(i, v, f"{v:.2f} N", ha="center", va="bottom")
+        ax.set_ylabel(f"mean |f_lc| after {settle:g} s [N]")
+        ax.set_title("Absolute average load-cell force (thesis Fig. 30)")
+        out.append(("Mean absolute load-cell force (Fig. 30)", fig))
+    for r in runs:
+        if _series(r, "rfob.f_int_hat") is not None:
+            t = np.asarray(r.signals["time"])
+            fig, ax = plt.subplots(figsize=(9, 3.2))
+            ax.plot(t, r.signals["rig.f_lc"], lw=0.8, label="load cell f_lc (true)")
+            ax.plot(t, r.signals["rfob.f_int_hat"], lw=0.8, label="RFOB estimate f_int^")
+            ax.set_xlabel("time [s]"); ax.set_ylabel("force [N]"); ax.grid(True, alpha=0.3)
+            ax.legend(); ax.set_title(f"RFOB estimate vs load cell ({r.case})")
+            out.append((f"RFOB estimate vs load cell ({r.case})", fig))
+    return out
+
+
+@figures("bilateral")
+def _bilateral_figures(runs, info):
+    """Master/slave positions and forces per case (Fig. 32 form)."""
+    import matplotlib.pyplot as plt
+    out = []
+    for r in runs:
+        t = np.asarray(r.signals["time"])
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+        a1.plot(t, 1e3 * np.asarray(r.signals["master.x"]), "r", lw=0.9, label="master x_m")
+        a1.plot(t, 1e3 * np.asarray(r.signals["slave.x"]), "b--", lw=0.9, label="slave x_s")
+        a1.set_ylabel("position [mm]"); a1.grid(True, alpha=0.3); a1.legend(loc="upper left")
+        fw = np.asarray(r.signals["slave.f_wall"])
+        contact = fw < -0.5
+        for ax in (a1, a2):
+            if contact.any():
+                ax.fill_between(t, 0, 1, where=contact, color="0.85",
+                                transform=ax.get_xaxis_transform(), label=None)
+        a2.plot(t, -np.asarray(r.signals["human.f_h"]), "r", lw=0.8,
+                label="master reaction -f_h (operator)")
+        a2.plot(t, -fw, "b", lw=0.8, label="slave reaction -f_wall (wall)")
+        if "rfob_m.f_int_hat" in r.signals:
+            a2.plot(t, r.signals["rfob_m.f_int_hat"], "m:", lw=0.8, label="RFOB f_m^")
+            a2.plot(t, r.signals["rfob_s.f_int_hat"], "c:", lw=0.8, label="RFOB f_s^")
+        a2.set_xlabel("time [s]"); a2.set_ylabel("force [N]"); a2.grid(True, alpha=0.3)
+        a2.legend(loc="upper left", fontsize=8)
+        fig.suptitle(f"Bilateral control, {r.case} (thesis Fig. 32; grey: contact)")
+        out.append((f"Positions and forces, {r.case}", fig))
+    return out
