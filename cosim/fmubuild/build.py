@@ -533,7 +533,9 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
         res = td / "fmu" / "resources" / "modelica"
         res.mkdir(parents=True)
         for f in files:
-            shutil.copyfile(f, res / f.name)
+            dst = res / f.relative_to(package_dir)   # sub-packages keep their folder
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(f, dst)
         (td / "fmu" / "resources" / "build-info.json").write_text(json.dumps({
             "model": model, "build_key": key, "guid": guid, "fmi_version": fmi_version,
             "states": [v.name for v in fm.states],
@@ -551,15 +553,17 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
 
 
 def read_manifest(package_dir: Path) -> list[str]:
-    """Models to export: modelica/fmus.txt, one qualified name per line."""
+    """Models to export: modelica/fmus.txt, then every modelica/*_fmus.txt (e.g.
+    gap_fmus.txt), one qualified name per line."""
     mf = Path(package_dir).parent / "fmus.txt"
     if not mf.exists():
         raise BuildError(f"{mf} not found: it lists the models to export as FMUs")
     names = []
-    for i, line in enumerate(mf.read_text().splitlines(), 1):
-        line = line.split("#", 1)[0].strip()
-        if line:
-            names.append(line)
+    for f in [mf, *sorted(mf.parent.glob("*_fmus.txt"))]:
+        for i, line in enumerate(f.read_text().splitlines(), 1):
+            line = line.split("#", 1)[0].strip()
+            if line and line not in names:
+                names.append(line)
     return names
 
 
