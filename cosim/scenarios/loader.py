@@ -122,7 +122,9 @@ CITATION = re.compile(r"\b(Fig\.?|Figure|Table|eq\.?|Eq\.?|Sec\.?|Section|Chapte
 
 def _tname(t) -> str:
     if isinstance(t, tuple):
-        return " or ".join(_tname(x) for x in t if x is not float or int not in t)
+        parts = ["number"] if int in t and float in t else []
+        parts += [_tname(x) for x in t if not (int in t and float in t and x in (int, float))]
+        return " or ".join(parts)
     return {int: "integer", float: "number", str: "string", dict: "mapping", list: "list",
             type(None): "null", bool: "boolean"}.get(t, t.__name__)
 
