@@ -1,0 +1,378 @@
+"""Higher-fidelity truth model of the ball-screw unit for the gap diagnosis.
+
+Generates ``ballscrew-1dof`` trial logs (``spec/trial-log.md``) from a model that
+is deliberately richer than the model of record that the diagnosis uses, with any
+catalogue effect (``spec/gap-diagnosis.md``) or one outside the catalogue, random
+parameter error and sensor noise, all from a seed. The effect label is NOT written
+into the log (the benchmark keeps it in a separate manifest, :mod:`cosim.gap.cases`).
+
+Truth model (why it is "higher fidelity" than the diagnosed one)
+----------------------------------------------------------------
+* Integration: semi-implicit (symplectic) Euler at ``n_sub`` = 20 sub-steps per
+  1 ms sample (0.05 ms); the current command is held (ZOH) over the sample.
+* Friction: Karnopp stick/slip on the motor shaft (stuck while ``|w| < w_stick``
+  and the net applied torque is below the break-away torque; while stuck the
+  friction balances the applied torque). Sliding friction
+  ``(fc_dir(x) + (fs - fc) exp(-(w/ws)^2)) sign(w) + b_dir w``: direction-dependent
+  Coulomb/viscous (asymmetric), position-periodic Coulomb (position-dependent),
+  Stribeck excess.
+* Two bodies when the effect needs it (backlash, compliance, hidden payload): motor
+  + screw ``J_m = J - m_n S^2`` | nut + handle + accelerometer ``m_n``, coupled by
+  a spring-damper (compliance) or a stiff contact with a dead zone (backlash).
+* Current driver: ideal by default; delay (ring buffer of sub-steps), first-order
+  lag, clipping, 50 Hz mains ripple (out of catalogue) when drawn.
+* Sensors: 21600-count encoder (rounding), ADXL335-like accelerometer (150 ug/sqrt(Hz)
+  white noise through a 1600 Hz pole, bias = calibrated nominal + calibration error
+  + random walk (+ thermal drift when drawn), scale error when drawn, specific force
+  so a tilt shows ``g sin(alpha)``, 12-bit ADC quantisation 0.0239 m/s^2), load cell
+  (0.05 N rms noise, 0.01 N resolution) in the partner-push trial.
+* Parameter error: the true J, b, fc, Kt are the sidecar's ``nominal`` times
+  ``1 + U(-param_error, +param_error)`` (default 15 %).
+
+Scenarios
+---------
+``identification``: band-limited white-noise current (thesis Sec. 2.5.2), 50 Hz,
+0.15 A rms. ``multisine``: sum of 24 sines 0.5-40 Hz, random phases, 0.15 A rms.
+``push``: a partner (spring-damper arm, minimum-jerk reaches) pushes the handle
+through a load cell while the unit runs proportional zero-force control with
+friction compensation on the nominal model (thesis Fig. 28, gain 3);
+``f_lc`` is logged, ``f_ext`` is not (as on the real device).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..algorithms.rls import band_limited_white_noise
+from ..synth import _min_jerk_reference, _ref_at
+from ..trial_log import write_trial_log
+
+__all__ = ["NOMINAL", "EFFECT_SAMPLERS", "OUT_OF_CATALOGUE", "SCENARIOS",
+           "simulate_truth", "write_truth_log"]
+
+G0 = 9.80665
+SCENARIOS = ("identification", "multisine", "push")
+
+#: the model of record's parameters (sidecar ``nominal``), Table 1 + sensor calibration
+NOMINAL: dict[str, float] = {"J": 1.7e-5, "b": 1.6e-5, "fc": 3e-3, "Kt": 0.0603, "lead": 0.01,
+                             "acc_bias": 0.3, "m_n": 0.2}
+
+#: fixed truth constants (not drawn)
+CONST: dict[str, float] = {
+    "Ts": 1e-3, "n_sub": 20, "counts": 21600, "w_stick": 1e-3,
+    "acc_density_g": 150e-6, "acc_bw_hz": 1600.0, "acc_lsb": 3.3 / 4096 / 0.33 * G0,
+    "acc_cal_err": 0.02, "bias_rw": 1e-3, "lc_noise": 0.05, "lc_lsb": 0.01,
+    "k_contact": 2e5, "zeta_contact": 0.3,
+}
+
+
+def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(rng.uniform(lo, hi))
+
+
+def _signed(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(rng.choice([-1.0, 1.0])) * _u(rng, lo, hi)
+
+
+#: effect name -> sampler(rng) of its truth parameters (physically plausible ranges)
+EFFECT_SAMPLERS: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
+    # break-away 1.5-2.2 x Coulomb, Stribeck speed 0.5-2 rad/s (0.8-3 mm/s at the nut)
+    "stribeck_friction": lambda r: {"fs_ratio": _u(r, 1.5, 2.2), "ws": _u(r, 0.5, 2.0)},
+    # Coulomb and viscous +-(25-45) % between directions
+    "asymmetric_friction": lambda r: {"dfc": _signed(r, 0.25, 0.45), "db": _signed(r, 0.25, 0.45)},
+    # Coulomb friction +-(35-60) % along the travel, period 20-60 mm (preload / wear)
+    "position_dependent_friction": lambda r: {"amp": _u(r, 0.35, 0.6), "period": _u(r, 0.02, 0.06),
+                                              "phase": _u(r, 0, 2 * math.pi)},
+    # ripple amplitude 0.5-1 fc, 4-12 periods per revolution
+    "cogging_torque": lambda r: {"amp": _u(r, 0.5, 1.0) * 3e-3, "n": float(r.choice([4, 6, 8, 12])),
+                                 "phase": _u(r, 0, 2 * math.pi)},
+    # play 0.1-0.3 mm at the nut
+    "backlash": lambda r: {"width": _u(r, 1e-4, 3e-4)},
+    # motor|nut resonance 25-70 Hz, damping ratio 0.03-0.1
+    "transmission_compliance": lambda r: {"fn": _u(r, 25, 70), "zeta": _u(r, 0.03, 0.1)},
+    "actuator_delay": lambda r: {"delay": _u(r, 2e-3, 5e-3)},
+    "current_loop_lag": lambda r: {"tau": _u(r, 2e-3, 6e-3)},
+    # clip at 1.1-1.5 x the command rms (0.15 A)
+    "current_saturation": lambda r: {"i_max_rms": _u(r, 1.1, 1.5)},
+    "accel_scale_error": lambda r: {"scale": 1.0 + _signed(r, 0.08, 0.2)},
+    # thermal drift 0.3-0.8 m/s^2 with time constant 3-20 s
+    "accel_bias_drift": lambda r: {"drift": _signed(r, 0.3, 0.8), "T": _u(r, 3.0, 20.0)},
+    # tilt 4-12 deg
+    "gravity_load": lambda r: {"tilt": _signed(r, math.radians(4), math.radians(12))},
+}
+
+#: effects outside the catalogue (for the ``unknown`` check)
+OUT_OF_CATALOGUE: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
+    # 50 Hz mains ripple on the driver current, 0.04-0.06 A
+    "mains_ripple": lambda r: {"amp": _u(r, 0.04, 0.06), "freq": 50.0, "phase": _u(r, 0, 2 * math.pi)},
+    # a loose payload (0.3-0.6 kg) on the handle through a 12-25 Hz spring, lightly damped
+    "hidden_payload": lambda r: {"m2": _u(r, 0.3, 0.6), "fn": _u(r, 12, 25), "zeta": _u(r, 0.02, 0.06)},
+}
+
+TWO_BODY = ("backlash", "transmission_compliance", "hidden_payload")
+
+
+def _excitation(scenario: str, n: int, Ts: float, rng: np.random.Generator) -> np.ndarray | None:
+    if scenario == "identification":
+        return band_limited_white_noise(n, Ts, 50.0, 0.15, rng)
+    if scenario == "multisine":
+        t = np.arange(n) * Ts
+        f = np.geomspace(0.5, 40.0, 24)
+        ph = rng.uniform(0, 2 * np.pi, f.size)
+        u = np.sin(2 * np.pi * f[:, None] * t[None, :] + ph[:, None]).sum(axis=0)
+        return 0.15 * u / np.sqrt(np.mean(u ** 2))
+    return None
+
+
+def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, seed: int = 0,
+                   effect: str | None = None, effect_params: dict[str, float] | None = None,
+                   param_error: float = 0.15, nominal: dict[str, float] | None = None,
+                   device_seed: int | None = None) -> dict[str, Any]:
+    """Simulate one trial. Returns ``{"data", "signals", "Ts", "nominal", "truth"}``.
+
+    ``effect``: a catalogue name, a name of :data:`OUT_OF_CATALOGUE` or None;
+    ``effect_params`` default to a draw from its sampler. ``truth`` holds every true
+    parameter (the benchmark manifest stores it; the log does not). ``device_seed``
+    (default ``seed``) draws what belongs to the device (parameter error, effect
+    parameters, accelerometer calibration error), ``seed`` the trial (excitation,
+    noise, start position): several trials of one device share ``device_seed``.
+    """
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r} (known: {', '.join(SCENARIOS)})")
+    samplers = {**EFFECT_SAMPLERS, **OUT_OF_CATALOGUE}
+    if effect is not None and effect not in samplers:
+        raise ValueError(f"unknown effect {effect!r}")
+    rng = np.random.default_rng(seed)
+    drng = np.random.default_rng([7919, seed if device_seed is None else device_seed])
+    nom = dict(NOMINAL if nominal is None else nominal)
+    c = CONST
+    Ts, n_sub = c["Ts"], int(c["n_sub"])
+    dt = Ts / n_sub
+    n = int(round(duration_s / Ts))
+    S = nom["lead"] / (2 * math.pi)
+    err = {k: _u(drng, -param_error, param_error) for k in ("J", "b", "fc", "Kt")}
+    J, b, fc, Kt = (nom[k] * (1 + err[k]) for k in ("J", "b", "fc", "Kt"))
+    ep = dict(effect_params) if effect_params else (samplers[effect](drng) if effect else {})
+    m = nom["m_n"]
+
+    # ---- effect switches (defaults = nominal structure)
+    fs_x, ws = 0.0, 1.0                        # Stribeck excess torque, speed
+    fcp = fcn = fc
+    bp = bn = b
+    pos_amp = pos_per = pos_ph = 0.0
+    cog_a = cog_n = cog_ph = 0.0
+    delay_sub = 0
+    tau_lag = 0.0
+    i_max = math.inf
+    acc_scale, drift, drift_T, tilt = 1.0, 0.0, 1.0, 0.0
+    ripple = (0.0, 50.0, 0.0)
+    two_body = effect in TWO_BODY
+    k_c, c_c, play = 0.0, 0.0, 0.0
+    m2 = k2 = c2 = 0.0
+    if effect == "stribeck_friction":
+        fs_x, ws = (ep["fs_ratio"] - 1.0) * fc, ep["ws"]
+    elif effect == "asymmetric_friction":
+        fcp, fcn = fc * (1 + ep["dfc"]), fc * (1 - ep["dfc"])
+        bp, bn = b * (1 + ep["db"]), b * (1 - ep["db"])
+    elif effect == "position_dependent_friction":
+        pos_amp, pos_per, pos_ph = ep["amp"], ep["period"], ep["phase"]
+    elif effect == "cogging_torque":
+        cog_a, cog_n, cog_ph = ep["amp"], ep["n"], ep["phase"]
+    elif effect == "actuator_delay":
+        delay_sub = int(round(ep["delay"] / dt))
+    elif effect == "current_loop_lag":
+        tau_lag = ep["tau"]
+    elif effect == "current_saturation":
+        i_max = ep["i_max_rms"] * 0.15
+    elif effect == "accel_scale_error":
+        acc_scale = ep["scale"]
+    elif effect == "accel_bias_drift":
+        drift, drift_T = ep["drift"], ep["T"]
+    elif effect == "gravity_load":
+        tilt = ep["tilt"]
+    elif effect == "mains_ripple":
+        ripple = (ep["amp"], ep["freq"], ep["phase"])
+    elif effect == "transmission_compliance":
+        wn = 2 * math.pi * ep["fn"]
+        k_c, c_c = m * wn ** 2, 2 * ep["zeta"] * m * wn
+    elif effect == "backlash":
+        k_c = c["k_contact"]
+        c_c = 2 * c["zeta_contact"] * math.sqrt(k_c * m)
+        play = ep["width"]
+    elif effect == "hidden_payload":
+        k_c = c["k_contact"] * 5           # motor|nut rigid (stiff), payload on a soft spring
+        c_c = 2 * 0.5 * math.sqrt(k_c * m)
+        m2 = ep["m2"]
+        w2 = 2 * math.pi * ep["fn"]
+        k2, c2 = m2 * w2 ** 2, 2 * ep["zeta"] * m2 * w2
+    Jm = J - m * S * S if two_body else J
+    g_force = m * G0 * math.sin(tilt)          # gravity along -x on the nut (+tilt: x uphill)
+
+    # ---- inputs
+    i_ext = _excitation(scenario, n, Ts, rng)
+    knots = None
+    if scenario == "push":
+        knots = _min_jerk_reference(n, Ts, rng, 0.3, 0.08)
+    Kh, Bh = 600.0, 60.0
+    Kf_p = 3.0
+    Kf_nom = nom["Kt"] / S
+    # ---- sensors' random streams
+    a_pole = math.exp(-2 * math.pi * c["acc_bw_hz"] * dt)
+    acc_std = c["acc_density_g"] * G0 * math.sqrt(math.pi / 2 * c["acc_bw_hz"])
+    u_std = acc_std * math.sqrt((1 + a_pole) / (1 - a_pole))
+    noise_u = rng.standard_normal(n * n_sub) * u_std
+    bias0 = nom["acc_bias"] + c["acc_cal_err"] * float(drng.standard_normal())
+    bias = bias0 + np.concatenate([[0.0], np.cumsum(rng.standard_normal(n - 1))]) * c["bias_rw"] * math.sqrt(Ts)
+    tt = np.arange(n) * Ts
+    bias = bias + drift * (1 - np.exp(-tt / drift_T))
+    lc_noise = rng.standard_normal(n) * c["lc_noise"]
+    theta0 = _u(rng, -20.0, 20.0)              # start anywhere within +-3 cm of home
+
+    delta = 2 * math.pi / c["counts"]
+    th, w = theta0, 0.0
+    xn, vn = S * theta0, 0.0                   # nut (two-body)
+    x2, v2 = xn, 0.0                           # hidden payload
+    filt = acc_std * float(rng.standard_normal())
+    i_act = 0.0
+    dbuf = [0.0] * (delay_sub + 1)
+    dpos = 0
+    w_enc_prev_th = delta * round(theta0 / delta)
+    w_enc = 0.0
+    lag_a = math.exp(-dt / tau_lag) if tau_lag > 0 else 0.0
+    x_home = S * theta0
+
+    I = np.empty(n); ENC = np.empty(n); ACC = np.empty(n); FLC = np.empty(n)
+    WT = np.empty(n); AT = np.empty(n); FEXT = np.empty(n)
+    a_nut = 0.0
+    idx = 0
+    w_st = c["w_stick"]
+    for k in range(n):
+        t_k = k * Ts
+        enc = delta * round(th / delta)
+        ENC[k] = enc
+        # external force (partner arm) at t_k, load cell reading
+        x_handle = xn if two_body else S * th
+        v_handle = vn if two_body else S * w
+        if knots is not None:
+            xr, vr, idx = _ref_at(t_k, knots, idx)
+            f_k = Kh * (x_home + xr - x_handle) + Bh * (vr - v_handle)
+        else:
+            f_k = 0.0
+        FEXT[k] = f_k
+        f_lc = round((f_k + lc_noise[k]) / c["lc_lsb"]) * c["lc_lsb"]
+        FLC[k] = f_lc
+        # controller command
+        if i_ext is not None:
+            i_c = float(i_ext[k])
+        else:
+            # zero-force control (Fig. 28) + friction compensation on the nominal model,
+            # speed from encoder differencing (filtered, 5 ms)
+            w_raw = (enc - w_enc_prev_th) / Ts
+            w_enc += (w_raw - w_enc) * 0.2
+            w_enc_prev_th = enc
+            i_c = (Kf_p * f_lc / Kf_nom
+                   + (nom["fc"] * math.tanh(w_enc / 0.5) + nom["b"] * w_enc) / nom["Kt"])
+            i_c = max(-2.0, min(2.0, i_c))
+        I[k] = i_c
+        WT[k] = w
+        AT[k] = a_nut
+        ACC[k] = filt
+        for j in range(n_sub):
+            tj = t_k + j * dt
+            if knots is not None and j:
+                x_handle = xn if two_body else S * th
+                v_handle = vn if two_body else S * w
+                xr, vr, idx = _ref_at(tj, knots, idx)
+                f = Kh * (x_home + xr - x_handle) + Bh * (vr - v_handle)
+            else:
+                f = f_k
+            # driver
+            i_in = i_c + ripple[0] * math.sin(2 * math.pi * ripple[1] * tj + ripple[2])
+            if delay_sub:
+                dbuf[dpos] = i_in
+                dpos = (dpos + 1) % len(dbuf)
+                i_in = dbuf[dpos]
+            if tau_lag > 0:
+                i_act = lag_a * i_act + (1 - lag_a) * i_in
+            else:
+                i_act = i_in
+            i_act_c = max(-i_max, min(i_max, i_act))
+            tau = Kt * i_act_c
+            if cog_a:
+                tau -= cog_a * math.sin(cog_n * th + cog_ph)
+            # load on the motor shaft
+            if two_body:
+                dx = S * th - xn
+                if play:
+                    h = 0.5 * play
+                    dz = dx - h if dx > h else (dx + h if dx < -h else 0.0)
+                    fcpl = k_c * dz + (c_c * (S * w - vn) if dz != 0.0 else 0.0)
+                else:
+                    fcpl = k_c * dx + c_c * (S * w - vn)
+                tau_load = -S * fcpl
+            else:
+                fcpl = 0.0
+                tau_load = S * (f - g_force)
+            tau_net = tau + tau_load
+            fcx = 1.0 + (pos_amp * math.sin(2 * math.pi * (S * th) / pos_per + pos_ph) if pos_amp else 0.0)
+            if abs(w) < w_st:
+                brk = (fcp if tau_net > 0 else fcn) * fcx + fs_x
+                if abs(tau_net) <= brk:
+                    wn_ = 0.0
+                else:
+                    fr = math.copysign(brk, tau_net)
+                    wn_ = w + dt * (tau_net - fr) / Jm
+            else:
+                sgn = 1.0 if w > 0 else -1.0
+                fcd = (fcp if w > 0 else fcn) * fcx
+                bd = bp if w > 0 else bn
+                fr = sgn * (fcd + fs_x * math.exp(-(w / ws) ** 2)) + bd * w
+                wn_ = w + dt * (tau_net - fr) / Jm
+                if wn_ * w < 0:
+                    wn_ = 0.0
+            a_mot = (wn_ - w) / dt
+            w = wn_
+            th += dt * w
+            if two_body:
+                f_pay = k2 * (x2 - xn) + c2 * (v2 - vn) if m2 else 0.0
+                an = (fcpl + f - g_force + f_pay) / m
+                vn += dt * an
+                xn += dt * vn
+                if m2:
+                    a2 = -f_pay / m2 - G0 * math.sin(tilt)
+                    v2 += dt * a2
+                    x2 += dt * v2
+                a_nut = an
+            else:
+                a_nut = S * a_mot
+            spec = acc_scale * (a_nut + G0 * math.sin(tilt))
+            filt = a_pole * filt + (1 - a_pole) * (spec + noise_u[k * n_sub + j])
+    acc_meas = np.round((ACC + bias) / c["acc_lsb"]) * c["acc_lsb"]
+    data = {"time": tt, "i_cmd": I, "theta_enc": ENC, "acc_meas": acc_meas}
+    signals = {"i_cmd": "A", "theta_enc": "rad", "acc_meas": "m/s^2"}
+    if scenario == "push":
+        data["f_lc"] = FLC
+        signals["f_lc"] = "N"
+    truth = {"J": J, "b": b, "fc": fc, "Kt": Kt, "param_error": err, "effect": effect,
+             "effect_params": ep, "bias0": bias0, "theta0": theta0, "seed": int(seed),
+             "scenario": scenario}
+    return {"data": data, "signals": signals, "Ts": Ts, "nominal": nom, "truth": truth,
+            "true_signals": {"w": WT, "a_nut": AT, "f_ext": FEXT}}
+
+
+def write_truth_log(stem: str | Path, scenario: str = "identification", duration_s: float = 10.0,
+                    seed: int = 0, effect: str | None = None,
+                    effect_params: dict[str, float] | None = None,
+                    param_error: float = 0.15, device_seed: int | None = None) -> tuple[Path, dict[str, Any]]:
+    """Simulate and write a trial log WITHOUT the effect label; return (csv path, truth)."""
+    sim = simulate_truth(scenario, duration_s, seed, effect, effect_params, param_error,
+                         device_seed=device_seed)
+    desc = {"identification": "start-up identification: band-limited white-noise current (Sec. 2.5.2)",
+            "multisine": "multisine current 0.5-40 Hz",
+            "push": "partner push through the load cell, unit under zero-force control (Fig. 28)"}[scenario]
+    path = write_trial_log(stem, "ballscrew-1dof", sim["data"], sim["signals"], sim["Ts"],
+                           nominal=sim["nominal"], scenario=scenario, description=desc)
+    return path, sim["truth"]
