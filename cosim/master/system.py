@@ -23,8 +23,11 @@ k = 0 .. N with N = duration / Ts (which must be an integer). In tick k:
 4. record row k (time first, then the requested signals);
 5. (k < N) set every FMU input (connections, controller outputs, stimuli) to its
    tick-k value, held over [t_k, t_{k+1}) (zero-order hold);
-6. (k < N) doStep every FMU from t_k to t_{k+1} (Jacobi: all FMUs see the inputs
-   of tick k, none sees another's state at t_{k+1}).
+6. (k < N) doStep every FMU from t_k to t_{k+1}, in the order the roles were added
+   (Jacobi: all FMUs see the inputs of tick k, none sees another's state at
+   t_{k+1}), except the inputs of ``sequential`` connections (Gauss-Seidel, for a
+   sensor FMU on a plant output): those are read from their source FMU after its
+   doStep, i.e. at t_{k+1}, and set just before the destination's doStep.
 
 Hence a connection FMU A -> FMU B carries A's value at t_k into B over
 [t_k, t_{k+1}): B's outputs first reflect A(t_k) at tick k + 1 (one step of delay),
@@ -90,6 +93,7 @@ class _Connection:
     source: str
     dest: str          # "role.input"
     scale: float = 1.0
+    sequential: bool = False
 
 
 _ATTR = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(\[\s*-?\d+\s*(?:,\s*-?\d+\s*)*\])?$")
@@ -221,16 +225,36 @@ class System:
                                        f"got {value!r}")
         self.params[role].update(values)
 
-    def connect(self, source: str, dest: str, scale: float = 1.0):
+    def connect(self, source: str, dest: str, scale: float = 1.0, sequential: bool = False):
         """Drive FMU input ``dest`` ('role.var') from ``source`` (any name), times
-        ``scale`` (e.g. -1 for an action/reaction pair such as a load cell's force)."""
+        ``scale`` (e.g. -1 for an action/reaction pair such as a load cell's force).
+
+        ``sequential=True`` (Gauss-Seidel) is for a sensor FMU fed by a plant output
+        (accelerometer on a unit): the destination is stepped after the source, with
+        the source's value at t_{k+1} (read after the source's doStep) held over
+        [t_k, t_{k+1}). Without it (Jacobi, the default) the sensor sees the plant one
+        step late, a 1 ms delay the real sensor does not have, which matters in a loop
+        closed at 1500 rad/s. The source must be an output of an FMU added before the
+        destination's FMU."""
         self._fmu_var(dest, causality="input")
         for c in self._connections:
             if c.dest == dest:
                 raise SystemError_(f"{dest} is already driven by {c.source}")
         if not math.isfinite(float(scale)):
             raise SystemError_(f"connection {source} -> {dest}: scale must be finite")
-        self._connections.append(_Connection(source, dest, float(scale)))
+        if sequential:
+            src_role = source.partition(".")[0]
+            roles = list(self.roles)
+            if src_role not in self.roles:
+                raise SystemError_(f"sequential connection {source} -> {dest}: the source "
+                                   f"must be an FMU output (roles: {roles})")
+            self._fmu_var(source, causality="output")
+            dest_role = dest.partition(".")[0]
+            if roles.index(src_role) >= roles.index(dest_role):
+                raise SystemError_(f"sequential connection {source} -> {dest}: role "
+                                   f"{src_role!r} must be added before {dest_role!r} "
+                                   f"(FMUs are stepped in the order they were added)")
+        self._connections.append(_Connection(source, dest, float(scale), bool(sequential)))
 
     @property
     def connections(self) -> list[tuple[str, str]]:
@@ -597,7 +621,38 @@ class Master:
                         f"V[{a}:{a + n}] = rb_{j}" if n > 1 else f"V[{a}] = rb_{j}[0]"]
                 L_read += timed(f"fmu:{role}:get", body, "        ")
                 read_blocks.append((role, slave, names, a))
-            ins = [c for c in sys_._connections if c.dest.partition(".")[0] == role]
+            ins = [c for c in sys_._connections
+                   if c.dest.partition(".")[0] == role and not c.sequential]
+            seq = [c for c in sys_._connections
+                   if c.dest.partition(".")[0] == role and c.sequential]
+            L_seq = []
+            if seq:
+                # Gauss-Seidel inputs: the sources (stepped earlier in this tick) are read
+                # at t_{k+1} and set just before this FMU's doStep
+                n = len(seq)
+                ns[f"sset_{j}"] = io.set
+                ns[f"swvr_{j}"] = (ctypes.c_uint32 * n)(*[slave.var(c.dest.partition(".")[2]).vr
+                                                        for c in seq])
+                ns[f"swb_{j}"] = (ctypes.c_double * n)()
+                ns[f"swn_{j}"] = ctypes.c_size_t(n)
+                for q, c in enumerate(seq):
+                    src_role, _, src_var = c.source.partition(".")
+                    si = [r for r, _ in slaves].index(src_role)
+                    src_slave = slaves[si][1]
+                    sio = src_slave.raw()
+                    ns[f"sget_{j}_{q}"] = sio.get
+                    ns[f"sc_{j}_{q}"] = sio.comp
+                    ns[f"srvr_{j}_{q}"] = (ctypes.c_uint32 * 1)(src_slave.var(src_var).vr)
+                    ns[f"srb_{j}_{q}"] = (ctypes.c_double * 1)()
+                    ex = ", _n1" if sio.fmi3 else ""
+                    scale = "" if c.scale == 1.0 else f" * {c.scale!r}"
+                    L_seq += [f"if (st := sget_{j}_{q}(sc_{j}_{q}, srvr_{j}_{q}, _n1, srb_{j}_{q}{ex})) > 1: "
+                              f"_fail_fmu({si}, 'get', t, st)",
+                              f"swb_{j}[{q}] = srb_{j}_{q}[0]{scale}"]
+                ex = f", swn_{j}" if io.fmi3 else ""
+                L_seq += [f"if (st := sset_{j}(c_{j}, swvr_{j}, swn_{j}, swb_{j}{ex})) > 1: "
+                          f"_fail_fmu({j}, 'set', t, st)"]
+                ns["_n1"] = ctypes.c_size_t(1)
             if ins:
                 n = len(ins)
                 vrs = [slave.var(c.dest.partition(".")[2]).vr for c in ins]
@@ -631,6 +686,8 @@ class Master:
             else:
                 ns[f"do_{j}"] = io.step
                 body = [f"if (st := do_{j}(c_{j}, _tc, _h, _one)) > 1: _fail_fmu({j}, 'step', t, st)"]
+            if L_seq:
+                L_step += timed(f"fmu:{role}:sequential-inputs", L_seq, "        ")
             L_step += timed(f"fmu:{role}:doStep", body, "        ")
 
         # stimuli

@@ -104,7 +104,8 @@ TOP = {
 }
 ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
         "human_profile": (str, False), "grasp": (str, False), "kind": (str, False)}
-CONN = {"from": (str, True), "to": (str, True), "scale": (NUM, False)}
+CONN = {"from": (str, True), "to": (str, True), "scale": (NUM, False),
+        "sequential": (bool, False)}
 CTRL = {"type": (str, True), "params": (dict, False), "wiring": (dict, False),
         "outputs": (dict, False), "record": (list, False)}
 STIM = {"type": (str, True), "params": (dict, False)}
@@ -648,7 +649,8 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
             m = re.fullmatch(r"\s*(\S+)\s*->\s*(\S+)\s*(?:\*\s*(\S+))?\s*", conn)
             conn = {"from": m.group(1), "to": m.group(2), "scale": float(m.group(3) or 1)}
         try:
-            system.connect(conn["from"], conn["to"], conn.get("scale", 1.0))
+            system.connect(conn["from"], conn["to"], conn.get("scale", 1.0),
+                           sequential=bool(conn.get("sequential", False)))
         except SystemError_ as exc:
             raise _err(sc, ("system", "connections", i), exc) from None
     for name, spec in (d.get("controllers") or {}).items():

@@ -258,3 +258,29 @@ def _bilateral_figures(runs, info):
         fig.suptitle(f"Bilateral control, {r.case} (thesis Fig. 32; grey: contact)")
         out.append((f"Positions and forces, {r.case}", fig))
     return out
+
+
+@dataclass(frozen=True)
+class TransparencyParams:
+    """Force transparency in contact (eq. 55 felt by the operator): |mean(f_op) +
+    mean(f_env)| / mean(|f_env|) over [from_s, to_s], with ``f_op`` the force of the
+    operator on the master and ``f_env`` the force of the environment on the slave
+    (both along +x: in perfect transparency f_op = -f_env)."""
+    operator: str = "human.f_h"
+    environment: str = "slave.f_wall"
+    from_s: float = 0.0
+    to_s: float | None = None
+
+
+@metric("force_transparency_error", params=TransparencyParams)
+def _transparency(params, ctx):
+    """Relative mismatch between the operator's force and the wall's reaction."""
+    p = TransparencyParams(**params)
+    t = np.asarray(ctx.signals["time"])
+    sel = (t >= p.from_s) & (t <= (t[-1] if p.to_s is None else p.to_s))
+    fo = np.asarray(ctx.signals[p.operator])[sel]
+    fe = np.asarray(ctx.signals[p.environment])[sel]
+    level = float(np.mean(np.abs(fe)))
+    if level < 1e-6:
+        raise ValueError(f"no contact force in [{p.from_s}, {p.to_s}] s ({p.environment} is 0)")
+    return abs(float(np.mean(fo)) + float(np.mean(fe))) / level
