@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     ".offline",          # cosim estimate / cosim identify (trial logs)
     ".scenarios.cli",    # cosim run / cosim suite (scenario files, Dask, reports)
     ".data_cli",
+    ".gap.cli",
 )
 
 

@@ -64,7 +64,7 @@ NOMINAL: dict[str, float] = {"J": 1.7e-5, "b": 1.6e-5, "fc": 3e-3, "Kt": 0.0603,
 CONST: dict[str, float] = {
     "Ts": 1e-3, "n_sub": 20, "counts": 21600, "w_stick": 1e-3,
     "acc_density_g": 150e-6, "acc_bw_hz": 1600.0, "acc_lsb": 3.3 / 4096 / 0.33 * G0,
-    "acc_cal_err": 0.02, "bias_rw": 1e-3, "lc_noise": 0.05, "lc_lsb": 0.01,
+    "acc_cal_err": 0.005, "bias_rw": 1e-3, "lc_noise": 0.05, "lc_lsb": 0.01,
     "k_contact": 2e5, "zeta_contact": 0.3,
 }
 

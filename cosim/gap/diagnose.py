@@ -1,0 +1,425 @@
+"""Device-independent sim-to-real gap diagnosis engine (``spec/gap-diagnosis.md``).
+
+:func:`diagnose` runs, for any :class:`cosim.gap.device.GapDevice`:
+
+1. **input checks**: every log is read and validated (``cosim.trial_log``), all logs
+   must be of the requested device, then the device's own checks; too little
+   information gives ``"cannot_diagnose": why`` (never a made-up answer);
+2. **recalibration** of the nominal parameters on the fit logs;
+3. **localisation** of the recalibrated residual on the fit logs: by signal, by
+   time window (with its dominant motion phase) and by phase, by frequency band,
+   by operating region (speed, position, acceleration, force). Each view's shares
+   sum to 1. The energy of a sample is ``sum over signals of r_s^2 / E_s`` with
+   ``E_s`` the signal's total measured variance, so that signals in different units
+   are comparable and the signal shares are the ``nrmse_s^2`` fractions;
+4. **attribution**: every applicable catalogue effect is fitted on all fit logs
+   (``explained`` = 1 - gap_with^2 / gap_without^2, the fraction of the recalibrated
+   gap energy it removes) and, for the best ``n_validate`` ones, validated on held-out
+   data INSIDE the fit logs: each fit log is split into two halves; recalibration and
+   effect are fitted on one half and the gap is measured on the other, both ways
+   (2-fold). An effect is selected only if it lowers the held-out gap energy by at
+   least ``margin`` in BOTH folds. Then further effects are added greedily by the
+   same rule, if the device can fit several at once (``fit_effects``).
+   ``selected = []`` when no effect passes and the held-out residual is at the
+   device's noise floor (``gap_floor``); ``["unknown"]`` when none passes but the
+   residual is above it;
+5. **confirmation** of the top candidates with the device's FMU replay
+   (``confirm``), when the device has one;
+6. **shrinkage** on the ``--test`` logs: ``gap.test_before`` with the recalibrated
+   model, ``gap.test_after`` with the selected effect(s), same metric.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..trial_log import TrialLog, TrialLogError, read_trial_log
+from .device import CannotDiagnose, GapDevice, GapInputError, get_device, slice_log, split_params
+
+__all__ = ["diagnose", "localize", "run_diagnosis", "DEFAULT_MARGIN"]
+
+#: minimum held-out reduction of the gap energy (fraction) for an effect to count
+DEFAULT_MARGIN = 0.10
+BANDS_HZ = (0.0, 1.0, 5.0, 20.0, 50.0, 100.0, math.inf)
+WINDOW_S = 1.0
+
+
+# ----------------------------------------------------------------------------- loading
+
+def load_logs(paths: Sequence[str | os.PathLike], role: str) -> list[TrialLog]:
+    if not paths:
+        raise GapInputError(f"no --{role} logs given")
+    logs = []
+    for p in paths:
+        try:
+            logs.append(read_trial_log(p))
+        except TrialLogError as e:
+            raise GapInputError(f"--{role} log is not a valid trial log: {e.reason}", e.file, e.column) from None
+    return logs
+
+
+def _check_devices(device: str, fit: Sequence[TrialLog], test: Sequence[TrialLog]) -> None:
+    for role, logs in (("fit", fit), ("test", test)):
+        for lg in logs:
+            if lg.device != device:
+                raise GapInputError(f"--{role} log is of device {lg.device!r}, but the diagnosis is for "
+                                    f"{device!r} (fit and test logs must all be of that device)",
+                                    lg.json_path)
+
+
+# ----------------------------------------------------------------------------- localisation
+
+def _phases(op: Mapping[str, np.ndarray], ts: float) -> np.ndarray:
+    """Motion phase per sample: rest, reversal, fast, after_force_step, slow."""
+    v = op["speed"]
+    n = v.size
+    ph = np.full(n, "slow", dtype=object)
+    av = np.abs(v)
+    vmax = float(np.max(av)) if n else 0.0
+    if n == 0 or vmax == 0:
+        ph[:] = "rest"
+        return ph
+    fast = av > np.percentile(av, 75)
+    ph[fast] = "fast"
+    if "force" in op:
+        f = op["force"]
+        df = np.abs(np.gradient(f, ts))
+        thr = 5 * np.median(df) + 1e-12
+        steps = np.flatnonzero(df > max(thr, 20.0))
+        mark = np.zeros(n, bool)
+        k_after = int(0.2 / ts)
+        for s in steps:
+            mark[s:s + k_after] = True
+        ph[mark] = "after_force_step"
+    rest = av < max(0.02 * vmax, 1e-6)
+    sgn = np.sign(v)
+    rev = np.zeros(n, bool)
+    idx = np.flatnonzero((sgn[1:] * sgn[:-1]) < 0)
+    k_rev = int(0.03 / ts)
+    for i in idx:
+        rev[max(0, i - k_rev):i + k_rev] = True
+    ph[rev] = "reversal"
+    ph[rest & ~rev] = "rest"
+    return ph
+
+
+def localize(device: GapDevice, logs: Sequence[TrialLog], params: Mapping[str, float],
+             effects: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Any]:
+    """Where the residual energy of ``logs`` lies (shares per view sum to 1)."""
+    per_log = []
+    energy_tot: dict[str, float] = {}
+    for lg in logs:
+        sig = device.signals(lg, params, effects)
+        per_log.append(sig)
+        for name, (m, s) in sig.items():
+            ok = np.isfinite(m) & np.isfinite(s)
+            energy_tot[name] = energy_tot.get(name, 0.0) + float(np.sum((m[ok] - np.mean(m[ok])) ** 2)) \
+                if ok.any() else energy_tot.get(name, 0.0)
+    # per-sample normalised energy
+    e_logs = []
+    sse_sig: dict[str, float] = {}
+    for lg, sig in zip(logs, per_log):
+        e = np.zeros(lg.n_samples)
+        resid = {}
+        for name, (m, s) in sig.items():
+            r = m - s
+            r = np.where(np.isfinite(r), r, 0.0)
+            resid[name] = r
+            en = energy_tot.get(name) or 1.0
+            e += r * r / en
+            sse_sig[name] = sse_sig.get(name, 0.0) + float(np.sum(r * r)) / en
+        e_logs.append((e, resid))
+    total = sum(float(np.sum(e)) for e, _ in e_logs) or 1.0
+
+    signals = [{"signal": k, "share": v / (sum(sse_sig.values()) or 1.0),
+                "nrmse": math.sqrt(v)} for k, v in sse_sig.items()]
+    signals.sort(key=lambda d: -d["share"])
+
+    windows, phase_e = [], {}
+    region_e: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    ops = []
+    for lg, (e, resid) in zip(logs, e_logs):
+        ts = lg.sample_time
+        op = device.operating_point(lg, params)
+        ops.append(op)
+        ph = _phases(op, ts)
+        for p in np.unique(ph):
+            phase_e[str(p)] = phase_e.get(str(p), 0.0) + float(np.sum(e[ph == p]))
+        nw = max(1, int(round(WINDOW_S / ts)))
+        t = lg.time
+        for k0 in range(0, lg.n_samples, nw):
+            sl = slice(k0, min(k0 + nw, lg.n_samples))
+            ew = e[sl]
+            if ew.size == 0:
+                continue
+            pe: dict[str, float] = {}
+            for p, x in zip(ph[sl], ew):
+                pe[p] = pe.get(p, 0.0) + float(x)
+            windows.append({"log": lg.csv_path.name, "start": float(t[sl][0]), "end": float(t[sl][-1] + ts),
+                            "share": float(np.sum(ew)) / total,
+                            "phase": max(pe, key=pe.get) if pe else "rest"})
+    windows.sort(key=lambda d: -d["share"])
+    phases = [{"phase": k, "share": v / total} for k, v in sorted(phase_e.items(), key=lambda kv: -kv[1])]
+
+    # frequency bands (per log, per signal normalised, summed)
+    band_e = np.zeros(len(BANDS_HZ) - 1)
+    for lg, (e, resid) in zip(logs, e_logs):
+        ts = lg.sample_time
+        for name, r in resid.items():
+            en = energy_tot.get(name) or 1.0
+            R = np.abs(np.fft.rfft(r)) ** 2
+            f = np.fft.rfftfreq(r.size, ts)
+            # Parseval: sum |R|^2 (one-sided, doubled except DC/Nyquist) / n = sum r^2
+            wgt = np.full(R.size, 2.0)
+            wgt[0] = 1.0
+            if r.size % 2 == 0:
+                wgt[-1] = 1.0
+            P = R * wgt / r.size / en
+            for j in range(len(BANDS_HZ) - 1):
+                sel = (f >= BANDS_HZ[j]) & (f < BANDS_HZ[j + 1])
+                band_e[j] += float(np.sum(P[sel]))
+    bsum = float(band_e.sum()) or 1.0
+    nyq = 0.5 / logs[0].sample_time
+    bands = [{"low_hz": BANDS_HZ[j], "high_hz": min(BANDS_HZ[j + 1], nyq), "share": float(band_e[j] / bsum)}
+             for j in range(len(band_e)) if BANDS_HZ[j] < nyq]
+
+    # operating regions: 5 quantile bins per variable
+    regions = []
+    variables = sorted(set().union(*[set(op) for op in ops])) if ops else []
+    for var in variables:
+        vals = np.concatenate([op[var] for op in ops if var in op])
+        es = np.concatenate([e for (e, _), op in zip(e_logs, ops) if var in op])
+        if vals.size == 0:
+            continue
+        edges = np.unique(np.quantile(vals, np.linspace(0, 1, 6)))
+        if edges.size < 2:
+            edges = np.array([vals.min(), vals.max() + 1e-12])
+        tot = float(np.sum(es)) or 1.0
+        idx = np.clip(np.searchsorted(edges, vals, side="right") - 1, 0, edges.size - 2)
+        for j in range(edges.size - 1):
+            regions.append({"variable": var, "low": float(edges[j]), "high": float(edges[j + 1]),
+                            "share": float(np.sum(es[idx == j])) / tot,
+                            "fraction_of_samples": float(np.mean(idx == j))})
+    return {"signals": signals, "windows": windows, "phases": phases, "bands": bands, "regions": regions}
+
+
+# ----------------------------------------------------------------------------- attribution
+
+def _halves(logs: Sequence[TrialLog]) -> tuple[list[TrialLog], list[TrialLog]]:
+    a, b = [], []
+    for lg in logs:
+        h = lg.n_samples // 2
+        a.append(slice_log(lg, 0, h, "A"))
+        b.append(slice_log(lg, h, lg.n_samples, "B"))
+    return a, b
+
+
+def _fit_many(device: GapDevice, logs, params, effects: Sequence[str]):
+    """Fit one or several effects; returns (effects dict with 'nominal.' keys, fit gap)."""
+    if len(effects) == 1:
+        prm, g = device.fit_effect(logs, params, effects[0])
+        return {effects[0]: prm}, g
+    fm = getattr(device, "fit_effects", None)
+    if fm is None:
+        return None, math.nan
+    return fm(logs, params, list(effects))
+
+
+def _apply(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]):
+    nom = dict(params)
+    own_all = {}
+    for name, prm in effects.items():
+        nom, own = split_params(nom, prm)
+        own_all[name] = own
+    return nom, own_all
+
+
+def _cv(device: GapDevice, folds, effects: Sequence[str]) -> tuple[list[float], list[float]]:
+    """Held-out gap per fold with and without ``effects`` (recalibrated on the other half)."""
+    g_base, g_eff = [], []
+    for fit_part, val_part in folds:
+        rec = device.recalibrate(fit_part)
+        g_base.append(device.gap(val_part, rec))
+        eff, _ = _fit_many(device, fit_part, rec, effects)
+        if eff is None:
+            g_eff.append(math.nan)
+            continue
+        nom, own = _apply(rec, eff)
+        g_eff.append(device.gap(val_part, nom, own))
+    return g_base, g_eff
+
+
+def _reduction(g_base: Sequence[float], g_eff: Sequence[float]) -> list[float]:
+    return [1.0 - (e / b) ** 2 if b > 0 and math.isfinite(e) else -math.inf for b, e in zip(g_base, g_eff)]
+
+
+def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[TrialLog], *,
+                  margin: float = DEFAULT_MARGIN, n_validate: int = 4, max_effects: int = 2,
+                  confirm_top: int = 3) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The diagnosis on loaded logs. Returns (diagnosis dict, extras for the report)."""
+    t0 = time.perf_counter()
+    out: dict[str, Any] = {"device": device.name}
+    out["fit_logs"] = [str(lg.csv_path) for lg in fit]
+    out["test_logs"] = [str(lg.csv_path) for lg in test]
+    try:
+        device.check_logs(fit, test)
+    except CannotDiagnose as e:
+        out.update({"cannot_diagnose": e.reason, "recalibrated": None, "localization": None,
+                    "candidates": [], "selected": [], "gap": {"metric": "nrmse", "test_before": None,
+                                                             "test_after": None}})
+        return out, {}
+    rec = device.recalibrate(fit)
+    out["recalibrated"] = {k: float(rec[k]) for k in device.param_names}
+    out["recalibration_note"] = getattr(device, "recalibration_note", "")
+    nominal = dict(fit[0].nominal or {})
+    out["nominal"] = {k: nominal[k] for k in device.param_names if k in nominal}
+    g_fit = device.gap(fit, rec)
+    out["localization"] = localize(device, fit, rec)
+
+    # ---- screening on all fit logs
+    cands = []
+    for eff in device.effects:
+        ts0 = time.perf_counter()
+        prm, g = device.fit_effect(fit, rec, eff)
+        nom, own = split_params(rec, prm)
+        cands.append({"effect": eff, "explained": float(1.0 - (g / g_fit) ** 2) if g_fit > 0 else 0.0,
+                      "params": own, "fit_gap": float(g),
+                      "refit_nominal": {k: v for k, v in nom.items() if k in device.param_names},
+                      "screen_s": time.perf_counter() - ts0})
+    cands.sort(key=lambda c: -c["explained"])
+
+    # ---- held-out selection inside the fit logs (2-fold on halves)
+    A, B = _halves(fit)
+    folds = [(A, B), (B, A)]
+    try:
+        for c in cands[:n_validate]:
+            gb, ge = _cv(device, folds, [c["effect"]])
+            red = _reduction(gb, ge)
+            c["heldout"] = {"gap_without": gb, "gap_with": ge, "reduction": red,
+                            "passes": bool(min(red) >= margin)}
+    except CannotDiagnose as e:          # halves too short: fall back to no selection
+        out["heldout_note"] = f"held-out split impossible: {e.reason}"
+    selected: list[str] = []
+    passing = [c for c in cands if c.get("heldout", {}).get("passes")]
+    passing.sort(key=lambda c: -min(c["heldout"]["reduction"]))
+    if passing:
+        selected.append(passing[0]["effect"])
+        # greedy: add another effect when the pair beats the single one on held-out data
+        if max_effects > 1 and hasattr(device, "fit_effects"):
+            for c in passing[1:]:
+                if len(selected) >= max_effects:
+                    break
+                gb, ge_single = _cv(device, folds, selected)
+                _, ge_pair = _cv(device, folds, selected + [c["effect"]])
+                red = _reduction(ge_single, ge_pair)
+                c["heldout"]["added_to_selection"] = red
+                if min(red) >= margin:
+                    selected.append(c["effect"])
+    # held-out residual after the selection vs the device's noise floor
+    floor = getattr(device, "gap_floor", None)
+    if len(selected) == 1:
+        ge = passing[0]["heldout"]["gap_with"]
+    elif selected:
+        _, ge = _cv(device, folds, selected)
+    else:
+        ge = [device.gap(v, device.recalibrate(f)) for f, v in folds]
+    resid_heldout = float(np.sqrt(np.mean(np.square(ge))))
+    out["heldout_residual_gap"] = resid_heldout
+    out["gap_floor"] = floor
+    if not selected and floor is not None and resid_heldout > floor:
+        selected = ["unknown"]
+    out["selected"] = selected
+    out["selection_rule"] = (f"an effect is selected when fitting it on one half of every fit log lowers the "
+                             f"gap energy on the other half by >= {margin:.0%} in both folds; 'unknown' when "
+                             f"none does and the held-out gap exceeds the device's noise floor "
+                             f"({floor if floor is not None else 'none declared'})")
+
+    # ---- FMU confirmation of the top candidates
+    for c in cands[:confirm_top]:
+        try:
+            cg = device.confirm(fit, c["refit_nominal"], {c["effect"]: c["params"]})
+        except Exception as e:  # noqa: BLE001 - a failing replay must not lose the diagnosis
+            cg = None
+            c["confirm_error"] = f"{type(e).__name__}: {e}"
+        c["confirm_gap"] = cg
+    out["candidates"] = cands
+
+    # ---- shrinkage on the test logs
+    eff_sel = {c["effect"]: c for c in cands if c["effect"] in selected}
+    if eff_sel:
+        if len(eff_sel) == 1:
+            c = next(iter(eff_sel.values()))
+            nom_after, effects_after = dict(c["refit_nominal"]), {c["effect"]: c["params"]}
+        else:
+            effs, _ = _fit_many(device, fit, rec, list(eff_sel))
+            nom_after, effects_after = _apply(rec, effs)
+    else:
+        nom_after, effects_after = dict(rec), {}
+    before = device.gap(test, rec)
+    after = device.gap(test, nom_after, effects_after) if effects_after else before
+    out["gap"] = {"metric": "nrmse", "fit": float(g_fit), "test_before": float(before),
+                  "test_after": float(after), "shrink": float(after / before) if before > 0 else None}
+    out["runtime_s"] = time.perf_counter() - t0
+    extras = {"device": device, "fit": fit, "test": test, "rec": rec, "nom_after": nom_after,
+              "effects_after": effects_after}
+    return out, extras
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", dir=path.parent)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes 0600; give the usual mode
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _jsonable(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, (np.floating, float)):
+        f = float(o)
+        return f if math.isfinite(f) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return o
+
+
+def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_paths: Sequence[str | os.PathLike],
+             out_dir: str | os.PathLike, *, report: bool = True, **kw: Any) -> dict[str, Any]:
+    """Whole command: read, diagnose, write ``diagnosis.json`` (+ ``report.html``); return the dict.
+
+    Raises :class:`GapInputError` on bad input (nothing is written then).
+    """
+    device = get_device(device_name)
+    fit = load_logs(fit_paths, "fit")
+    test = load_logs(test_paths, "test")
+    _check_devices(device_name, fit, test)
+    result, extras = run_diagnosis(device, fit, test, **kw)
+    result = _jsonable(result)
+    out = Path(out_dir)
+    _write_atomic(out / "diagnosis.json", json.dumps(result, indent=2) + "\n")
+    if report:
+        from .report import render_report
+        _write_atomic(out / "report.html", render_report(result, extras))
+    return result
