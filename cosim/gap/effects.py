@@ -1,0 +1,489 @@
+"""The gap-diagnosis effect catalogue as Modelica/FMU models, and a fast FMU replay.
+
+``spec/gap-diagnosis.md`` names twelve unmodelled effects of the ball-screw device.
+Each is a parameterised part of one Modelica model, ``RehabSim.Gap.BallScrewDevice``
+(``modelica/RehabSim/Gap/``): the device of record (``RehabSim.BallScrewUnit``:
+motor + screw inertia J, viscous b, LuGre Coulomb friction fc, torque constant Kt,
+lead 10 mm) plus every effect, each with parameters whose defaults switch it off.
+With all defaults it *is* the device of record (tested to 1e-13 of the signal
+ranges). Backlash and transmission compliance switch it to two bodies
+(motor + screw | nut + handle + accelerometer, mass ``m_n`` out of J) through an
+``if`` on their parameters, so the rigid nominal model stays exact.
+
+Design decision (one FMU for everything): the engine fits one effect, then
+combinations, on the same logs. One FMU holding every effect means a combination
+needs no extra model and one loaded instance serves every replay. The twelve
+``RehabSim.Gap.With<Effect>`` models (``extends BallScrewDevice``) are the same
+equations under the effect's name, built as their own FMUs by the normal build
+(``modelica/gap_fmus.txt``) so that "the model with the effect added" exists as a
+named FMU; :func:`effect_fmu` returns it. :func:`replay` always runs the
+``BallScrewDevice`` FMU (same equations, so any combination).
+
+Effects and their model (parameter names are the FMU's):
+
+========================== =================================================================
+stribeck_friction          g(w) = fc + dfs exp(-(w/ws)^2) in the LuGre bristle equation
+asymmetric_friction        Coulomb fc +- dfc and viscous b +- db by direction of motion
+position_dependent_friction Coulomb fc + kfx x + dfp sin(2 pi x/lp + php)
+cogging_torque             A_cog sin(n_cog theta + phi_cog) added to the motor torque
+backlash                   dead zone of total width ``backlash`` between screw and nut,
+                           contact stiffness k_bl (or 1/c_tr), damping ratio zeta_tr;
+                           the contact pushes, never pulls (as MSL ElastoBacklash)
+transmission_compliance    spring 1/c_tr + damper 2 zeta_tr sqrt(k m_n) screw <-> nut
+actuator_delay             (2,3) Pade approximant of exp(-s Td) on the current command:
+                           strictly proper (no instantaneous reversed torque, unlike
+                           the (n,n) forms); accuracy vs a true delay in the tests
+current_loop_lag           first-order lag, time constant Tcl
+current_saturation         clip at +-i_lim (after the delay, before the lag)
+accel_scale_error          (1 + ds_acc) * [a cos(psi) + g sin(tilt + psi)]
+accel_bias_drift           b(t) = b0_acc + db_acc (1 - exp(-t/T_acc)), t = trial time
+gravity_load               f = -m_g g sin(alpha + kappa x) on the nut; the accelerometer
+                           sees g sin(alpha + kappa x) (specific force)
+========================== =================================================================
+
+Replay (:func:`replay`): the FMU is driven by the log's ``i_cmd`` (zero-order hold
+at the log's sample time) and the external force (``f_ext`` when the log has it,
+else the load-cell force ``f_lc``, which is the force the handle receives from the
+partner through the load cell, else zero). An integrating plant replayed open loop
+drifts, and that drift would look like a gap; so it is a multiple-shooting replay:
+the trial is cut into windows of ``window_s``; each window is simulated from a
+restart (``fmi2Reset``, start time = the window's log time, so ``time``-dependent
+effects see the trial time) with initial angle and speed from a zero-phase
+Savitzky-Golay fit of the encoder (encoder only: the accelerometer may carry the
+gap being diagnosed). Each window starts ``warmup_s`` earlier than the samples it
+returns, so internal states (delay, lag, bristles, transmission) are in their
+physical state when the returned samples begin. The FMU is loaded once per file and
+reused (``fmi2Reset``); the per-step calls go to the ctypes function pointers.
+"""
+from __future__ import annotations
+
+import ctypes
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from ..trial_log import TrialLog, TrialLogError, require_columns
+
+__all__ = ["ParamSpec", "EffectSpec", "CATALOGUE", "NOMINAL_MODEL", "NOMINAL_PARAMS",
+           "OUTPUTS", "effect_fmu", "replay", "replay_many", "Replayer", "close_all"]
+
+REPO = Path(__file__).resolve().parents[2]
+PACKAGE_DIR = REPO / "modelica" / "RehabSim"
+DEFAULT_FMUS_DIR = REPO / "fmus"
+DEVICE = "ballscrew-1dof"
+
+#: qualified Modelica name of the nominal device (all effects off by default)
+NOMINAL_MODEL = "RehabSim.Gap.BallScrewDevice"
+
+#: outputs returned by :func:`replay` (FMU output names), on the log's time grid
+OUTPUTS = ("theta", "x", "v", "a", "acc_spec", "tau_m", "w", "i_act", "tau_f", "f_tr",
+           "f_g", "theta_enc")
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One effect parameter: SI unit, the default that switches the effect off (or is
+    irrelevant while it is off), a plausible fitting range, what it is."""
+    unit: str
+    default: float
+    low: float
+    high: float
+    description: str
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """One catalogue effect: its parameters (FMU parameter names) and its model."""
+    name: str
+    description: str
+    params: dict[str, ParamSpec]
+    modelica: str
+    devices: tuple[str, ...]
+
+
+_BOTH = ("ballscrew-1dof", "emps-1dof")   # force-side effects (spec: they apply to EMPS too)
+_BS = ("ballscrew-1dof",)
+_PI = math.pi
+
+
+def _e(name, cls, description, devices, **params) -> EffectSpec:
+    return EffectSpec(name, description, {k: ParamSpec(*v) for k, v in params.items()},
+                      f"RehabSim.Gap.With{cls}", devices)
+
+
+_ZETA = ("1", 0.05, 0.0, 1.0, "damping ratio of the nut on the transmission (contact) "
+         "stiffness, d = 2 zeta sqrt(k m_n)")
+
+#: the twelve effects of spec/gap-diagnosis.md, in the contract's order
+CATALOGUE: dict[str, EffectSpec] = {e.name: e for e in (
+    _e("stribeck_friction", "StribeckFriction",
+       "static friction above Coulomb friction, decaying with speed (Stribeck curve)", _BOTH,
+       dfs=("N.m", 0.0, 0.0, 1e-2, "static (breakaway) minus Coulomb torque, fs - fc"),
+       ws=("rad/s", 1.0, 0.05, 20.0, "Stribeck speed at the motor (x lead/2pi at the nut); "
+           "irrelevant while dfs = 0")),
+    _e("asymmetric_friction", "AsymmetricFriction",
+       "Coulomb and viscous friction that differ with the direction of motion", _BOTH,
+       dfc=("N.m", 0.0, -2.5e-3, 2.5e-3, "Coulomb torque is fc + dfc towards +x, fc - dfc towards -x"),
+       db=("N.m.s/rad", 0.0, -1.5e-5, 1.5e-5, "viscous coefficient is b + db towards +x, b - db towards -x")),
+    _e("position_dependent_friction", "PositionDependentFriction",
+       "Coulomb friction that varies along the travel (preload gradient, periodic variation)", _BOTH,
+       kfx=("N.m/m", 0.0, -0.05, 0.05, "Coulomb torque gradient along the travel"),
+       dfp=("N.m", 0.0, 0.0, 3e-3, "amplitude of the periodic Coulomb variation along the travel"),
+       lp=("m", 0.04, 0.005, 0.2, "period of that variation (irrelevant while dfp = 0)"),
+       php=("rad", 0.0, -_PI, _PI, "phase of that variation at x = 0")),
+    _e("cogging_torque", "CoggingTorque", "motor torque ripple periodic in motor angle", _BS,
+       A_cog=("N.m", 0.0, 0.0, 5e-3, "ripple amplitude"),
+       n_cog=("1", 6.0, 1.0, 24.0, "ripple periods per motor revolution (irrelevant while A_cog = 0)"),
+       phi_cog=("rad", 0.0, -_PI, _PI, "ripple phase at theta = 0")),
+    _e("backlash", "Backlash",
+       "play between motor/screw and the nut that carries the handle and accelerometer", _BS,
+       backlash=("m", 0.0, 0.0, 1e-3, "total axial play at the nut"),
+       k_bl=("N/m", 1e7, 1e4, 1e8, "contact stiffness when in contact (used when c_tr = 0)"),
+       zeta_tr=_ZETA),
+    _e("transmission_compliance", "TransmissionCompliance",
+       "finite stiffness between motor and nut: a resonance the accelerometer sees", _BOTH,
+       c_tr=("m/N", 0.0, 0.0, 1e-3, "axial compliance 1/k between screw and nut (0: rigid)"),
+       zeta_tr=_ZETA),
+    _e("actuator_delay", "ActuatorDelay",
+       "pure time delay between the current command and the torque", _BOTH,
+       Td=("s", 0.0, 0.0, 0.02, "transport delay ((2,3) Pade approximant)")),
+    _e("current_loop_lag", "CurrentLoopLag",
+       "first-order lag of the current driver (finite bandwidth)", _BOTH,
+       Tcl=("s", 0.0, 0.0, 0.02, "time constant of the current loop, 1/(2 pi bandwidth)")),
+    _e("current_saturation", "CurrentSaturation", "the driver clips the current at a limit", _BS,
+       i_lim=("A", 1000.0, 0.01, 1000.0, "current limit (1000 A: never reached)")),
+    _e("accel_scale_error", "AccelScaleError",
+       "accelerometer scale factor different from nominal, or axis misalignment", _BS,
+       ds_acc=("1", 0.0, -0.5, 0.5, "relative scale-factor error"),
+       psi_acc=("rad", 0.0, -0.2, 0.2, "misalignment of the sensing axis in the vertical plane "
+                "(also adds g sin(psi) to the reading)")),
+    _e("accel_bias_drift", "AccelBiasDrift", "accelerometer bias drifting over the trial (temperature)", _BS,
+       db_acc=("m/s2", 0.0, -2.0, 2.0, "bias change of the first-order thermal drift"),
+       T_acc=("s", 60.0, 0.5, 600.0, "time constant of the drift (irrelevant while db_acc = 0)")),
+    _e("gravity_load", "GravityLoad",
+       "a constant or position-dependent gravity force on the nut (axis not level)", _BOTH,
+       alpha=("rad", 0.0, -0.5, 0.5, "tilt of the axis, +x raised"),
+       kappa=("rad/m", 0.0, -2.0, 2.0, "change of the local tilt along the travel"),
+       m_g=("kg", 0.2, 0.0, 5.0, "mass pulled by gravity along the axis (nut + handle)")),
+)}
+
+#: nominal-model parameters :func:`replay` accepts in ``nominal`` (FMU names; defaults
+#: are the model of record's). Aliases: ``acc_bias`` -> ``b0_acc``.
+NOMINAL_PARAMS = ("J", "b", "fc", "Kt", "lead", "m_n", "sigma0", "sigma1", "wd", "b0_acc",
+                  "g_n", "delta_enc")
+_ALIASES = {"acc_bias": "b0_acc"}
+
+
+# ----------------------------------------------------------------------------- FMUs
+_BUILT: dict[tuple[str, str], Path] = {}
+
+
+def effect_fmu(effect: str | Sequence[str] | None, fmus_dir: Path | None = None) -> Path:
+    """The FMU of the nominal device with ``effect`` added, built if needed (cached).
+
+    ``None`` (or an empty sequence) gives the nominal device ``BallScrewDevice``; one
+    catalogue name gives ``With<Effect>``; two or more names give ``BallScrewDevice``,
+    which holds every effect (set their parameters by name). The effect parameters
+    keep their "off" defaults in every FMU; set them as FMU parameters.
+    """
+    if effect is None or (not isinstance(effect, str) and len(effect) == 0):
+        model = NOMINAL_MODEL
+    else:
+        names = [effect] if isinstance(effect, str) else list(effect)
+        for n in names:
+            _check_effect(n)
+        model = CATALOGUE[names[0]].modelica if len(set(names)) == 1 else NOMINAL_MODEL
+    out = Path(fmus_dir) if fmus_dir is not None else DEFAULT_FMUS_DIR
+    key = (model, str(out.resolve()))
+    p = _BUILT.get(key)
+    if p is not None and p.exists():
+        return p
+    from ..fmubuild.build import build_fmu
+    p = build_fmu(PACKAGE_DIR, model, out, log=lambda *_: None)
+    _BUILT[key] = p
+    return p
+
+
+def _check_effect(name: str) -> EffectSpec:
+    if name not in CATALOGUE:
+        raise ValueError(f"unknown effect {name!r}; the catalogue has: {', '.join(CATALOGUE)}")
+    return CATALOGUE[name]
+
+
+def model_parameters(nominal: Mapping[str, float] | None,
+                     effects: Mapping[str, Mapping[str, float]] | None) -> dict[str, float]:
+    """FMU parameter values for a nominal set and effects (validated, by FMU name).
+
+    ``nominal`` keys: :data:`NOMINAL_PARAMS` (or ``acc_bias``); keys of another
+    effect-parameter family are rejected. ``effects``: effect name -> {param: value};
+    omitted parameters keep their default; a key ``"nominal.<p>"`` (the engine's
+    jointly re-fitted nominal parameter) is applied to the nominal set. Two effects
+    that share a parameter (``zeta_tr``) must not give it different values.
+    """
+    out: dict[str, float] = {}
+    for k, v in (nominal or {}).items():
+        name = _ALIASES.get(k, k)
+        if name not in NOMINAL_PARAMS:
+            raise ValueError(f"nominal parameter {k!r} is not one of {', '.join(NOMINAL_PARAMS)}")
+        out[name] = _finite(v, f"nominal[{k!r}]")
+    given: dict[str, tuple[str, float]] = {}
+    for eff, params in (effects or {}).items():
+        spec = _check_effect(eff)
+        for k, v in (params or {}).items():
+            if k.startswith("nominal."):
+                name = _ALIASES.get(k[8:], k[8:])
+                if name not in NOMINAL_PARAMS:
+                    raise ValueError(f"effects[{eff!r}][{k!r}]: {name!r} is not a nominal "
+                                     f"parameter ({', '.join(NOMINAL_PARAMS)})")
+                out[name] = _finite(v, f"effects[{eff!r}][{k!r}]")
+                continue
+            if k not in spec.params:
+                raise ValueError(f"effects[{eff!r}]: unknown parameter {k!r} "
+                                 f"(it has: {', '.join(spec.params)})")
+            val = _finite(v, f"effects[{eff!r}][{k!r}]")
+            if k in given and given[k][1] != val:
+                raise ValueError(f"parameter {k!r} set to {given[k][1]!r} by {given[k][0]} "
+                                 f"and to {val!r} by {eff}")
+            given[k] = (eff, val)
+            out[k] = val
+    return out
+
+
+def _finite(v: Any, what: str) -> float:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} = {v!r} is not a number") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{what} = {x!r} is not finite")
+    return x
+
+
+# ----------------------------------------------------------------------------- replayer
+class Replayer:
+    """One loaded instance of a BallScrewDevice-like FMU, reused across runs.
+
+    :meth:`run_window` restarts the instance (``fmi2Reset``), sets parameters and the
+    initial angle/speed, and steps it through given input samples with the raw ctypes
+    calls (about 3 calls per 1 ms step); :meth:`close` frees it.
+    """
+
+    def __init__(self, fmu: Path):
+        import fmpy
+        from fmpy.fmi2 import FMU2Slave
+        self.path = Path(fmu)
+        self.md = fmpy.read_model_description(str(self.path))
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        for n in ("i_cmd", "f_ext", "theta0", "w0", "i0", *OUTPUTS):
+            if n not in self.vars:
+                raise ValueError(f"{self.path}: not a BallScrewDevice FMU (no variable {n!r})")
+        self._unzip = fmpy.extract(str(self.path))
+        self.messages: list[str] = []
+
+        def logger(env, name, status, category, message):  # keep the FMU's own words
+            if status > 1:
+                self.messages.append((message or b"").decode("utf-8", "replace"))
+        from fmpy.fmi2 import fmi2CallbackLoggerTYPE, fmi2CallbackFunctions, \
+            fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, calloc, free
+        self._cb = fmi2CallbackFunctions()
+        self._cb.logger = fmi2CallbackLoggerTYPE(logger)
+        self._cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        self._cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        try:   # formats the FMU's printf-style messages before they reach logger()
+            from fmpy.logging import addLoggerProxy
+            addLoggerProxy(ctypes.byref(self._cb))
+        except Exception:
+            pass
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzip,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier,
+                             instanceName="gap-replay")
+        self.fmu.instantiate(callbacks=self._cb, loggingOn=False)
+        self._fresh = True
+        dll = self.fmu.dll
+
+        def fn(name):
+            fp = dll._FuncPtr((name, dll))
+            fp.restype = ctypes.c_int
+            return fp
+        self._get, self._set, self._step = fn("fmi2GetReal"), fn("fmi2SetReal"), fn("fmi2DoStep")
+        self._comp = ctypes.c_void_p(self.fmu.component)
+        self._in_vr = (ctypes.c_uint32 * 2)(self.vars["i_cmd"].valueReference,
+                                            self.vars["f_ext"].valueReference)
+        self._in_buf = (ctypes.c_double * 2)()
+        self._out_names = OUTPUTS
+        self._out_vr = (ctypes.c_uint32 * len(OUTPUTS))(*[self.vars[n].valueReference for n in OUTPUTS])
+        self._out_n = ctypes.c_size_t(len(OUTPUTS))
+
+    def _status(self, st: int, what: str, t: float) -> None:
+        if st > 1:
+            msg = self.messages[-1] if self.messages else ""
+            raise RuntimeError(f"{self.path.name}: {what} returned status {st} at t = {t:.6f} s"
+                               + (f"; the FMU says: {msg}" if msg else ""))
+
+    def run_window(self, t: np.ndarray, i_cmd: np.ndarray, f_ext: np.ndarray,
+                   params: Mapping[str, float], theta0: float, w0: float,
+                   out: np.ndarray) -> None:
+        """Simulate from t[0] (state theta0, w0) through the samples ``t``; write the
+        outputs at t[k] into ``out[k, :]`` (columns :data:`OUTPUTS`). ``i_cmd[k]``,
+        ``f_ext[k]`` are held over [t[k], t[k+1])."""
+        f = self.fmu
+        if not self._fresh:
+            f.reset()
+        self._fresh = False
+        f.setupExperiment(startTime=float(t[0]))
+        p = dict(params)
+        p.update(theta0=float(theta0), w0=float(w0), i0=float(i_cmd[0]))
+        vrs, vals = [], []
+        for k, v in p.items():
+            var = self.vars.get(k)
+            if var is None or var.causality != "parameter":
+                raise ValueError(f"{self.path.name}: {k!r} is not a parameter of the FMU")
+            vrs.append(var.valueReference); vals.append(float(v))
+        f.setReal(vrs, vals)
+        f.enterInitializationMode()
+        inb, inv = self._in_buf, self._in_vr
+        two = ctypes.c_size_t(2)
+        inb[0] = float(i_cmd[0]); inb[1] = float(f_ext[0])
+        self._status(self._set(self._comp, inv, two, inb), "fmi2SetReal", float(t[0]))
+        f.exitInitializationMode()
+        n = len(t)
+        assert out.shape == (n, len(OUTPUTS)) and out.flags.c_contiguous
+        base = out.ctypes.data
+        row = out.strides[0]
+        get, set_, step, comp = self._get, self._set, self._step, self._comp
+        ovr, on = self._out_vr, self._out_n
+        D = ctypes.c_double
+        one = ctypes.c_int(1)
+        P = ctypes.c_void_p
+        tt = t.tolist(); ii = i_cmd.tolist(); ff = f_ext.tolist()
+        st = get(comp, ovr, on, P(base))
+        if st > 1:
+            self._status(st, "fmi2GetReal", tt[0])
+        for k in range(n - 1):
+            inb[0] = ii[k]; inb[1] = ff[k]
+            st = set_(comp, inv, two, inb)
+            if st > 1:
+                self._status(st, "fmi2SetReal", tt[k])
+            st = step(comp, D(tt[k]), D(tt[k + 1] - tt[k]), one)
+            if st > 1:
+                self._status(st, "fmi2DoStep", tt[k])
+            st = get(comp, ovr, on, P(base + (k + 1) * row))
+            if st > 1:
+                self._status(st, "fmi2GetReal", tt[k + 1])
+        f.terminate()
+
+    def close(self) -> None:
+        if self.fmu is not None:
+            try:
+                self.fmu.freeInstance()
+            finally:
+                self.fmu = None
+
+
+_REPLAYERS: dict[str, Replayer] = {}
+
+
+def _replayer(fmu: Path) -> Replayer:
+    key = f"{Path(fmu).resolve()}|{Path(fmu).stat().st_mtime_ns}"
+    r = _REPLAYERS.get(key)
+    if r is None:
+        r = _REPLAYERS[key] = Replayer(fmu)
+    return r
+
+
+def close_all() -> None:
+    """Free every FMU instance :func:`replay` keeps loaded."""
+    while _REPLAYERS:
+        _, r = _REPLAYERS.popitem()
+        r.close()
+
+
+# ----------------------------------------------------------------------------- replay
+def _initial_states(theta_enc: np.ndarray, Ts: float, sg_window: int = 21,
+                    sg_order: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-phase Savitzky-Golay angle and speed from the quantised encoder.
+
+    21 samples, 5th order: on nominal multisine logs (0.5-40 Hz, 45 rad/s rms) the
+    speed error is 0.021 rad/s rms, against 0.024 for (11, 3), 0.052 for (21, 3) and
+    0.14 for (11, 2) (measured; the shorter or lower-order fits trade quantisation
+    noise for bias)."""
+    from scipy.signal import savgol_filter
+    n = theta_enc.size
+    win = min(sg_window, n if n % 2 else n - 1)
+    order = min(sg_order, win - 2)
+    if win < 5 or order < 1:
+        return theta_enc.astype(float), np.gradient(theta_enc, Ts) if n > 1 else np.zeros(n)
+    th = savgol_filter(theta_enc, win, order, deriv=0, mode="interp")
+    w = savgol_filter(theta_enc, win, order, deriv=1, delta=Ts, mode="interp")
+    return th, w
+
+
+def external_force(log: TrialLog) -> tuple[np.ndarray, str]:
+    """The force on the handle that :func:`replay` applies: ``f_ext`` if the log has
+    it (simulated data), else the load-cell force ``f_lc``, else zero."""
+    n = log.n_samples
+    for name in ("f_ext", "f_lc"):
+        if name in log:
+            return np.asarray(log[name], dtype=float), name
+    return np.zeros(n), "none"
+
+
+def replay(log: TrialLog, nominal: Mapping[str, float] | None = None,
+           effects: Mapping[str, Mapping[str, float]] | None = None, *,
+           window_s: float | None = 0.5, warmup_s: float = 0.05, sg_window: int = 21,
+           sg_order: int = 5,
+           rtol: float | None = None, fmus_dir: Path | None = None) -> dict[str, np.ndarray]:
+    """Re-simulate the device (nominal + ``effects``) over ``log``; windowed.
+
+    ``log``: a ``ballscrew-1dof`` :class:`TrialLog` with ``i_cmd`` and ``theta_enc``.
+    ``nominal``: recalibrated J, b, fc, Kt (and any of :data:`NOMINAL_PARAMS`);
+    absent keys take the model of record's values. ``effects``: effect name ->
+    {parameter: value} (see :data:`CATALOGUE`). ``window_s``: length of the
+    shooting windows (``None`` or ``inf``: one open-loop run from the first sample);
+    ``warmup_s``: each window after the first starts this much earlier (discarded).
+    Returns ``{"time", *OUTPUTS, "window"}`` as arrays on the log's time grid
+    (``window``: index of the window each sample came from).
+    """
+    if log.device != DEVICE:
+        raise TrialLogError(log.json_path, f"device {log.device!r}: the FMU replay is for {DEVICE}")
+    require_columns(log, ("i_cmd", "theta_enc"), use="the FMU replay")
+    params = model_parameters(nominal, effects)
+    if rtol is not None:
+        params["_rtol"] = _finite(rtol, "rtol")
+    t = np.ascontiguousarray(log.time, dtype=float)
+    n = t.size
+    if n < 2:
+        raise TrialLogError(log.csv_path, f"{n} sample(s): too short to replay")
+    Ts = float(log.sample_time)
+    i_cmd = np.asarray(log["i_cmd"], dtype=float)
+    f_ext, _ = external_force(log)
+    th0, w0 = _initial_states(np.asarray(log["theta_enc"], dtype=float), Ts, sg_window, sg_order)
+    if window_s is None or not math.isfinite(window_s) or window_s * 1.0 >= (n - 1) * Ts:
+        nw = n
+    else:
+        nw = max(1, int(round(window_s / Ts)))
+    nwarm = max(0, int(round(warmup_s / Ts)))
+    rep = _replayer(effect_fmu(None, fmus_dir))
+    res = np.empty((n, len(OUTPUTS)))
+    window = np.empty(n, dtype=np.int32)
+    for j, k0 in enumerate(range(0, n, nw)):
+        k1 = min(n, k0 + nw)
+        ks = max(0, k0 - nwarm)
+        buf = np.empty((k1 - ks, len(OUTPUTS)))
+        rep.run_window(t[ks:k1], i_cmd[ks:k1], f_ext[ks:k1], params, th0[ks], w0[ks], buf)
+        res[k0:k1] = buf[k0 - ks:]
+        window[k0:k1] = j
+    out = {"time": t.copy()}
+    out.update({name: res[:, i].copy() for i, name in enumerate(OUTPUTS)})
+    out["window"] = window
+    return out
+
+
+def replay_many(logs: Iterable[TrialLog], nominal: Mapping[str, float] | None = None,
+                effects: Mapping[str, Mapping[str, float]] | None = None,
+                **kw: Any) -> list[dict[str, np.ndarray]]:
+    """:func:`replay` of each log with the same parameters (one loaded FMU)."""
+    return [replay(log, nominal, effects, **kw) for log in logs]
