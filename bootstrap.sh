@@ -9,6 +9,12 @@ if ! command -v gcc >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq gcc libc6-dev >/dev/null
   else sudo apt-get update -qq && sudo apt-get install -y -qq gcc libc6-dev >/dev/null; fi
 fi
+# headless browser for the report-rendering test (tests/test_report.py)
+if ! command -v chromium >/dev/null 2>&1; then
+  echo "bootstrap: installing chromium (apt)"
+  if [ "$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq chromium >/dev/null
+  else sudo apt-get update -qq && sudo apt-get install -y -qq chromium >/dev/null; fi
+fi
 PY=${PYTHON:-python3}
 stamp=.venv/.bootstrap-$(sha256sum requirements.lock pyproject.toml | sha256sum | cut -c1-16)
 if [ ! -f "$stamp" ]; then

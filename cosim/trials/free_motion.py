@@ -89,7 +89,7 @@ def free_motion_figures(runs, info):
     s = r.signals
     t = s["time"]
     out = []
-    fig, ax = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    fig, ax = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
     ax[0].plot(t, 1e3 * s["plant.x"], label="nut position x")
     if "stim.x_ref" in s:
         ax[0].plot(t, 1e3 * s["stim.x_ref"], "k--", lw=1, label="target x_ref")
@@ -99,8 +99,14 @@ def free_motion_figures(runs, info):
     ax[1].plot(t, s["aakf.omega_rad_s"], lw=1, label="aaKF")
     ax[1].plot(t, s["plant.w"], "k", lw=0.8, label="true (FMU)")
     ax[1].set_ylabel("motor speed [rad/s]")
-    ax[1].set_xlabel("time [s]")
     ax[1].legend(loc="upper right", fontsize=8)
+    ax[2].plot(t, s["encdiff.omega_rad_s"] - s["plant.w"], color="0.6", lw=0.6,
+               label="encoder differencing - truth")
+    ax[2].plot(t, s["aakf.omega_rad_s"] - s["plant.w"], lw=0.8, label="aaKF - truth")
+    ax[2].set_ylim(-2, 2)
+    ax[2].set_ylabel("speed error [rad/s]")
+    ax[2].set_xlabel("time [s]")
+    ax[2].legend(loc="upper right", fontsize=8)
     fig.suptitle(f"Speed estimates vs truth (Fig. 24 form), run {r.label}")
     out.append(("speed estimates vs truth", fig))
 

@@ -91,7 +91,12 @@ def identification_figures(runs, info):
             a.plot(v.signals["time"], 100 * v.signals[f"{p}_rel_err"], style, lw=1.2, label=lbl)
         a.axhspan(-10, 10, color="tab:green", alpha=0.15, label="±10 % band (Fig. 26)")
         a.axhline(0, color="k", lw=0.6)
-        a.set_ylim(-50, 50)
+        # keep the final values in view (an estimate far outside the band must show)
+        finals = [abs(100 * by_phase[ph].signals[f"{p}_rel_err"][-1]) for ph in
+                  ("rls_aakf", "rls_encoder") if ph in by_phase]
+        finals = [x for x in finals if np.isfinite(x)]
+        lim = max([50.0] + [1.3 * x for x in finals])
+        a.set_ylim(-lim, lim)
         a.set_ylabel(f"{p} error [%]")
     ax[0].legend(loc="upper right", fontsize=8)
     ax[-1].set_xlabel("time [s]")

@@ -1,0 +1,56 @@
+"""Suite throughput: Dask with 2 local worker processes vs a serial run of the same
+suite in the same process run (issue 4 goal: >= 1.8x).
+
+    .venv/bin/python bench/bench_suite.py [--runs 8] [--duration 4]
+
+The suite is the free-motion scenario with N seeds (N independent runs of
+``--duration`` s each, on the BallScrewUnit, HumanArm1D and Accelerometer FMUs with
+the aaKF and encoder differencing). Caching is off for both. Prints both wall
+times and their ratio. The Dask time includes starting the local cluster.
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--runs", type=int, default=8)
+    ap.add_argument("--duration", type=float, default=4.0)
+    a = ap.parse_args(argv)
+    from cosim.scenarios.suite import run_suite
+    text = (REPO / "scenarios" / "free_motion.yaml").read_text()
+    text = re.sub(r"^seeds: .*$", f"seeds: {list(range(1, a.runs + 1))}", text, flags=re.M)
+    text = re.sub(r"^duration: .*$", f"duration: {a.duration}", text, flags=re.M)
+    text = text.replace("from_s: 7.0", f"from_s: {a.duration - 1.0}")
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        sc = d / "bench.yaml"
+        sc.write_text(text)
+        t0 = time.perf_counter()
+        s1 = run_suite([sc], d / "serial", serial=True, use_cache=False, progress=False)
+        t_serial = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        s2 = run_suite([sc], d / "dask", workers=2, use_cache=False, progress=False)
+        t_dask = time.perf_counter() - t0
+    assert s1["runs_executed"] == s2["runs_executed"] == a.runs
+    assert [r["value"] for r in s1["scenarios"][0]["requirements"]] == \
+        [r["value"] for r in s2["scenarios"][0]["requirements"]], "serial and Dask differ"
+    sim = a.runs * a.duration
+    print(f"suite of {a.runs} runs x {a.duration} s (free-motion, seeds 1..{a.runs})")
+    print(f"serial:          {t_serial:7.2f} s  ({sim / t_serial:5.1f} s simulated per s)")
+    print(f"Dask, 2 workers: {t_dask:7.2f} s  ({sim / t_dask:5.1f} s simulated per s, "
+          f"incl. cluster start)")
+    print(f"throughput ratio Dask/serial: {t_serial / t_dask:.2f}x (goal >= 1.8x)")
+
+
+if __name__ == "__main__":
+    main()
