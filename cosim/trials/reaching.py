@@ -80,8 +80,11 @@ class AssistController(AdaptiveComplianceController):
     """
 
     def __init__(self, params: AdaptiveComplianceParams = AdaptiveComplianceParams(),
-                 initial_a: np.ndarray | None = None):
+                 initial_a: np.ndarray | None = None, snapshot_every: int = 0):
         self.initial_a = None if initial_a is None else np.array(initial_a, float)
+        #: keep a copy of the heights every ``snapshot_every`` ticks (0: never) in
+        #: ``snapshots`` as (tick, a) -- the map's history without recording 72 columns
+        self.snapshot_every = int(snapshot_every)
         super().__init__(params)
         g = self.grid
         if self.initial_a is not None and self.initial_a.shape != (params.n_dof, g.P):
@@ -104,6 +107,8 @@ class AssistController(AdaptiveComplianceController):
         if getattr(self, "initial_a", None) is not None:
             self.a = self.initial_a.copy()
         self._err_prev: list[float] | None = None
+        self._tick = 0
+        self.snapshots: list[tuple[int, np.ndarray]] = []
 
     def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
         if self.params.n_dof != 2:
@@ -129,6 +134,9 @@ class AssistController(AdaptiveComplianceController):
         np.maximum(a, self._amin, out=a)                          # eq. 78 lower bound
         kp = a @ g                                                # eq. 72
         self.kp = kp
+        if self.snapshot_every and self._tick % self.snapshot_every == 0:
+            self.snapshots.append((self._tick, a.copy()))
+        self._tick += 1
         kpx, kpy = float(kp[0]), float(kp[1])
         if self._phys:                                            # eq. 57 (digest) / eq. 60
             kdx = 2.0 * self._xi * math.sqrt(max(kpx, 0.0) * self.masses[0])
