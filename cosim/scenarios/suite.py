@@ -72,6 +72,10 @@ def _client(scheduler: str | None, workers: int | None):
     # a run that kills its worker (segfault in an FMU) is not retried forever
     dask.config.set({"distributed.scheduler.allowed-failures": 1,
                      "distributed.worker.daemon": False,
+                     # the statistical profiler samples every thread's stack under the
+                     # GIL every 10 ms: it slows the pure-Python tick loop down
+                     "distributed.worker.profile.enabled": False,
+                     "distributed.worker.profile.interval": "1s",
                      "distributed.logging.distributed": "error"})
     if scheduler:
         try:
