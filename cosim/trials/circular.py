@@ -263,3 +263,133 @@ def run_circular(task: CircleTask = CircleTask(), params: AdaptiveCompliancePara
         m["stability"] = st
     return {"metrics": m, "snapshots": ctrl.snapshots, "result": res, "params": params,
             "task": task}
+
+
+# =========================================================================== scenario framework
+from ..scenarios.registry import ProcedureResult, figures, procedure, stimulus  # noqa: E402
+
+
+@dataclasses.dataclass(frozen=True)
+class CircleTargetParams:
+    """A component (rx, ry [m], vx, vy [m/s]) of the circular target, or of the point the
+    person aims at (``intent: true``: pushed out in the bad sector during the bad laps).
+    The other fields are those of :class:`CircleTask`."""
+
+    component: str = "rx"
+    intent: bool = False
+    radius_m: float = 0.10
+    period_s: float = 12.0
+    bad_laps: int = 4
+    good_laps: int = 4
+    sector_deg: tuple = (20.0, 80.0)
+    deviation_m: float = 0.04
+    margin_deg: float = 40.0
+    hold_s: float = 15.0
+    fit_s: float = 5.0
+
+    def validate(self):
+        if self.component not in ("rx", "ry", "vx", "vy"):
+            raise ValueError(f"component must be rx, ry, vx or vy, got {self.component!r}")
+        self.task()
+
+    def task(self) -> CircleTask:
+        return CircleTask((0.0, 0.0), self.radius_m, self.period_s, self.bad_laps, self.good_laps,
+                          tuple(self.sector_deg), self.deviation_m, self.margin_deg, self.hold_s,
+                          self.fit_s)
+
+
+def _circle_params(params) -> CircleTargetParams:
+    return CircleTargetParams(**{k: (tuple(v) if isinstance(v, list) else v)
+                                 for k, v in params.items()})
+
+
+@stimulus("circle_target", params=CircleTargetParams)
+def _circle_target(params, ctx):
+    """Circular target (Sec. 3.5) or the person's deliberately wrong aim (intent)."""
+    p = _circle_params(params)
+    ctx.state["circle_task"] = p.task()
+    t = p.task()
+    return (t.intent() if p.intent else t.target())[p.component]
+
+
+@procedure("circular-test")
+def _circular_test(run, build, ctx):
+    """One run of the circular test (Sec. 3.5): the values of :func:`circle_metrics`,
+    eq. 90-91 per axis and a direct 1-DOF simulation; map snapshots as artifacts."""
+    from ..master import Master
+    from .reaching import _decimated
+    system, record = build()
+    task: CircleTask = ctx.state["circle_task"]
+    block = ctx.state["controller"]
+    if not block.snapshot_every:
+        block.snapshot_every = int(round(0.25 / block.params.Ts_s))
+    hp = dict(system.params["human"])
+    res = Master(system, record).run(run.duration)
+    sig = res.signals
+    m = circle_metrics(task, block.params, block.snapshots, sig)
+    v_max = float(np.max(np.hypot(sig["table.vx"], sig["table.vy"])))
+    pr = dict(run.overrides.get("parameters") or {})
+    st = stability_check(block.params, hp, r_dot_max=task.radius_m * task.omega, v_max=v_max,
+                         sim_s=float(pr.get("stability_sim_s", 20.0)))
+    vals = {k: float(x) for k, x in m.items()}
+    vals.update(eq90_91_admissible=float(st["admissible"]), eq90_k_max=st["k_max"],
+                eq91_tau_max_s=st["tau_max_s"], sim_1dof_stable=float(st["simulation_stable"]))
+    # Fig. 47 form: the map on a 21 x 21 grid at a few instants
+    ctrl = AssistController(block.params)
+    g = np.linspace(-0.2, 0.2, 21)
+    mesh = np.stack([q.ravel() for q in np.meshgrid(g, g, indexing="ij")], axis=1)
+    G = ctrl.grid.evaluate(mesh)
+    ticks = np.array([k for k, _ in block.snapshots])
+    instants = [0.0, 0.5 * task.t_bad_end, task.t_bad_end, task.t_good_start,
+                task.t_good_start + 0.5 * (task.t_good_end - task.t_good_start), task.t_good_end]
+    maps = []
+    for t in instants:
+        i = int(np.argmin(np.abs(ticks * block.params.Ts_s - t)))
+        kp = (G @ block.snapshots[i][1].T).mean(axis=1).reshape(21, 21)
+        maps.append({"t_s": float(ticks[i] * block.params.Ts_s), "kp": np.round(kp, 4).tolist()})
+    return ProcedureResult(runs={"main": _decimated(res, 10)}, values=vals,
+                           artifacts={"maps": maps, "stability": st,
+                                      "task": dataclasses.asdict(task),
+                                      "alpha0": block.params.alpha0_N_per_m})
+
+
+@figures("circular")
+def _circular_figures(runs, info):
+    """Fig. 47 form: stiffness maps at several instants; local stiffness over time."""
+    import matplotlib.pyplot as plt
+    figs = []
+    for r in runs:
+        if r.phase != "main" or not r.artifacts:
+            continue
+        maps = r.artifacts["maps"]
+        task = r.artifacts["task"]
+        fig, axs = plt.subplots(1, len(maps), figsize=(2.8 * len(maps), 3.0), squeeze=False)
+        vmax = max(float(np.max(m["kp"])) for m in maps)
+        ph = np.linspace(0, 2 * np.pi, 200)
+        for j, m in enumerate(maps):
+            ax = axs[0, j]
+            im = ax.imshow(np.asarray(m["kp"]).T, origin="lower", extent=(-0.2, 0.2, -0.2, 0.2),
+                           cmap="jet", vmin=0, vmax=vmax)
+            ax.plot(task["radius_m"] * np.cos(ph), task["radius_m"] * np.sin(ph), "w-", lw=0.6)
+            a0, a1 = np.radians(task["sector_deg"])
+            ps = np.linspace(a0, a1, 30)
+            ax.plot(task["radius_m"] * np.cos(ps), task["radius_m"] * np.sin(ps), "m-", lw=2)
+            ax.set_title(f"t = {m['t_s']:.0f} s", fontsize=8)
+            ax.set_xticks([]); ax.set_yticks([])
+        fig.colorbar(im, ax=axs, shrink=0.8, label="mean k_p [N/m]")
+        fig.suptitle("Stiffness map over time (Fig. 47 form); magenta: sector of deliberate errors",
+                     fontsize=9)
+        figs.append(("stiffness maps over time (Fig. 47)", fig))
+        s = r.signals
+        fig, ax = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+        t = s["time"]
+        ax[0].plot(t, s["ac.kp_x"], label="k_p,x at the end effector")
+        ax[0].plot(t, s["ac.kp_y"], label="k_p,y")
+        for x in (task["bad_laps"] * task["period_s"],):
+            ax[0].axvline(x, color="k", ls="--", lw=0.8)
+        ax[0].set_ylabel("stiffness [N/m]"); ax[0].legend(fontsize=7)
+        ax[1].plot(t, 1e3 * np.hypot(s["stim.rx"] - s["table.x_enc"], s["stim.ry"] - s["table.y_enc"]))
+        ax[1].set_ylabel("|error| [mm]"); ax[1].set_xlabel("time [s]")
+        fig.tight_layout()
+        figs.append(("local stiffness and tracking error", fig))
+    return figs

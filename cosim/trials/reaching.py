@@ -464,3 +464,336 @@ def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str,
         out["simulation"] = sims
         out["simulation_stable"] = all(s["stable"] for s in sims)
     return out
+
+
+# =========================================================================== scenario framework
+# Registered building blocks of scenarios/reaching.yaml (and circular.yaml's controller).
+# The framework's procedure API does not pass the file-level ``parameters`` section to
+# a procedure, so the session settings (subject, week, ...) are read from
+# ``run.overrides["parameters"]`` (cases and sweeps), with the defaults below.
+from ..scenarios.registry import (ProcedureResult, controller, figures, metric,  # noqa: E402
+                                  procedure, stimulus)
+
+
+@dataclasses.dataclass(frozen=True)
+class XYComplianceParams:
+    """YAML parameters of the ``adaptive_compliance_xy`` controller (eq. 57-74).
+
+    k_N_per_m2s, tau_s, alpha0_N_per_m: update law eq. 69-71 (Sec. 3.5: 1000, 5 s, 10;
+    Sec. 3.6: 500, 20 s, 10); a_min_N_per_m: eq. 78 clamp; xi: damping factor;
+    damping_form: 'physical' (digest) or 'printed' (eq. 58); cells_per_axis: 6 (P = 36,
+    Sec. 3.4); sigma_over_cell: Gaussian width / cell; motors_on: drivers (Table 6);
+    carry_map: start from the map the previous phase left (ctx.state['a']);
+    snapshot_s: keep the map every snapshot_s seconds (0: never).
+    """
+
+    k_N_per_m2s: float = 500.0
+    tau_s: float = 20.0
+    alpha0_N_per_m: float = 10.0
+    a_min_N_per_m: float = 1.0
+    xi: float = 0.7
+    damping_form: str = "physical"
+    cells_per_axis: int = 6
+    sigma_over_cell: float = 0.5
+    motors_on: bool = True
+    carry_map: bool = False
+    snapshot_s: float = 0.0
+
+    def validate(self):
+        if self.k_N_per_m2s < 0 or self.tau_s <= 0 or self.alpha0_N_per_m <= 0:
+            raise ValueError("k >= 0, tau > 0 and alpha0 > 0 are required")
+        if self.damping_form not in ("physical", "printed"):
+            raise ValueError("damping_form must be 'physical' or 'printed'")
+        if self.cells_per_axis < 1 or self.snapshot_s < 0:
+            raise ValueError("cells_per_axis >= 1, snapshot_s >= 0")
+
+    def controller_params(self, Ts: float = 1e-3) -> AdaptiveComplianceParams:
+        return compliance_params(self.k_N_per_m2s, self.tau_s, self.alpha0_N_per_m,
+                                 a_min_N_per_m=self.a_min_N_per_m, xi=self.xi,
+                                 damping_form=self.damping_form,
+                                 cells_per_axis=self.cells_per_axis,
+                                 sigma_over_cell=self.sigma_over_cell, motors_on=self.motors_on,
+                                 Ts_s=Ts)
+
+
+@controller("adaptive_compliance_xy", params=XYComplianceParams)
+def _make_xy_compliance(params, ctx):
+    """Adaptive compliance controller on the X-Y table (eq. 57-74), fast 2-D step."""
+    p = XYComplianceParams(**params)
+    cp = p.controller_params(ctx.step_s)
+    a0 = ctx.state.get("a") if p.carry_map else None
+    block = AssistController(cp, initial_a=a0,
+                             snapshot_every=int(round(p.snapshot_s / cp.Ts_s)) if p.snapshot_s else 0)
+    ctx.state["controller"] = block
+    return block
+
+
+@dataclasses.dataclass(frozen=True)
+class ReachingTargetParams:
+    """A component (rx, ry [m], vx, vy [m/s]) of the reaching target (Fig. 48)."""
+
+    component: str = "rx"
+    start_x_m: float = 0.0
+    start_y_m: float = -0.10
+    directions_deg: tuple = (135.0, 90.0, 45.0)
+    length_m: float = 0.15
+    speed_m_per_s: float = 0.018
+    repetitions: int = 3
+
+    def validate(self):
+        if self.component not in ("rx", "ry", "vx", "vy"):
+            raise ValueError(f"component must be rx, ry, vx or vy, got {self.component!r}")
+        self.path()
+
+    def path(self) -> ReachingPath:
+        return ReachingPath((self.start_x_m, self.start_y_m), tuple(self.directions_deg),
+                            self.length_m, self.speed_m_per_s, self.repetitions)
+
+
+@stimulus("reaching_target", params=ReachingTargetParams)
+def _reaching_target(params, ctx):
+    """Target of the reaching task: out and back along three directions (Fig. 48)."""
+    p = ReachingTargetParams(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in params.items()})
+    return p.path().functions()[p.component]
+
+
+def _decimated(res, n: int):
+    """A RunResult keeping every n-th row (a 150 s training is 150 001 rows)."""
+    from ..master import RunResult
+    sig = {k: np.ascontiguousarray(v[::n]) for k, v in res.signals.items()}
+    return RunResult(sig, res.provenance, res.completed, res.error,
+                     ticks=len(sig["time"]), step_size=(res.step_size or 1e-3) * n,
+                     wall_time=res.wall_time)
+
+
+def _path_points(path: ReachingPath, n: int = 600) -> np.ndarray:
+    f = path.functions()
+    ts = np.linspace(0.0, path.duration_s / path.repetitions, n, endpoint=False)
+    return np.array([(f["rx"](t), f["ry"](t)) for t in ts])
+
+
+@procedure("reaching-session")
+def _reaching_session(run, build, ctx):
+    """A weekly session (Table 6): 5 trainings of ``duration`` with the motor drivers
+    OFF/ON/ON/ON/OFF, the patient model of ``parameters.subject`` at
+    ``parameters.week``; phases t1..t5 (decimated 10x), values per training."""
+    from ..master import Master
+    from .patients import subject as get_subject
+    pr = dict(run.overrides.get("parameters") or {})
+    subj = get_subject(pr.get("subject", "S1"))
+    week = int(pr.get("week", 0))
+    motors = tuple(bool(m) for m in pr.get("motors", SESSION_MOTORS))
+    dec = int(pr.get("decimate", 10))
+    out = ProcedureResult()
+    system, record = build()
+    x0 = float(system.params["table"].get("x0", 0.0)); y0 = float(system.params["table"].get("y0", 0.0))
+    for s in system.roles.values():
+        s.terminate()
+    maps, rows = [], []
+    v_max = 0.0
+    ctx.state.pop("a", None)
+    hp0 = None
+    for i, on in enumerate(motors):
+        hp = subj.human_parameters(week, i, motors)
+        hp0 = hp0 or hp
+        hp_all = dict(hp, x_hand0=x0, y_hand0=y0, x_dev=x0, y_dev=y0)
+        ctx.phase = f"t{i + 1}"
+        system, record = build({"system": {"fmus": {"human": {"parameters": hp_all}}},
+                                "controllers": {"ac": {"params": {"motors_on": on}}}})
+        block = ctx.state["controller"]
+        res = Master(system, record).run(run.duration)
+        sig = res.signals
+        ex = sig["stim.rx"] - sig["table.x_enc"]; ey = sig["stim.ry"] - sig["table.y_enc"]
+        (mx, sx), (my, sy) = mae_sde(ex), mae_sde(ey)
+        tag = f"t{i + 1}"
+        fmax = float(np.max(np.abs(np.r_[sig["ac.f_x"], sig["ac.f_y"]])))
+        out.values.update({f"{tag}_MAE_x_mm": 1e3 * mx, f"{tag}_SDE_x_mm": 1e3 * sx,
+                           f"{tag}_MAE_y_mm": 1e3 * my, f"{tag}_SDE_y_mm": 1e3 * sy,
+                           f"{tag}_total_MAE_mm": 500.0 * (mx + my), f"{tag}_motors_on": float(on),
+                           f"{tag}_max_force_N": fmax})
+        if "human.impairment" in sig:                    # error inside the impaired region
+            imp = sig["human.impairment"] > 0.5
+            out.values[f"{tag}_impaired_frac"] = float(np.mean(imp))
+            if imp.any():
+                out.values[f"{tag}_MAE_impaired_mm"] = 1e3 * float(np.mean(np.hypot(ex[imp], ey[imp])))
+        maps.append(block.a.tolist())
+        rows.append({"trial": i + 1, "motors": "ON" if on else "OFF",
+                     "MAE_x_mm": 1e3 * mx, "SDE_x_mm": 1e3 * sx, "MAE_y_mm": 1e3 * my,
+                     "SDE_y_mm": 1e3 * sy})
+        v_max = max(v_max, float(np.max(np.hypot(sig["table.vx"], sig["table.vy"]))))
+        ctx.state["a"] = block.a.copy()                  # for carry_map
+        out.runs[tag] = _decimated(res, dec)
+    v = out.values
+    v["pre_total_MAE_mm"] = v["t1_total_MAE_mm"]
+    v["post_total_MAE_mm"] = v[f"t{len(motors)}_total_MAE_mm"]
+    on_idx = [i + 1 for i, m in enumerate(motors) if m]
+    off_idx = [i + 1 for i, m in enumerate(motors) if not m]
+    v["on_over_off_total_MAE"] = (np.mean([v[f"t{i}_total_MAE_mm"] for i in on_idx])
+                                  / np.mean([v[f"t{i}_total_MAE_mm"] for i in off_idx]))
+    if all(f"t{i}_MAE_impaired_mm" in v for i in range(1, len(motors) + 1)):
+        v["on_over_off_impaired_MAE"] = (np.mean([v[f"t{i}_MAE_impaired_mm"] for i in on_idx])
+                                         / np.mean([v[f"t{i}_MAE_impaired_mm"] for i in off_idx]))
+    v["off_max_force_N"] = max(v[f"t{i}_max_force_N"] for i in off_idx) if off_idx else 0.0
+    # Fig. 49: where is the stiffness highest (motors-OFF pre assessment map, on the path)?
+    cp = AdaptiveComplianceController(compliance_params(1.0, 1.0))
+    sp = ReachingTargetParams()
+    pts = _path_points(sp.path())
+    kp = cp.grid.evaluate(pts) @ np.asarray(maps[0]).T
+    ipk = int(np.argmax(kp.sum(axis=1)))
+    v["map_peak_x_m"], v["map_peak_y_m"] = float(pts[ipk, 0]), float(pts[ipk, 1])
+    if "imp_cx" in hp0:                                  # (meaningful if imp_depth > 0)
+        v["map_peak_to_impairment_m"] = float(np.hypot(pts[ipk, 0] - hp0["imp_cx"],
+                                                       pts[ipk, 1] - hp0["imp_cy"]))
+    # eq. 90-91 per axis (Sec. 3.3.2.2) for this patient, plus a direct simulation
+    xyp = ctx.state["controller"].params
+    st = stability_check(xyp, hp0, r_dot_max=sp.speed_m_per_s, v_max=v_max,
+                         simulate=bool(pr.get("simulate_stability", True)),
+                         sim_s=float(pr.get("stability_sim_s", 20.0)))
+    v["eq90_91_admissible"] = float(st["admissible"])
+    v["eq90_k_max"] = st["k_max"]
+    v["eq91_tau_max_s"] = st["tau_max_s"]
+    if "simulation_stable" in st:
+        v["sim_1dof_stable"] = float(st["simulation_stable"])
+    out.artifacts = {"subject": subj.key, "week": week, "table5": subj.table5(),
+                     "motors": list(motors), "maps": maps, "table": rows, "stability": st,
+                     "human_parameters_week_pre": hp0,
+                     "note": "patient model and its progression are a MODEL, not data "
+                             "(cosim/trials/patients.py)"}
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class SessionValueParams:
+    """``key``: a value the procedure returned; ``case``: only that case's runs carry it
+    (other runs give NaN, which the framework drops for a requirement restricted to
+    ``case``; the framework computes a metric on every run before filtering)."""
+    key: str = ""
+    case: str = ""
+
+
+@metric("session_value", params=SessionValueParams)
+def _session_value(params, ctx):
+    """A scalar the session procedure returned, for the runs of one case."""
+    case = params.get("case") or ""
+    if case and ctx.run is not None and ctx.run.case != case:
+        return float("nan")
+    key = params.get("key", "")
+    if key not in ctx.values:
+        raise KeyError(f"run {ctx.run.label if ctx.run else '?'}: the procedure returned no "
+                       f"value {key!r} (e.g. the path never entered the impaired region)")
+    return float(ctx.values[key])
+
+
+# ---------------------------------------------------------------- scenario-scope metrics
+def _sessions(ctx):
+    """(subject, week) -> values of one session run (phase t1 views carry the values)."""
+    out = {}
+    for r in ctx.runs:
+        if r.phase not in ("t1", "main", ""):
+            continue
+        a = r.artifacts or {}
+        out[(a.get("subject", r.case), int(a.get("week", 0)))] = r.values
+    if not out:
+        raise ValueError("no reaching session runs")
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class TrendParams:
+    """``subjects``: restrict to these subjects (empty: all)."""
+    subjects: tuple = ()
+
+
+@metric("post_better_fraction", params=TrendParams, scope="scenario")
+def _post_better_fraction(params, ctx):
+    """Fraction of sessions whose post assessment (trial 5) total MAE is below the pre
+    assessment (trial 1) (Fig. 51: "red squares are typically below blue dots")."""
+    ss = {k: v for k, v in _sessions(ctx).items()
+          if not params.get("subjects") or k[0] in params["subjects"]}
+    return float(np.mean([v["post_total_MAE_mm"] < v["pre_total_MAE_mm"] for v in ss.values()]))
+
+
+@metric("worst_weekly_slope", params=TrendParams, scope="scenario")
+def _worst_weekly_slope(params, ctx):
+    """Largest (least negative) least-squares slope of the pre-assessment total MAE over
+    the weeks among the subjects [mm/week] (Fig. 51: overall improving trend)."""
+    ss = _sessions(ctx)
+    subs = sorted({k[0] for k in ss if not params.get("subjects") or k[0] in params["subjects"]})
+    slopes = []
+    for s in subs:
+        wk = sorted(w for (k, w) in ss if k == s)
+        if len(wk) < 2:
+            raise ValueError(f"subject {s}: a trend needs >= 2 weeks, got {wk}")
+        y = [ss[(s, w)]["pre_total_MAE_mm"] for w in wk]
+        slopes.append(float(np.polyfit(wk, y, 1)[0]))
+    return max(slopes)
+
+
+# ---------------------------------------------------------------- figures
+@figures("reaching")
+def _reaching_figures(runs, info):
+    """Fig. 49 (maps per training), Tables 7-8 (MAE/SDE), Fig. 51 (pre/post trends)."""
+    import matplotlib.pyplot as plt
+    sess = {}
+    for r in runs:
+        if r.phase == "t1" and r.artifacts:
+            sess[(r.artifacts["subject"], int(r.artifacts["week"]))] = r
+    figs = []
+    if not sess:
+        return figs
+    subs = sorted({k[0] for k in sess})
+    cp = AdaptiveComplianceController(compliance_params(1.0, 1.0))
+    g = map_grid(41)
+    mesh = np.stack([m.ravel() for m in np.meshgrid(g, g, indexing="ij")], axis=1)
+    G = cp.grid.evaluate(mesh)
+    pts = _path_points(ReachingTargetParams().path())
+    for s in subs:
+        w0 = min(w for (k, w) in sess if k == s)
+        r = sess[(s, w0)]
+        maps = r.artifacts["maps"]
+        motors = r.artifacts["motors"]
+        fig, axs = plt.subplots(2, len(maps), figsize=(3.0 * len(maps), 5.6), squeeze=False)
+        vmax = max(float((G @ np.asarray(m).T).max()) for m in maps)
+        for j, m in enumerate(maps):
+            kp = (G @ np.asarray(m).T).reshape(41, 41, 2)
+            for ax_i in range(2):
+                ax = axs[ax_i, j]
+                im = ax.imshow(kp[:, :, ax_i].T, origin="lower", extent=(-0.2, 0.2, -0.2, 0.2),
+                               cmap="jet", vmin=0, vmax=vmax)
+                ax.plot(pts[:, 0], pts[:, 1], "w-", lw=0.6)
+                ax.set_title(f"trial {j + 1} ({'ON' if motors[j] else 'OFF'}) k_p{'xy'[ax_i]}",
+                             fontsize=8)
+                ax.set_xticks([]); ax.set_yticks([])
+        fig.colorbar(im, ax=axs, shrink=0.8, label="stiffness [N/m]")
+        fig.suptitle(f"{s} week {w0 + 1}: stiffness map at the end of each training (Fig. 49 form)")
+        figs.append((f"{s}: stiffness maps per training (Fig. 49)", fig))
+        rows = r.artifacts["table"]
+        fig, ax = plt.subplots(figsize=(7, 0.5 + 0.35 * len(rows)))
+        ax.axis("off")
+        cells = [[str(x["trial"]), x["motors"]] + [f"{x[k]:.2f}" for k in
+                 ("MAE_x_mm", "SDE_x_mm", "MAE_y_mm", "SDE_y_mm")] for x in rows]
+        ax.table(cellText=cells, colLabels=["trial", "motors", "MAE x [mm]", "SDE x [mm]",
+                                            "MAE y [mm]", "SDE y [mm]"], loc="center")
+        ax.set_title(f"{s} week {w0 + 1}: MAE/SDE per training (Tables 7-8 form)")
+        figs.append((f"{s}: MAE/SDE table (Tables 7-8)", fig))
+    fig, axs = plt.subplots(1, len(subs), figsize=(3.2 * len(subs), 3.2), squeeze=False)
+    for j, s in enumerate(subs):
+        wk = sorted(w for (k, w) in sess if k == s)
+        pre = [sess[(s, w)].values["pre_total_MAE_mm"] for w in wk]
+        post = [sess[(s, w)].values["post_total_MAE_mm"] for w in wk]
+        ax = axs[0, j]
+        x = np.array(wk) + 1
+        ax.plot(x, pre, "bo", label="pre (trial 1)")
+        ax.plot(x, post, "rs", label="post (trial 5)")
+        if len(wk) > 1:
+            for y, c in ((pre, "b"), (post, "r")):
+                p = np.polyfit(x, y, 1)
+                ax.plot(x, np.polyval(p, x), c + "--", lw=0.8)
+        ax.set_title(s); ax.set_xlabel("session (week)"); ax.set_ylabel("total MAE [mm]")
+        ax.set_xticks(x)
+    axs[0, 0].legend(fontsize=7)
+    fig.suptitle("Pre/post total MAE over the weekly sessions (Fig. 51 form; patient "
+                 "progression is a model)", fontsize=9)
+    fig.tight_layout()
+    figs.append(("pre/post MAE trends (Fig. 51)", fig))
+    return figs
