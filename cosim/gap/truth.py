@@ -18,7 +18,9 @@ Truth model (why it is "higher fidelity" than the diagnosed one)
   Stribeck excess.
 * Two bodies when the effect needs it (backlash, compliance, hidden payload): motor
   + screw ``J_m = J - m_n S^2`` | nut + handle + accelerometer ``m_n``, coupled by
-  a spring-damper (compliance) or a stiff contact with a dead zone (backlash).
+  a spring-damper (compliance) or a stiff contact with a dead zone (backlash; the
+  nut then also has 1 N Coulomb guide friction, so that inside the play it stays
+  where the screw left it).
 * Current driver: ideal by default; delay (ring buffer of sub-steps), first-order
   lag, clipping, 50 Hz mains ripple (out of catalogue) when drawn.
 * Sensors: 21600-count encoder (rounding), ADXL335-like accelerometer (150 ug/sqrt(Hz)
@@ -32,7 +34,7 @@ Truth model (why it is "higher fidelity" than the diagnosed one)
 Scenarios
 ---------
 ``identification``: band-limited white-noise current (thesis Sec. 2.5.2), 50 Hz,
-0.15 A rms. ``multisine``: sum of 24 sines 0.5-40 Hz, random phases, 0.15 A rms.
+0.15 A rms. ``multisine``: sum of 24 sines 1-40 Hz, random phases, 0.15 A rms.
 ``push``: a partner (spring-damper arm, minimum-jerk reaches) pushes the handle
 through a load cell while the unit runs proportional zero-force control with
 friction compensation on the nominal model (thesis Fig. 28, gain 3);
@@ -79,8 +81,8 @@ def _signed(rng: np.random.Generator, lo: float, hi: float) -> float:
 
 #: effect name -> sampler(rng) of its truth parameters (physically plausible ranges)
 EFFECT_SAMPLERS: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
-    # break-away 1.5-2.2 x Coulomb, Stribeck speed 0.5-2 rad/s (0.8-3 mm/s at the nut)
-    "stribeck_friction": lambda r: {"fs_ratio": _u(r, 1.5, 2.2), "ws": _u(r, 0.5, 2.0)},
+    # break-away 1.5-2.2 x Coulomb, Stribeck speed 2-6 rad/s (3-10 mm/s at the nut)
+    "stribeck_friction": lambda r: {"fs_ratio": _u(r, 1.5, 2.2), "ws": _u(r, 2.0, 6.0)},
     # Coulomb and viscous +-(25-45) % between directions
     "asymmetric_friction": lambda r: {"dfc": _signed(r, 0.25, 0.45), "db": _signed(r, 0.25, 0.45)},
     # Coulomb friction +-(35-60) % along the travel, period 20-60 mm (preload / wear)
@@ -120,7 +122,7 @@ def _excitation(scenario: str, n: int, Ts: float, rng: np.random.Generator) -> n
         return band_limited_white_noise(n, Ts, 50.0, 0.15, rng)
     if scenario == "multisine":
         t = np.arange(n) * Ts
-        f = np.geomspace(0.5, 40.0, 24)
+        f = np.geomspace(1.0, 40.0, 24)
         ph = rng.uniform(0, 2 * np.pi, f.size)
         u = np.sin(2 * np.pi * f[:, None] * t[None, :] + ph[:, None]).sum(axis=0)
         return 0.15 * u / np.sqrt(np.mean(u ** 2))
@@ -172,6 +174,7 @@ def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, s
     two_body = effect in TWO_BODY
     k_c, c_c, play = 0.0, 0.0, 0.0
     m2 = k2 = c2 = 0.0
+    nut_fc = 0.0
     if effect == "stribeck_friction":
         fs_x, ws = (ep["fs_ratio"] - 1.0) * fc, ep["ws"]
     elif effect == "asymmetric_friction":
@@ -202,6 +205,7 @@ def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, s
         k_c = c["k_contact"]
         c_c = 2 * c["zeta_contact"] * math.sqrt(k_c * m)
         play = ep["width"]
+        nut_fc = 1.0                       # N, guide/handle-bearing friction of the nut
     elif effect == "hidden_payload":
         k_c = c["k_contact"] * 5           # motor|nut rigid (stiff), payload on a soft spring
         c_c = 2 * 0.5 * math.sqrt(k_c * m)
@@ -338,8 +342,22 @@ def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, s
             th += dt * w
             if two_body:
                 f_pay = k2 * (x2 - xn) + c2 * (v2 - vn) if m2 else 0.0
-                an = (fcpl + f - g_force + f_pay) / m
-                vn += dt * an
+                f_nut = fcpl + f - g_force + f_pay
+                if nut_fc:
+                    # Karnopp guide friction on the nut: inside the play it keeps the nut
+                    # where the screw left it instead of letting it rattle freely
+                    if abs(vn) < 1e-5 and abs(f_nut) <= nut_fc:
+                        an, vn_new = 0.0, 0.0
+                    else:
+                        sg = (1.0 if vn > 0 else -1.0) if abs(vn) >= 1e-5 else (1.0 if f_nut > 0 else -1.0)
+                        an = (f_nut - sg * nut_fc) / m
+                        vn_new = vn + dt * an
+                        if vn * vn_new < 0:
+                            vn_new = 0.0
+                    vn = vn_new
+                else:
+                    an = f_nut / m
+                    vn += dt * an
                 xn += dt * vn
                 if m2:
                     a2 = -f_pay / m2 - G0 * math.sin(tilt)
@@ -371,7 +389,7 @@ def write_truth_log(stem: str | Path, scenario: str = "identification", duration
     sim = simulate_truth(scenario, duration_s, seed, effect, effect_params, param_error,
                          device_seed=device_seed)
     desc = {"identification": "start-up identification: band-limited white-noise current (Sec. 2.5.2)",
-            "multisine": "multisine current 0.5-40 Hz",
+            "multisine": "multisine current 1-40 Hz",
             "push": "partner push through the load cell, unit under zero-force control (Fig. 28)"}[scenario]
     path = write_trial_log(stem, "ballscrew-1dof", sim["data"], sim["signals"], sim["Ts"],
                            nominal=sim["nominal"], scenario=scenario, description=desc)
