@@ -13,11 +13,11 @@
    Ratios are master/fmpy, master/raw and master/raw* (goal: master <= 1.5x fmpy);
    master - raw* is the master's own per-step cost.
 
-2. Real-time factor of the zero-force configuration (thesis Sec. 2.5.3): two
-   BallScrewUnits + LoadCell + Accelerometer FMUs, aaKF + DOB + RFOB +
-   zero-force controller on the unit under test, partner PositionController on a
-   sine (SineReference), and the master's per-stage timing (Master(timing=True)),
-   i.e. what dominates a tick.
+2. Real-time factor of the zero-force configuration (thesis Sec. 2.5.3, as
+   scenarios/zero_force.yaml, case dob_rfob): ZeroForceRig (two units + load cell)
+   and Accelerometer FMUs, aaKF + DOB + RFOB + zero-force controller on the unit under
+   test, partner PositionController on a sine (SineReference), and the master's
+   per-stage timing (Master(timing=True)), i.e. what dominates a tick.
 
 Run: ``.venv/bin/python bench/bench_master.py`` (about a minute). Options:
 ``--quick`` (fewer ticks), ``--reps N``.
@@ -256,45 +256,40 @@ def run_raw_pre(sc, n):
 
 # ============================================================ zero-force configuration
 def zero_force_system(fmus: Path, acc_params: dict | None = None):
-    """Zero-force test of Sec. 2.5.3 (Fig. 27-28): the partner unit follows a 2 cm,
-    0.5 Hz sine under a PID position loop and pushes the unit under test through the
-    load cell; the unit under test runs the zero-force controller on the RFOB estimate
-    with the DOB compensation current (speed from the aaKF on encoder + ADXL335).
-    Gains are chosen for a stable loop (force gain 1); they are not a tuning result."""
+    """Zero-force test of Sec. 2.5.3 (Fig. 27-28) exactly as scenarios/zero_force.yaml,
+    case dob_rfob: the partner unit follows a 2 cm, 1 Hz sine under a PID position loop
+    and pushes the unit under test through the load cell (the three bodies are the
+    ZeroForceRig FMU: a stiff coupling cannot be exchanged explicitly at 1 ms); the unit
+    under test runs the zero-force controller (gain 3) on the RFOB estimate with the
+    DOB compensation current, g = 500 rad/s, speed from the aaKF on encoder + ADXL335
+    (Accelerometer FMU, sequential connection)."""
     from cosim.algorithms.aakf import AaKF, AakfParams
     from cosim.algorithms.dob import DOB, DOBParams, RFOB, RFOBParams
     from cosim.algorithms.zero_force import (PositionController, SineReference,
                                              SineReferenceParams, ZeroForceController,
                                              ZeroForceParams)
     s = System(TS)
-    s.add_fmu("partner", fmus / "BallScrewUnit.fmu", contract="ballscrew")
-    s.add_fmu("unit", fmus / "BallScrewUnit.fmu", contract="ballscrew")
-    s.add_fmu("lc", fmus / "LoadCell.fmu", contract="load_cell")
+    s.add_fmu("rig", fmus / "ZeroForceRig.fmu", contract="zero_force_rig",
+              parameters={"k_cell": 2e4, "d_cell": 150.0})
     s.add_fmu("acc", fmus / "Accelerometer.fmu", contract="accelerometer",
               parameters=acc_params or {})
-    s.connect("partner.x", "lc.x_a")
-    s.connect("partner.v", "lc.v_a")
-    s.connect("unit.x", "lc.x_b")
-    s.connect("unit.v", "lc.v_b")
-    s.connect("lc.f_lc", "partner.f_ext")            # f_lc: force on unit a (partner)
-    s.connect("lc.f_lc", "unit.f_ext", scale=-1.0)   # reaction on unit b
-    s.connect("unit.a", "acc.a_true")
+    s.connect("rig.a", "acc.a_true", sequential=True)
+    s.add_controller("ref", SineReference(SineReferenceParams(amplitude_m=0.02, frequency_Hz=1.0)), {})
+    s.add_controller("pos", PositionController(),
+                     {"x": "rig.x_enc_p", "x_ref": "ref.x_ref", "v_ref": "ref.v_ref"},
+                     outputs={"i_cmd": "rig.i_p"})
     s.add_controller("aakf", AaKF(AakfParams()),
-                     {"theta_enc": "unit.theta_enc", "acc_meas": "acc.acc_meas"})
+                     {"theta_enc": "rig.theta_enc", "acc_meas": "acc.acc_meas"})
     # DOB/RFOB read the total current of the last interval: zf is added after them,
     # so 'zf.i_cmd' is its tick k-1 output (a unit delay, see system.py)
-    s.add_controller("dob", DOB(DOBParams(i_cmd_is_total_previous=True)),
+    s.add_controller("dob", DOB(DOBParams(g_dob_rad_s=500.0, i_cmd_is_total_previous=True)),
                      {"i_cmd": "zf.i_cmd", "w": "aakf.omega_rad_s"})
-    s.add_controller("rfob", RFOB(RFOBParams(i_cmd_is_previous=True)),
+    s.add_controller("rfob", RFOB(RFOBParams(g_rfob_rad_s=500.0, i_cmd_is_previous=True)),
                      {"i_cmd": "zf.i_cmd", "w": "aakf.omega_rad_s"})
     s.add_controller("zf", ZeroForceController(ZeroForceParams(
-        force_input="f_hat", use_dob=True, force_gain=1.0)),
-        {"f_hat": "rfob.f_int_hat", "i_dob": "dob.i_cmp"}, outputs={"i_cmd": "unit.i"})
-    s.add_controller("ref", SineReference(SineReferenceParams(amplitude_m=0.02, frequency_Hz=0.5)), {})
-    s.add_controller("pos", PositionController(),
-                     {"x": "partner.x", "x_ref": "ref.x_ref", "v_ref": "ref.v_ref"},
-                     outputs={"i_cmd": "partner.i"})
-    record = ["partner.x", "unit.x", "lc.f_lc", "lc.f_meas", "unit.w", "aakf.omega_rad_s",
+        force_input="f_hat", use_dob=True, force_gain=3.0)),
+        {"f_hat": "rfob.f_int_hat", "i_dob": "dob.i_cmp"}, outputs={"i_cmd": "rig.i"})
+    record = ["rig.x_p", "rig.x", "rig.f_lc", "rig.f_meas", "aakf.omega_rad_s",
               "rfob.f_int_hat", "dob.i_cmp", "zf.i_cmd", "pos.e"]
     return s, record
 
@@ -350,7 +345,7 @@ def main(argv=None):
           "cost per step.\nAll loops give bit-identical results (checked).")
 
     # ---- zero-force configuration
-    print("\n2. zero-force configuration (2 BallScrewUnit + LoadCell + ADXL335 FMUs, aaKF, "
+    print("\n2. zero-force configuration (ZeroForceRig = 2 units + load cell, ADXL335 FMU, aaKF, "
           "DOB, RFOB,\n   zero-force controller, partner PID on a sine), one core\n")
     dur = 1.0 if a.quick else 4.0
     for label, acc_params in (("as built (ADXL335 noise generators at 10 kHz)", None),
