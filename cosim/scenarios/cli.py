@@ -17,12 +17,30 @@ def _err(msg: str) -> int:
     return 2
 
 
+def _ensure_fmus(a) -> int | None:
+    """With the package's FMU folder (no --fmus), build the package's models from
+    Modelica first: cached by source hash, so an up-to-date build costs well under a
+    second and a fresh clone needs no separate build step."""
+    if a.fmus is not None or a.no_build:
+        return None
+    from cosim.cli import DEFAULT_FMUS, DEFAULT_MODELICA
+    from cosim.fmubuild.build import BuildError, build_all
+    from cosim.fmubuild.modelica import ModelicaError
+    try:
+        build_all(DEFAULT_MODELICA, DEFAULT_FMUS, log=lambda *_: None)
+    except (BuildError, ModelicaError) as exc:
+        return _err(f"building the package's FMUs: {exc}")
+    return None
+
+
 def _cmd_run(a) -> int:
     from cosim.master.fmu import FMUError
     from cosim.master.system import SystemError_
     from .loader import ScenarioError
     from .registry import RegistryError
     from .runner import parse_fmu_swaps, run_scenario
+    if (rc := _ensure_fmus(a)) is not None:
+        return rc
     try:
         swaps = parse_fmu_swaps(a.fmu)
         v = run_scenario(a.scenario, a.out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache)
@@ -45,6 +63,8 @@ def _cmd_suite(a) -> int:
     from .registry import RegistryError
     from .runner import parse_fmu_swaps
     from .suite import SuiteError, run_suite
+    if (rc := _ensure_fmus(a)) is not None:
+        return rc
     try:
         swaps = parse_fmu_swaps(a.fmu)
         s = run_suite(a.paths, a.out, scheduler=a.scheduler, workers=a.workers,
@@ -67,6 +87,8 @@ def add_commands(sub) -> None:
                    help="use this FMU for ROLE (checked against the role's contract)")
     r.add_argument("--fmus", default=None, help="folder of the default FMUs (default: fmus/)")
     r.add_argument("--no-cache", action="store_true", help="rerun finished runs")
+    r.add_argument("--no-build", action="store_true",
+                   help="do not (re)build the package's FMUs from Modelica first")
     r.set_defaults(func=_cmd_run)
     s = sub.add_parser("suite", help="run scenario files/folders on Dask: summary.json, "
                        "junit.xml, report.html")
@@ -81,4 +103,6 @@ def add_commands(sub) -> None:
     s.add_argument("--fmus", default=None, help="folder of the default FMUs (default: fmus/)")
     s.add_argument("--no-cache", action="store_true", help="rerun finished runs")
     s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    s.add_argument("--no-build", action="store_true",
+                   help="do not (re)build the package's FMUs from Modelica first")
     s.set_defaults(func=_cmd_suite)

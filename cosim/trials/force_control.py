@@ -222,10 +222,13 @@ def _zero_force_figures(runs, info):
         if _series(r, "rfob.f_int_hat") is not None:
             t = np.asarray(r.signals["time"])
             fig, ax = plt.subplots(figsize=(9, 3.2))
-            ax.plot(t, r.signals["rig.f_lc"], lw=0.8, label="load cell f_lc (true)")
-            ax.plot(t, r.signals["rfob.f_int_hat"], lw=0.8, label="RFOB estimate f_int^")
+            ax.plot(t, r.signals["rfob.f_int_hat"], color="tab:orange", lw=0.6, alpha=0.8,
+                    label="RFOB estimate f_int^")
+            ax.plot(t, r.signals["rig.f_lc"], color="k", lw=1.0, label="load cell f_lc (true)")
+            ax.set_xlim(settle, min(settle + 2.0, float(t[-1])))
             ax.set_xlabel("time [s]"); ax.set_ylabel("force [N]"); ax.grid(True, alpha=0.3)
-            ax.legend(); ax.set_title(f"RFOB estimate vs load cell ({r.case})")
+            ax.legend(loc="upper right")
+            ax.set_title(f"RFOB estimate vs load cell, 2 s after the settling ({r.case})")
             out.append((f"RFOB estimate vs load cell ({r.case})", fig))
     return out
 
