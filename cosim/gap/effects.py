@@ -469,8 +469,9 @@ def replay(log: TrialLog, nominal: Mapping[str, float] | None = None,
     rep = _replayer(effect_fmu(None, fmus_dir))
     res = np.empty((n, len(OUTPUTS)))
     window = np.empty(n, dtype=np.int32)
-    for j, k0 in enumerate(range(0, n, nw)):
-        k1 = min(n, k0 + nw)
+    starts = list(range(0, n - 1, nw)) or [0]      # the last window takes the final sample
+    for j, k0 in enumerate(starts):
+        k1 = starts[j + 1] if j + 1 < len(starts) else n
         ks = max(0, k0 - nwarm)
         buf = np.empty((k1 - ks, len(OUTPUTS)))
         rep.run_window(t[ks:k1], i_cmd[ks:k1], f_ext[ks:k1], params, th0[ks], w0[ks], buf)
