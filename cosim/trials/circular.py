@@ -330,7 +330,7 @@ def _circular_test(run, build, ctx):
     v_max = float(np.max(np.hypot(sig["table.vx"], sig["table.vy"])))
     pr = dict(run.overrides.get("parameters") or {})
     st = stability_check(block.params, hp, r_dot_max=task.radius_m * task.omega, v_max=v_max,
-                         sim_s=float(pr.get("stability_sim_s", 20.0)))
+                         sim_s=pr.get("stability_sim_s"))
     vals = {k: float(x) for k, x in m.items()}
     vals.update(eq90_91_admissible=float(st["admissible"]), eq90_k_max=st["k_max"],
                 eq91_tau_max_s=st["tau_max_s"], sim_1dof_stable=float(st["simulation_stable"]))

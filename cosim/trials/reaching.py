@@ -423,10 +423,12 @@ def worst_human_axes(human_params: Mapping[str, float], workspace_m: float = 0.2
 
 def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str, float], *,
                     r_dot_max: float, v_max: float, x_max: float = 0.2,
-                    simulate: bool = True, sim_s: float = 20.0) -> dict:
+                    simulate: bool = True, sim_s: float | None = None) -> dict:
     """Eq. 90-91 per axis (Sec. 3.3.2.2, strictest bound kept) and, if ``simulate``, a
     direct simulation of each axis' 1-DOF loop (eq. 80) with the same human, the axis
-    mass and a triangle target at r'_max over +-x_max/2."""
+    mass and a triangle target at r'_max over +-x_max/2, for ``sim_s`` (default: four
+    periods of the triangle, so that simulate_1dof's growth ratio -- peak error of the
+    last quarter / first quarter -- compares whole periods)."""
     humans = worst_human_axes(human_params, x_max)
     probs = [StabilityProblem.from_controller(params, x_max_m=x_max, v_max_m_per_s=v_max,
                                               r_dot_max_m_per_s=r_dot_max,
@@ -440,6 +442,8 @@ def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str,
     if simulate:
         amp = 0.5 * x_max
         period = 4 * amp / r_dot_max
+        if sim_s is None:
+            sim_s = 4 * period
 
         def tri(t):                       # triangle wave at r'_max between -amp and +amp
             ph = (t / period) % 1.0
@@ -458,7 +462,7 @@ def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str,
                                                       else (params.damping_mass_kg[j],)),
                                      motors_on=True)
             r = simulate_1dof(p1, h, TABLE_AXIS_MASS_KG[j], tri, sim_s, substeps=2)
-            sims.append({"axis": "xy"[j], "stable": bool(r.stable),
+            sims.append({"axis": "xy"[j], "stable": bool(r.stable), "sim_s": sim_s,
                          "growth_ratio": float(r.growth_ratio),
                          "max_abs_err_m": float(np.nanmax(np.abs(r.err_m)))})
         out["simulation"] = sims
@@ -648,7 +652,7 @@ def _reaching_session(run, build, ctx):
     xyp = ctx.state["controller"].params
     st = stability_check(xyp, hp0, r_dot_max=sp.speed_m_per_s, v_max=v_max,
                          simulate=bool(pr.get("simulate_stability", True)),
-                         sim_s=float(pr.get("stability_sim_s", 20.0)))
+                         sim_s=pr.get("stability_sim_s"))
     v["eq90_91_admissible"] = float(st["admissible"])
     v["eq90_k_max"] = st["k_max"]
     v["eq91_tau_max_s"] = st["tau_max_s"]
