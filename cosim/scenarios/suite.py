@@ -88,7 +88,18 @@ def _client(scheduler: str | None, workers: int | None):
     n = workers or os.cpu_count() or 1
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                            dashboard_address=None, silence_logs=50)
-    return Client(cluster), cluster
+    client = Client(cluster)
+    # import the trial modules (numpy, scipy, matplotlib, FMPy...) once per worker
+    # now, so that the first run of each worker is not seconds slower than the rest
+    client.run(_warm_worker)
+    return client, cluster
+
+
+def _warm_worker():
+    from .registry import load_trials
+    load_trials()
+    import cosim.master.system  # noqa: F401
+    return True
 
 
 def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None = None,
@@ -127,16 +138,20 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                 cached[sc.name] += 1
                 continue
             todo.append((sc, run, key, sdir, swaps))
+    timing = {"load_and_check_s": time.perf_counter() - t0}
     bar = _Progress(len(todo), progress)
     client = cluster = None
     cluster_desc = "serial (this process)"
     try:
         if todo and not serial:
+            t1 = time.perf_counter()
             client, cluster = _client(scheduler, workers)
+            timing["cluster_start_s"] = time.perf_counter() - t1
             cluster_desc = (f"Dask scheduler {scheduler}" if scheduler else
                             f"local Dask cluster, {len(client.scheduler_info()['workers'])} "
                             f"worker process(es)")
             from distributed import as_completed
+            t1 = time.perf_counter()
             futs = {}
             for sc, run, key, sdir, swaps in todo:
                 f = client.submit(execute_run, str(sc.path), run.label, str(sdir), swaps,
@@ -150,16 +165,20 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                 except Exception as exc:     # the worker died (crash in native code)
                     _record_crash(sdir, run, key=None, exc=exc)
                 bar.step(f"{sc.name}:{run.label}")
+            timing["runs_s"] = time.perf_counter() - t1
         else:
+            t1 = time.perf_counter()
             for sc, run, key, sdir, swaps in todo:
                 execute_run(str(sc.path), run.label, str(sdir), swaps,
                             str(fmu_dir) if fmu_dir else None, key)
                 bar.step(f"{sc.name}:{run.label}")
+            timing["runs_s"] = time.perf_counter() - t1
     finally:
         if client is not None:
             client.close()
         if cluster is not None:
             cluster.close()
+    t1 = time.perf_counter()
     results = []
     for sc in scenarios:
         sdir = out_dir / safe_name(sc.name)
@@ -175,6 +194,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                    "requirements": sum(len(v["requirements"]) for v in results)},
         "runs_executed": len(todo), "runs_cached": sum(cached.values()),
         "wall_s": time.perf_counter() - t0, "cluster": cluster_desc, "versions": versions(),
+        "timing": {**timing, "verdicts_and_pages_s": time.perf_counter() - t1},
         "scenarios": [{k: v.get(k) for k in ("scenario", "file", "status", "errors",
                                              "requirements", "runs", "cached_runs",
                                              "provenance", "seeds")} for v in results],
