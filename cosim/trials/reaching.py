@@ -30,8 +30,8 @@ Decisions (the thesis does not give these; each is a modelling choice)
   training. The thesis does not say the heights are carried over between trainings
   of a session. Both are available (``carry_map``); the default is False (the
   thesis's words). With tau = 20 s and a 150 s training that revisits every cell of
-  the path several times, the two differ only in the first passes of a training
-  (measured in the report of the scenario).
+  the path several times, the two are expected to differ mainly in the first passes
+  of a training (not measured).
 * **Damping.** Physical form of the digest (Kd = 2 xi sqrt(Kp m)) with m the moving
   mass of each axis (x: 1.5 kg, y: 0.5 kg, XYTable), xi = 0.7.
 * **Stability check.** Eq. 90-91 per axis with the worst (largest) human stiffness
@@ -558,6 +558,7 @@ class ReachingTargetParams:
 def _reaching_target(params, ctx):
     """Target of the reaching task: out and back along three directions (Fig. 48)."""
     p = ReachingTargetParams(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in params.items()})
+    ctx.state["reaching_path"] = p.path()          # for the procedure's map/stability figures
     return p.path().functions()[p.component]
 
 
@@ -640,8 +641,8 @@ def _reaching_session(run, build, ctx):
     v["off_max_force_N"] = max(v[f"t{i}_max_force_N"] for i in off_idx) if off_idx else 0.0
     # Fig. 49: where is the stiffness highest (motors-OFF pre assessment map, on the path)?
     cp = AdaptiveComplianceController(compliance_params(1.0, 1.0))
-    sp = ReachingTargetParams()
-    pts = _path_points(sp.path())
+    path = ctx.state.get("reaching_path") or ReachingTargetParams().path()
+    pts = _path_points(path)
     kp = cp.grid.evaluate(pts) @ np.asarray(maps[0]).T
     ipk = int(np.argmax(kp.sum(axis=1)))
     v["map_peak_x_m"], v["map_peak_y_m"] = float(pts[ipk, 0]), float(pts[ipk, 1])
@@ -650,7 +651,7 @@ def _reaching_session(run, build, ctx):
                                                        pts[ipk, 1] - hp0["imp_cy"]))
     # eq. 90-91 per axis (Sec. 3.3.2.2) for this patient, plus a direct simulation
     xyp = ctx.state["controller"].params
-    st = stability_check(xyp, hp0, r_dot_max=sp.speed_m_per_s, v_max=v_max,
+    st = stability_check(xyp, hp0, r_dot_max=path.speed_m_per_s, v_max=v_max,
                          simulate=bool(pr.get("simulate_stability", True)),
                          sim_s=pr.get("stability_sim_s"))
     v["eq90_91_admissible"] = float(st["admissible"])
