@@ -160,3 +160,12 @@ def test_too_short_or_no_motion_cannot_diagnose(tmp_path, capsys):
         d = json.loads((out / "diagnosis.json").read_text())
         assert "motion" in d["cannot_diagnose"] and d["selected"] == [] and d["recalibrated"] is None
         assert "cannot diagnose" in io.out
+
+
+def test_fmu_replay_confirms_the_selected_effect(cogging):
+    """The catalogue FMU with the fitted effect added, replayed (windowed) over the fit
+    logs, lowers the acceleration gap that the nominal FMU replay leaves."""
+    res = cogging[0]
+    top = res["candidates"][0]
+    assert res["confirm_gap_nominal"] is not None and top["confirm_gap"] is not None
+    assert top["confirm_gap"] < 0.6 * res["confirm_gap_nominal"]

@@ -341,8 +341,13 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
                              f"none does and the held-out gap exceeds the device's noise floor "
                              f"({floor if floor is not None else 'none declared'})")
 
-    # ---- FMU confirmation of the top candidates
-    for c in cands[:confirm_top]:
+    # ---- FMU confirmation of the top candidates (same replay without the effect as reference)
+    try:
+        out["confirm_gap_nominal"] = device.confirm(fit, rec, {}) if confirm_top else None
+    except Exception as e:  # noqa: BLE001 - a failing replay must not lose the diagnosis
+        out["confirm_gap_nominal"] = None
+        out["confirm_error"] = f"{type(e).__name__}: {e}"
+    for c in cands[:confirm_top if out["confirm_gap_nominal"] is not None else 0]:
         try:
             cg = device.confirm(fit, c["refit_nominal"], {c["effect"]: c["params"]})
         except Exception as e:  # noqa: BLE001 - a failing replay must not lose the diagnosis
