@@ -237,7 +237,9 @@ def test_real_models_fmi3_identical_to_fmi2(fmus, real_fmi3):
                 d = _max_rel(r2[n], r3[n])
                 assert d <= 1e-12, (ident, h, n, d)
                 worst = max(worst, d)
-        assert np.ptp(r3[names[0]]) > 0 or ident == "RigidWall"
+        # non-trivial run (some variable moves; the first may be a state of an effect
+        # that is off by default, as in the RehabSim.Gap devices)
+        assert any(np.ptp(r3[n]) > 0 for n in names) or ident == "RigidWall"
     assert worst <= 1e-12
 
 

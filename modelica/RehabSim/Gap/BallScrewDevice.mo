@@ -70,14 +70,14 @@ model BallScrewDevice "Ball-screw device of record (RehabSim.BallScrewUnit: moto
   Real xn(unit = "m", start = r * theta0, fixed = true) "nut position, two-body mode (frozen when rigid)";
   Real vn(unit = "m/s", start = r * w0, fixed = true) "nut speed, two-body mode (frozen when rigid)";
   Real dl(unit = "m") "transmission deflection r theta - xn (two-body mode)";
-  RehabSim.Gap.CurrentDriver driver(T_d = Td, T_cl = Tcl, i_max = i_lim, i_hold = i0) "current driver";
   RehabSim.Gap.LuGreFrictionGap friction(tau_c = fc, sigma_2 = b, sigma_0 = sigma0, sigma_1 = sigma1, w_d = wd, d_s = dfs, w_s = ws, d_c = dfc, d_v = db, k_x = kfx, d_p = dfp, l_p = lp, phi_p = php, w(start = w0, fixed = true)) "friction of motor, screw and nut, referred to the motor shaft";
+  RehabSim.Gap.CurrentDriver power_stage(T_d = Td, T_cl = Tcl, i_max = i_lim, i_hold = i0) "current driver (power stage)";
 equation
-  driver.i_cmd = i_cmd;
-  i_act = driver.i;
+  power_stage.i_cmd = i_cmd;
+  i_act = power_stage.i;
   friction.x = r * theta;
   tau_f = friction.tau;
-  tau_m = Kt * driver.i + A_cog * sin(n_cog * theta + phi_cog);
+  tau_m = Kt * power_stage.i + A_cog * sin(n_cog * theta + phi_cog);
   f_g = -m_g * g_n * sin(alpha + kappa * x);
   dl = r * theta - xn;
   // screw-on-nut force: linear spring-damper, or a dead zone of half width h_bl whose
