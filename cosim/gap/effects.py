@@ -54,6 +54,11 @@ gap being diagnosed). Each window starts ``warmup_s`` earlier than the samples i
 returns, so internal states (delay, lag, bristles, transmission) are in their
 physical state when the returned samples begin. The FMU is loaded once per file and
 reused (``fmi2Reset``); the per-step calls go to the ctypes function pointers.
+
+Speed (measured on a 10 s multisine log, 2 shared cores, best of 3): nominal 17 us
+per 1 ms step (0.17 s per replay), backlash 31 us, compliance 25 us, actuator delay
+281 us at the FMU's default ``_rtol`` 1e-6 (the ZOH steps drive the 3rd-order Pade
+states; ``rtol=1e-4`` gives 63 us with the acceleration 8e-6 of its rms away).
 """
 from __future__ import annotations
 
