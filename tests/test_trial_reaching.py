@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from cosim.algorithms.adaptive_compliance import AdaptiveComplianceController
-from cosim.algorithms.stability import StabilityProblem, stability_bounds
+from cosim.algorithms.stability import StabilityProblem, admissibility_needs, stability_bounds
 from cosim.trials.patients import SUBJECTS
 from cosim.trials.reaching import (SESSION_MOTORS, AssistController, ReachingPath,
                                    compliance_params, mae_sde, run_training, stability_check)
@@ -144,6 +144,72 @@ def test_stability_check_flags_inadmissible_pairs():
     tiny = stability_check(compliance_params(0.01, 0.02), hp, r_dot_max=1e-6, v_max=1e-4,
                            simulate=False)
     assert tiny["admissible"] is True
+
+
+def test_eq90_needs_match_the_bounds():
+    """admissibility_needs (the eq. 90 quadratic in x_max, the a_min / r'_max / K_h
+    needed) against stability_bounds itself: just inside each returned limit the pair
+    is admissible, just outside it is not -- on random problems."""
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(200):
+        prob = StabilityProblem(a_min_N_per_m=rng.uniform(1, 1e3), x_max_m=rng.uniform(0.01, 0.3),
+                                v_max_m_per_s=rng.uniform(0, 1e-3), r_dot_max_m_per_s=rng.uniform(1e-6, 1e-3),
+                                K_h_N_per_m=rng.uniform(0, 300), P=36, gaussian_slope_per_m=10.0)
+        k, tau = 10 ** rng.uniform(-1, 2), rng.uniform(0.05, 2.0)
+        n = admissibility_needs(k, tau, prob)
+        iv = n["x_max_interval_m"]
+        if iv is not None and iv[1] > iv[0] * 1.01:
+            mid = 0.5 * (iv[0] + iv[1])
+            assert stability_bounds(k, tau, prob.replace(x_max_m=mid)).k_ok
+            assert not stability_bounds(k, tau, prob.replace(x_max_m=0.99 * iv[0])).k_ok
+            assert not stability_bounds(k, tau, prob.replace(x_max_m=1.01 * iv[1])).k_ok
+            checked += 1
+        a = n["a_min_needed_N_per_m"]
+        if math.isfinite(a) and a > 0:
+            assert stability_bounds(k, tau, prob.replace(a_min_N_per_m=1.001 * a)).k_ok
+            assert not stability_bounds(k, tau, prob.replace(a_min_N_per_m=0.999 * a)).k_ok
+        r = n["r_dot_max_allowed_m_per_s"]
+        if r > 0:
+            assert stability_bounds(k, tau, prob.replace(r_dot_max_m_per_s=0.999 * r)).k_ok
+            assert not stability_bounds(k, tau, prob.replace(r_dot_max_m_per_s=1.001 * r)).k_ok
+        # no human, grid or a_min lifts eq. 91's tau_max above x_max / (2 r'_max)
+        assert stability_bounds(k, tau, prob).tau_max_s <= n["tau_ceiling_s"] * (1 + 1e-12)
+    assert checked > 20
+
+
+def test_thesis_pairs_cannot_meet_eq90_91():
+    """Sec. 3.5/3.6 say (k, tau) 'meet the defined boundaries'. With the most favourable
+    numbers (human stiffness 0, end-effector speed 0, a_min = alpha0 = 10 N/m, the
+    largest allowed by a(0) = alpha0 >= a_min) eq. 90 still needs
+    (a_min D)^2 >= 8 k r'_max a_min, i.e. a_min >= 8 k r'_max tau^2 = 2.88e4 N/m for the
+    reaching pair at 1.8 cm/s; with a_min = 10 N/m the target must be slower than
+    a_min / (8 k tau^2) = 6.25e-6 m/s (reaching) and 5e-5 m/s (circular). With the
+    target at rest, eq. 90 is k < a_min/(x_max tau), and then (eq. 71 at a fixed point,
+    the thesis's own worst cases) the local stiffness cannot rise even with the largest
+    error x_max -- checked on the controller."""
+    best = dict(v_max_m_per_s=0.0, K_h_N_per_m=0.0, x_max_m=0.2)
+    p = compliance_params(500.0, 20.0, 10.0, a_min_N_per_m=10.0)
+    prob = StabilityProblem.from_controller(p, r_dot_max_m_per_s=0.018, **best)
+    n = admissibility_needs(500.0, 20.0, prob)
+    assert n["x_max_interval_m"] is None
+    assert n["a_min_needed_any_x_N_per_m"] == pytest.approx(8 * 500 * 0.018 * 20 ** 2)
+    assert n["r_dot_max_allowed_any_x_m_per_s"] == pytest.approx(10 / (8 * 500 * 20 ** 2))
+    assert n["tau_ceiling_s"] == pytest.approx(0.2 / 0.036)          # 5.6 s < 20 s
+    pc = compliance_params(1000.0, 5.0, 10.0, a_min_N_per_m=10.0)
+    nc = admissibility_needs(1000.0, 5.0, StabilityProblem.from_controller(
+        pc, r_dot_max_m_per_s=0.001, **best))
+    assert nc["r_dot_max_allowed_any_x_m_per_s"] == pytest.approx(5e-5)
+    # target at rest: eq. 90 -> k < a_min / (x_max tau); the map cannot rise
+    still = StabilityProblem.from_controller(p, r_dot_max_m_per_s=0.0, **best)
+    k_cap = admissibility_needs(500.0, 20.0, still)["k_ceiling_static_N_per_m2s"]
+    assert k_cap == pytest.approx(10 / (0.2 * 20)) and stability_bounds(0.99 * k_cap, 20.0, still).admissible
+    for k, rises in ((0.99 * k_cap, False), (500.0, True)):
+        c = AssistController(compliance_params(k, 20.0, 10.0, a_min_N_per_m=10.0))
+        x = c.grid.centres[14]                            # a cell centre, sum g ~ 1
+        kp = [c.step({"pos_x": x[0], "pos_y": x[1], "ref_x": x[0] + 0.2, "ref_y": x[1]})["kp_x"]
+              for _ in range(20000)]
+        assert (max(kp) > 1.5 * kp[0]) is rises, (k, kp[0], max(kp))
 
 
 # --------------------------------------------------------------------------- patients

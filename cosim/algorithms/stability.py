@@ -46,12 +46,53 @@ Interpretations
   period, errors above an amplitude threshold grow (the threshold falls as k grows).
   With xi = 0.7 (physical form, m = 1 kg), b_h = 5 N s/m and the target at rest, no
   growth was found for tau in 0.05-5 s and k up to 1e7.
-* Eq. 90-91 are implemented as printed; the derivation was not redone. As printed,
-  eq. 81 has the opposite sign of eq. 80 and eq. 85 carries K_tot x'^2 where the
-  damping b_tot would be expected, so the bounds are used as the thesis states them.
+
+Re-derivation of eq. 90-91 (Sec. 3.3.2.1) -- what the printed bounds say
+-------------------------------------------------------------------------
+Eq. 90-91 are implemented as printed (checked symbol by symbol: eq. 90 multiplied by
+x_max is ``k x_max + a_min nu S P + 2 (a_min + K_h) r'_max / x_max < a_min / tau``).
+Redoing the thesis's steps shows where they come from and why no consistent set of
+numbers admits the thesis's own pairs:
+
+1. Signs. Eq. 80 (``m x'' = K_tot x~ + b_tot x~'``) is right; eq. 81 flips both signs;
+   eq. 85 carries ``-K_tot x'^2`` where the damping ``-b_tot x'^2`` comes out. With
+   eq. 80 and the eq. 82 function ``V = m x'^2/2 + K_tot x~^2/2`` one gets
+   ``V' = -b_tot x'^2 + b_tot x' r' + K_tot x~ r' + K_p' x~^2 / 2``; dropping the
+   damping terms and dividing by x~^2/2 gives eq. 86 (up to the sign of the r' term):
+   ``K_p' + 2 K_tot r'/x~ < 0``.
+2. Eq. 87 with eq. 69 (1 DOF, ``y a' = -y a/tau + k |y|^2 |x~|``) and the worst cases
+   ``y a -> a_min``, ``|y|^2 |x~| -> x_max``, ``y' a -> nu S P a_min``,
+   ``|r'/x~| -> r'_max / x_max`` gives eq. 90 exactly; eq. 91 is its right side > 0.
+   Two of these replacements go the wrong way for an upper bound (``y' a`` needs
+   a_max, not a_min; ``|x~| <= x_max`` bounds ``|r'|/|x~|`` from *below*), so eq. 90-91
+   are not a valid sufficient condition either; and x_max, defined in eq. 76 as the
+   *position* bound, is used as the bound of the *error* |x~|.
+3. What they demand. With the target at rest (r' = 0) and nu = 0, eq. 90 reads
+   ``k x_max < a_min / tau``: the error term can never outweigh the forgetting at the
+   lowest stiffness, i.e. (eq. 69) the local stiffness can never rise above a_min --
+   the opposite of the rising stiffness the thesis shows (Fig. 47). With a moving
+   target, eq. 90 as a function of x_max is the quadratic
+   ``-k x^2 + a_min D x - 2 r' (a_min + K_h) > 0`` (``D = 1/tau - nu S P``), which
+   has a solution only if ``(a_min D)^2 >= 8 k r'_max (a_min + K_h)``. For the
+   reaching trials (k = 500, tau = 20 s, r'_max = 1.8 cm/s) that needs
+   ``a_min >= 8 k r' tau^2 ~ 2.9e4 N/m`` even with K_h = 0 and nu = 0, while
+   a(0) = alpha0 = 10 N/m must itself be >= a_min; for the circular test
+   (k = 1000, tau = 5 s, a_min <= alpha0 = 10 N/m) it needs r'_max <= 5e-5 m/s. And
+   eq. 91 alone caps tau_max at ``x_max / (2 r'_max)`` (5.6 s for x_max = 0.2 m at
+   1.8 cm/s) whatever the human and the grid. Every term is dimensionally homogeneous
+   (k in N/(m^2 s)), so no choice of units rescues the claim.
+   :func:`admissibility_needs` returns these numbers for a given problem.
+4. An energy function in error coordinates (``e = x~``, human feed-forward f_h2 of
+   eq. 79 as in the thesis) ``V_e = m e'^2/2 + K_tot e^2/2`` gives exactly
+   ``V_e' = -b_tot e'^2 + K_p' e^2 / 2`` while r'' = 0: neither r' nor K_h drives the
+   energy, only the stiffness growth against the damping -- the mechanism
+   :func:`simulate_1dof` probes (see above). This is a note on the analysis, not a
+   replacement bound: the scenarios keep the thesis's eq. 90-91 as the requirement
+   and report the direct simulation next to it.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
@@ -103,6 +144,9 @@ class StabilityProblem:
                                 r_dot_max_m_per_s, K_h_N_per_m, ctrl.grid.P,
                                 ctrl.grid.max_slope_per_m)
 
+    def replace(self, **kw) -> "StabilityProblem":
+        return dataclasses.replace(self, **kw)
+
 
 def gaussian_slope_eq89(c: float, sigma_m: float) -> float:
     """Eq. 89 slope bound of a 1-D Gaussian c/(sqrt(2 pi) sigma) exp(...): c/(sigma^2 sqrt(2 pi e))."""
@@ -132,7 +176,8 @@ def stability_bounds(k_N_per_m2s: float, tau_s: float, prob: StabilityProblem) -
     rbf = prob.v_max_m_per_s * prob.gaussian_slope_per_m * prob.P          # nu_max c P/(sigma^2 sqrt(2 pi e))
     tgt = 2.0 * prob.r_dot_max_m_per_s / prob.x_max_m                       # 2 r'_max / x_max
     hum = 2.0 * prob.K_h_N_per_m * prob.r_dot_max_m_per_s / (prob.x_max_m * prob.a_min_N_per_m)
-    tau_max = 1.0 / (rbf + tgt + hum)                                       # eq. 91
+    rate = rbf + tgt + hum
+    tau_max = 1.0 / rate if rate > 0 else math.inf                          # eq. 91 (no rate: no bound)
     k_max = (prob.a_min_N_per_m / prob.x_max_m * (1.0 / tau_s - rbf - tgt)
              - 2.0 * prob.K_h_N_per_m * prob.r_dot_max_m_per_s / prob.x_max_m ** 2)  # eq. 90
     tau_ok = 0.0 < tau_s < tau_max
@@ -151,6 +196,56 @@ def bounds_ndof(k_N_per_m2s: float, tau_s: float,
     k_ok = 0.0 < k_N_per_m2s < k_max
     worst = min(verdicts, key=lambda v: v.tau_max_s)
     return StabilityVerdict(k_max, tau_max, tau_ok and k_ok, k_ok, tau_ok, worst.terms_per_s)
+
+
+def admissibility_needs(k_N_per_m2s: float, tau_s: float, prob: StabilityProblem) -> dict:
+    """What eq. 90-91 need for the pair (k, tau): each number with the others fixed.
+
+    With ``D = 1/tau - nu S P`` and ``T = 2 r'_max``, eq. 90 times x_max^2 is
+    ``-k x^2 + a_min D x - T (a_min + K_h) > 0`` (x = x_max), so:
+
+    * ``x_max_interval_m``: the x_max for which eq. 90 holds (None: no x_max at all);
+    * ``a_min_needed_N_per_m``: smallest a_min at the given x_max (inf: none);
+    * ``a_min_needed_any_x_N_per_m``: smallest a_min for which some x_max works
+      (``(a_min D)^2 >= 4 k T (a_min + K_h)``);
+    * ``r_dot_max_allowed_m_per_s``: largest target speed at the given x_max, and
+      ``r_dot_max_allowed_any_x_m_per_s`` for the best x_max;
+    * ``K_h_allowed_N_per_m``: largest human stiffness at the given x_max (< 0: none);
+    * ``tau_ceiling_s``: ``x_max / (2 r'_max)``, an upper bound of eq. 91's tau_max for
+      any human, grid and a_min;
+    * ``k_ceiling_static_N_per_m2s``: ``a_min / (x_max tau)``, eq. 90 with r' = nu = 0
+      (the largest k for which the map can never rise above a_min).
+    """
+    k, a, x, K_h = k_N_per_m2s, prob.a_min_N_per_m, prob.x_max_m, prob.K_h_N_per_m
+    D = 1.0 / tau_s - prob.v_max_m_per_s * prob.gaussian_slope_per_m * prob.P
+    T = 2.0 * prob.r_dot_max_m_per_s
+    inf = float("inf")
+    if D <= 0:
+        interval = None
+    elif k <= 0:
+        interval = (T * (a + K_h) / (a * D), inf)
+    else:
+        disc = (a * D) ** 2 - 4.0 * k * T * (a + K_h)
+        interval = (None if disc < 0 else
+                    ((a * D - math.sqrt(disc)) / (2 * k), (a * D + math.sqrt(disc)) / (2 * k)))
+    a_need = (k * x * x + T * K_h) / (D * x - T) if D * x > T else inf
+    if D <= 0:
+        a_need_any = inf
+    elif T == 0 or k == 0:
+        a_need_any = 0.0
+    else:   # smallest a with a^2 D^2 - 4 k T a - 4 k T K_h >= 0
+        a_need_any = (4 * k * T + math.sqrt(16 * k * k * T * T + 16 * k * T * K_h * D * D)) / (2 * D * D)
+    r_allowed = max(0.0, (a * D * x - k * x * x) / (a + K_h)) / 2.0
+    r_allowed_any = (max(0.0, (a * D) ** 2 / (4.0 * k * (a + K_h))) / 2.0 if k > 0 and D > 0
+                     else (inf if D > 0 else 0.0))
+    K_allowed = ((a * D * x - k * x * x) / T - a) if T > 0 else (inf if a * D * x > k * x * x else -inf)
+    return {"x_max_interval_m": interval, "a_min_needed_N_per_m": a_need,
+            "a_min_needed_any_x_N_per_m": a_need_any,
+            "r_dot_max_allowed_m_per_s": r_allowed,
+            "r_dot_max_allowed_any_x_m_per_s": r_allowed_any,
+            "K_h_allowed_N_per_m": K_allowed,
+            "tau_ceiling_s": (x / T if T > 0 else inf),
+            "k_ceiling_static_N_per_m2s": a / (x * tau_s)}
 
 
 # --------------------------------------------------------------------------- simulation

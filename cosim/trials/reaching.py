@@ -60,8 +60,8 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from ..algorithms.adaptive_compliance import AdaptiveComplianceController, AdaptiveComplianceParams
-from ..algorithms.stability import (HumanImpedance, StabilityProblem, bounds_ndof,
-                                    simulate_1dof)
+from ..algorithms.stability import (HumanImpedance, StabilityProblem, admissibility_needs,
+                                    bounds_ndof, simulate_1dof)
 
 #: moving mass of each XYTable axis [kg] (x carries y: m_low + m_up; y: m_up)
 TABLE_AXIS_MASS_KG = (1.5, 0.5)
@@ -439,6 +439,13 @@ def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str,
            "K_h_N_per_m": [h.K_h_N_per_m for h in humans],
            "k_max": v.k_max_N_per_m2s, "tau_max_s": v.tau_max_s, "admissible": bool(v.admissible),
            "k_ok": bool(v.k_ok), "tau_ok": bool(v.tau_ok), "terms_per_s": v.terms_per_s}
+    # what eq. 90-91 would need (per axis, the strictest kept): see stability.py
+    needs = [admissibility_needs(params.k_N_per_m2s, params.tau_s, pr) for pr in probs]
+    out["needs"] = {
+        "a_min_needed_any_x_N_per_m": max(n["a_min_needed_any_x_N_per_m"] for n in needs),
+        "r_dot_max_allowed_any_x_m_per_s": min(n["r_dot_max_allowed_any_x_m_per_s"] for n in needs),
+        "tau_ceiling_s": min(n["tau_ceiling_s"] for n in needs),
+        "k_ceiling_static_N_per_m2s": min(n["k_ceiling_static_N_per_m2s"] for n in needs)}
     if simulate:
         amp = 0.5 * x_max
         period = 4 * amp / r_dot_max
@@ -657,6 +664,9 @@ def _reaching_session(run, build, ctx):
     v["eq90_91_admissible"] = float(st["admissible"])
     v["eq90_k_max"] = st["k_max"]
     v["eq91_tau_max_s"] = st["tau_max_s"]
+    v["eq90_a_min_needed_N_per_m"] = st["needs"]["a_min_needed_any_x_N_per_m"]
+    v["eq90_r_dot_allowed_m_per_s"] = st["needs"]["r_dot_max_allowed_any_x_m_per_s"]
+    v["eq91_tau_ceiling_s"] = st["needs"]["tau_ceiling_s"]
     if "simulation_stable" in st:
         v["sim_1dof_stable"] = float(st["simulation_stable"])
     out.artifacts = {"subject": subj.key, "week": week, "table5": subj.table5(),
