@@ -45,6 +45,13 @@ def test_fixed_point_decay_is_exp_minus_t_over_tau():
     for _ in range(int(8 * tau / 1e-3)):
         out = c.step({**x, "ref_x": 0.03 + e, "ref_y": -0.05})
     assert out["kp_x"] == pytest.approx(k_eq, rel=2e-3)
+    assert c.equilibrium_stiffness([0.03, -0.05], [e, 0.0])[0] == pytest.approx(k_eq, rel=1e-12)
+    # magnitude with the reaching gains (tau k = 1e4 N/m^2): 2-4 N/m per mm of error
+    # (|g|^2 from 0.21 at cell corners to 0.41 at cell centres, sigma = half a cell)
+    r = AssistController(compliance_params(500.0, 20.0, 10.0))
+    corner, centre = np.array([0.0, 0.0]), r.grid.centres[14]
+    assert r.equilibrium_stiffness(corner, [1e-3, 0])[0] == pytest.approx(2.1, abs=0.1)
+    assert r.equilibrium_stiffness(centre, [1e-3, 0])[0] == pytest.approx(4.1, abs=0.1)
 
 
 def test_circular_trial_rises_in_bad_sector_and_decays_with_tau(fmus):

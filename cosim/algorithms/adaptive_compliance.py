@@ -24,6 +24,27 @@ the end-effector (g_i ~ 0) keep their memory.
 
 The error derivative is the pure difference (eq. 74).
 
+Magnitudes with the thesis's gains (checked against eq. 69-71 as printed)
+------------------------------------------------------------------------
+Units: a and k_p in N/m; the error term ``k Y^T |x~|`` adds ``k g_i |x~_j|`` to
+height i of axis j per second, so k is in N/(m^2 s) (the thesis's "N/m^2" per unit
+time); ``tau k`` is a stiffness per metre of error. Where an error |x~_j| persists
+(or, since the forgetting acts only near the end effector, on average over the
+visits of a cell) the local stiffness settles at
+``k_p,eq = tau k |g(x)|^2 |x~_j|`` (:meth:`AdaptiveComplianceController.equilibrium_stiffness`).
+With the eq. 64 normalisation (sum g <= 1) and sigma = half a cell, ``|g|^2`` is
+0.21 (cell corners) to 0.41 (cell centres), so the reaching gains (tau k = 1e4 N/m^2)
+give 2-4 N/m per mm of per-axis error: 6-20 N/m for the 3-5 mm of Table 7 and
+60-120 N/m for the 29 mm of Table 8's motors-OFF trainings; the circular gains
+(tau k = 5e3 N/m^2) half that. Narrower Gaussians raise ``|g|^2`` towards 1 at the
+centres (sigma = 0.3 cell: up to 0.97, but the sum of the Gaussians then drops to 0.25
+between centres), wider ones lower it (0.7 cell: 0.14-0.17): the width changes the
+reachable stiffness by at most ~2.5x, not by orders of magnitude. The figures with
+the maps (Fig. 47, 49, 50) are not readable from the thesis text, so their colour
+scales cannot be compared; the law as printed, with these gains, produces tens of
+N/m -- "alpha0 = 10 N/m, corresponding to a very low stiffness" (Sec. 3.6) fits that
+scale.
+
 Interpretations / decisions
 ---------------------------
 * **Damping (eq. 57 vs 58/60).** Eq. 57 (unit mass, ``s^2 + Kd s + Kp``) gives a constant
@@ -208,6 +229,13 @@ class AdaptiveComplianceController:
         self.motors_on = p.motors_on
         self.kp = np.zeros(p.n_dof)
         self.kd = np.zeros(p.n_dof)
+
+    def equilibrium_stiffness(self, x, err_m) -> np.ndarray:
+        """k_p,eq = tau k |g(x)|^2 |x~| per axis [N/m]: where eq. 71 settles at position
+        ``x`` (N,) with a persistent error ``err_m`` (N,) (a_min clamp inactive)."""
+        p = self.params
+        g = self.grid(np.asarray(x, float))
+        return p.tau_s * p.k_N_per_m2s * float(g @ g) * np.abs(np.asarray(err_m, float))
 
     def set_motors(self, on: bool) -> None:
         """Switch the motor drivers ON/OFF (Table 6); the map keeps adapting."""

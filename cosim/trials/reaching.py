@@ -36,9 +36,11 @@ Decisions (the thesis does not give these; each is a modelling choice)
   mass of each axis (x: 1.5 kg, y: 0.5 kg, XYTable), xi = 0.7.
 * **Stability check.** Eq. 90-91 per axis with the worst (largest) human stiffness
   K_h the patient model reaches in the workspace, x_max = 0.2 m (the end stops),
-  r'_max = target speed, nu_max = the largest end-effector speed recorded. The
-  bounds are very conservative (see :mod:`cosim.algorithms.stability`): the
-  thesis's pairs do not satisfy them as printed. A direct simulation of the same
+  r'_max = target speed, nu_max = the largest end-effector speed recorded. As
+  printed, eq. 90-91 cannot admit the thesis's pairs with any consistent numbers
+  (re-derived in :mod:`cosim.algorithms.stability`: at 1.8 cm/s eq. 91 caps tau at
+  5.6 s and eq. 90 needs a_min >= 2.9e4 N/m); the numbers they would need are
+  reported (``stability_check(...)["needs"]``). A direct simulation of the same
   per-axis 1-DOF loop (:func:`cosim.algorithms.stability.simulate_1dof`) is reported
   next to them.
 
