@@ -88,6 +88,18 @@ def main(argv=None):
     print("MAE/SDE per training (Tables 7-8 form):")
     for r in out["table"]:
         print("  ", r)
+    # the thesis's published sessions (Table 7: subject 1, Table 8: subject 3), MAE x/y [mm]
+    published = {"S1": [(5.45, 5.19), (3.96, 2.93), (3.34, 3.38), (4.16, 3.75), (4.57, 3.94)],
+                 "S3": [(28.94, 28.39), (7.28, 5.57), (6.41, 4.50), (6.56, 5.83), (25.59, 26.29)]}
+    if subj.key in published:
+        pub = published[subj.key]
+        tot = [0.5 * (x + y) for x, y in pub]
+        sim = [0.5 * (r["MAE_x_mm"] + r["MAE_y_mm"]) for r in out["table"]]
+        ratio = lambda v: np.mean(v[1:4]) / np.mean([v[0], v[4]])  # noqa: E731
+        out["published_total_MAE_mm"], out["simulated_total_MAE_mm"] = tot, sim
+        print(f"total MAE per training, simulated vs Table {7 if subj.key == 'S1' else 8}: "
+              + ", ".join(f"{a:.2f}/{b:.2f}" for a, b in zip(sim, tot)))
+        print(f"ON/OFF total MAE: simulated {ratio(sim):.2f}, thesis {ratio(tot):.2f}")
     if a.json:
         Path(a.json).write_text(json.dumps(out, indent=1, default=float))
     return out

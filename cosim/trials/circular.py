@@ -334,9 +334,12 @@ def _circular_test(run, build, ctx):
     vals = {k: float(x) for k, x in m.items()}
     vals.update(eq90_91_admissible=float(st["admissible"]), eq90_k_max=st["k_max"],
                 eq91_tau_max_s=st["tau_max_s"], sim_1dof_stable=float(st["simulation_stable"]),
-                eq90_a_min_needed_N_per_m=st["needs"]["a_min_needed_any_x_N_per_m"],
-                eq90_r_dot_allowed_m_per_s=st["needs"]["r_dot_max_allowed_any_x_m_per_s"],
-                eq91_tau_ceiling_s=st["needs"]["tau_ceiling_s"])
+)
+    # what eq. 90-91 would need (inf -- nothing suffices -- stays in the artifacts only)
+    vals.update({k: float(x) for k, x in (
+        ("eq90_a_min_needed_N_per_m", st["needs"]["a_min_needed_any_x_N_per_m"]),
+        ("eq90_r_dot_allowed_m_per_s", st["needs"]["r_dot_max_allowed_any_x_m_per_s"]),
+        ("eq91_tau_ceiling_s", st["needs"]["tau_ceiling_s"])) if math.isfinite(x)})
     # Fig. 47 form: the map on a 21 x 21 grid at a few instants
     ctrl = AssistController(block.params)
     g = np.linspace(-0.2, 0.2, 21)

@@ -666,9 +666,12 @@ def _reaching_session(run, build, ctx):
     v["eq90_91_admissible"] = float(st["admissible"])
     v["eq90_k_max"] = st["k_max"]
     v["eq91_tau_max_s"] = st["tau_max_s"]
-    v["eq90_a_min_needed_N_per_m"] = st["needs"]["a_min_needed_any_x_N_per_m"]
-    v["eq90_r_dot_allowed_m_per_s"] = st["needs"]["r_dot_max_allowed_any_x_m_per_s"]
-    v["eq91_tau_ceiling_s"] = st["needs"]["tau_ceiling_s"]
+    # what eq. 90-91 would need (inf -- nothing suffices -- stays in the artifacts only)
+    for key, x in (("eq90_a_min_needed_N_per_m", st["needs"]["a_min_needed_any_x_N_per_m"]),
+                   ("eq90_r_dot_allowed_m_per_s", st["needs"]["r_dot_max_allowed_any_x_m_per_s"]),
+                   ("eq91_tau_ceiling_s", st["needs"]["tau_ceiling_s"])):
+        if math.isfinite(x):
+            v[key] = float(x)
     if "simulation_stable" in st:
         v["sim_1dof_stable"] = float(st["simulation_stable"])
     out.artifacts = {"subject": subj.key, "week": week, "table5": subj.table5(),
