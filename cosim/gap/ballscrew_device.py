@@ -25,7 +25,17 @@ what the sensors say with what the model says for the MEASURED motion:
       a_nut = S w' (rigid) or the nut of the two-body effects
 
 Metric (``nrmse``): per signal ``rms(meas - model) / std(meas)`` pooled over the
-logs' compared samples, combined as ``sqrt(mean over signals of nrmse_s^2)``.
+logs' compared samples, combined as the noise-weighted mean
+``sqrt(sum_s w_s nrmse_s^2)``, ``w_s ~ 1/floor_s^2`` normalised to sum 1, where
+``floor_s`` is the nrmse that the sensor noise alone gives (:meth:`BallscrewDevice.noise_floor`,
+estimated from the logs, not from a model). Why: the accelerometer comparison's
+noise floor is ~4x the current comparison's (measured on no-effect logs: 0.045 vs
+0.011-0.015), and an equal-weight mean let the accelerometer noise set the gap of a
+model that explains the current to its noise floor (blind benchmark, seed 1: the
+acc part was 0.037-0.05 of test_after for friction/cogging effects that left 0.013 on
+the current). The weights depend on the logs only, so test_before and test_after
+use the same metric; the least-squares fits use the same weights (their objective
+is the metric). ``gap_parts`` gives the per-signal nrmse and the weights.
 
 Recalibration: J, b, fc (and Kt) by linear least squares on the same equations
 (weighted by 1/std of each signal). Kt is identifiable only when a known force
@@ -65,6 +75,8 @@ EFFECTS = ("stribeck_friction", "asymmetric_friction", "position_dependent_frict
 _REFINE = {"stribeck_friction": ("ws",), "position_dependent_friction": ("lp",), "transmission_compliance": ("fn", "zeta_tr"),
            "actuator_delay": ("Td",), "current_loop_lag": ("Tcl",), "current_saturation": ("i_lim",),
            "backlash": ("backlash",), "accel_bias_drift": ("T_acc",)}
+#: linear effect coefficients that physics bounds below by 0
+_NONNEG = ("dfs",)
 W_REST = 0.05          # rad/s: below this the motor counts as at rest
 DILATE_S = 0.015       # s
 EDGE_S = 0.1           # s cut at both ends (filter transients)
@@ -146,11 +158,9 @@ class BallscrewDevice:
     name = DEVICE
     effects = EFFECTS
     param_names = ("J", "b", "fc", "Kt")
-    #: held-out gap (nrmse) above which an unexplained residual is called ``unknown``.
-    #: Set from the sensor noise floor: the no-effect generated cases give 0.02-0.04
-    #: (accelerometer noise 150 ug/sqrt(Hz) in the 100 Hz comparison band is ~0.03 of a
-    #: typical 0.9 m/s^2 acceleration), so 0.06 leaves a margin of about 1.5x.
-    gap_floor = 0.06
+    # no fixed ``gap_floor``: the engine's ``unknown`` rule uses :meth:`noise_floor`,
+    # estimated from the held-out data (the fixed 0.06 it replaces was set on the
+    # benchmark's own seed-0 cases)
 
     def __init__(self) -> None:
         self.recalibration_note = ""
@@ -419,8 +429,11 @@ class BallscrewDevice:
             for j, k in enumerate(names):
                 if k in ("alpha",):
                     Ai[:, j] /= Kt
-        wi = 1.0 / (sd_i * math.sqrt(max(yi.size, 1)))
-        wa = 1.0 / (sd_a * math.sqrt(max(ya.size, 1)))
+        # each signal's rows weighted so that the LS objective is the metric: the
+        # noise-weighted mean of the per-signal nrmse^2 (see :meth:`noise_floor`)
+        ws_i, ws_a = self._signal_weights(logs) if ya.size else (1.0, 0.0)
+        wi = math.sqrt(ws_i) / (sd_i * math.sqrt(max(yi.size, 1)))
+        wa = math.sqrt(ws_a) / (sd_a * math.sqrt(max(ya.size, 1))) if ya.size else 1.0
         A = np.vstack([Ai * wi, Aa * wa])
         bvec = np.concatenate([bi * wi, ya * wa])
         if fixed_coefs is None:
@@ -437,14 +450,25 @@ class BallscrewDevice:
             rhs = bvec - A @ coef
             sol, *_ = np.linalg.lstsq(A[:, free], rhs, rcond=None)
             coef[free] = sol
+            # sign constraints of the physics (one active-set step): a Stribeck excess is
+            # static friction ABOVE Coulomb (dfs >= 0). A negative one only fits the
+            # low-speed rows where the encoder's speed (and so sign(w)) is unreliable
+            # (a clean unit-test device got dfs = -1.5 fc at ws = 0.1 rad/s and passed).
+            neg = [j for j in free if names[j] in _NONNEG and coef[j] < 0]
+            if neg:
+                free = [j for j in free if j not in neg]
+                coef[neg] = 0.0
+                sol, *_ = np.linalg.lstsq(A[:, free], bvec - A @ np.where(np.isin(np.arange(len(names)), free),
+                                                                           0.0, coef), rcond=None)
+                coef[free] = sol
         else:
             coef = np.array([fixed_coefs.get(k, 0.0) for k in names])
         res = bvec - A @ coef
         ni = yi.size
-        sse_i = float(np.sum(res[:ni] ** 2))   # already normalised: = SSE/(N sd^2)
-        sse_a = float(np.sum(res[ni:] ** 2))
-        parts = [sse_i] + ([sse_a] if ya.size else [])
-        gap = math.sqrt(sum(parts) / len(parts))
+        # per-signal nrmse^2 = SSE/(N sd^2) (undo the noise weight)
+        sse_i = float(np.sum(res[:ni] ** 2)) / ws_i
+        sse_a = float(np.sum(res[ni:] ** 2)) / ws_a if ya.size else 0.0
+        gap = math.sqrt(ws_i * sse_i + ws_a * sse_a)
         return dict(zip(names, coef.tolist())), gap, {"nrmse_i": math.sqrt(sse_i),
                                                       "nrmse_a": math.sqrt(sse_a) if ya.size else None}
 
@@ -473,6 +497,103 @@ class BallscrewDevice:
                 ok = float(np.var(res) / np.var(fv)) > 0.10
         self._ktfree_cache[key] = ok
         return ok
+
+    # ------------------------------------------------------------------ noise floor
+    def _log_noise(self, log: TrialLog) -> dict[str, float]:
+        """Noise variance of each comparison signal of one log, estimated from the data.
+
+        Two sensor noises reach the comparison, neither depends on a model parameter:
+
+        * encoder quantisation: step ``q`` = the smallest non-zero change of
+          ``theta_enc`` between samples; its error is white with variance q^2/12 while
+          the axis moves many counts per sample. It enters both comparisons through the
+          twice-differentiated, filtered angle (200 Hz zero-phase low-pass, central
+          second difference, ``F``): variance = integral of the one-sided PSD
+          ``q^2/6 Ts`` times the chain's power gain, times ``(J/Kt)^2`` for the current
+          (sidecar J, Kt: a weight needs no better) and ``S^2`` for the acceleration;
+        * accelerometer noise (sensor noise aliased by the sampling, ADC steps): white;
+          its PSD from the robust spread (1.4826 MAD) of the reading high-passed above
+          0.6 Nyquist, where the motion of a band-limited excitation carries no power
+          and the few friction/impact edges are sparse outliers that the MAD ignores;
+          through the half-sample shift (cos^2 gain) and ``F``.
+
+        Returns ``{"i": var [A^2], "a": var [(m/s^2)^2], "E_i": .., "E_a": .., "n_i": .., "n_a": ..}``
+        (E = measured variance over the compared samples, n = their number).
+        """
+        p = self._prep(log)
+        key = "noise"
+        if key in p.cache:
+            return p.cache[key]
+        nom = self._nominal(log)
+        ts = p.ts
+        nyq = 0.5 / ts
+        f = np.linspace(0.0, nyq, 4097)[1:]
+        wT = 2 * math.pi * f * ts
+        _, h200 = signal.sosfreqz(_lp(min(200.0, 0.4 / ts), ts), worN=f, fs=1.0 / ts)
+        _, hF = signal.sosfreqz(_lp(min(100.0, 0.3 / ts), ts), worN=f, fs=1.0 / ts)
+        gF = np.abs(hF) ** 4                                  # filtfilt: |H|^2 in amplitude
+        g_dd = np.abs(h200) ** 4 * (2 - 2 * np.cos(wT)) ** 2 / ts ** 4 * gF
+        df = f[1] - f[0]
+        th = np.asarray(log["theta_enc"], float)
+        steps = np.abs(np.diff(th))
+        steps = steps[steps > 1e-12]
+        q = float(steps.min()) if steps.size else 0.0
+        var_wd = (q * q / 6.0 * ts) * float(np.sum(g_dd)) * df        # (rad/s^2)^2
+        out = {"i": (nom["J"] / nom["Kt"]) ** 2 * var_wd, "a": 0.0, "q_enc": q}
+        yi = p.F(_shift(p.i, 0.5 * ts, ts))[p.comp_i]
+        out["E_i"] = float(np.var(yi)) if yi.size else 0.0
+        out["n_i"] = int(yi.size)
+        out["E_a"], out["n_a"] = 0.0, 0
+        if p.acc is not None and log.n_samples > 64:
+            sos_hp = signal.butter(4, 0.6 * nyq, btype="high", fs=1.0 / ts, output="sos")
+            hp = signal.sosfiltfilt(sos_hp, np.asarray(log["acc_meas"], float))
+            edge = int(round(EDGE_S / ts))
+            core = hp[edge:hp.size - edge] if hp.size > 2 * edge + 16 else hp
+            sd = 1.4826 * float(np.median(np.abs(core - np.median(core))))
+            _, hhp = signal.sosfreqz(sos_hp, worN=f, fs=1.0 / ts)
+            psd = sd * sd / (float(np.sum(np.abs(hhp) ** 4)) * df)   # one-sided, (m/s^2)^2/Hz
+            var_acc = psd * float(np.sum(np.cos(0.5 * wT) ** 2 * gF)) * df
+            out["a"] = var_acc + p.S ** 2 * var_wd
+            out["acc_psd"] = psd
+            ya = p.acc[p.comp_a]
+            out["E_a"] = float(np.var(ya)) if ya.size else 0.0
+            out["n_a"] = int(ya.size)
+        p.cache[key] = out
+        return out
+
+    def noise_floor(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        """Per-signal nrmse a model with no structural error would still show (sensor noise only),
+        pooled over ``logs`` like the metric, and the combined ``"gap"`` floor of the metric."""
+        key = ("floor",) + tuple(id(lg) for lg in logs)
+        if key in self._ktfree_cache:
+            return self._ktfree_cache[key]
+        acc = {"i": [0.0, 0.0], "a": [0.0, 0.0]}
+        for lg in logs:
+            nz = self._log_noise(lg)
+            for s in ("i", "a"):
+                acc[s][0] += nz[s] * nz["n_" + s]
+                acc[s][1] += nz["E_" + s] * nz["n_" + s]
+        out = {s: math.sqrt(v[0] / v[1]) for s, v in acc.items() if v[1] > 0}
+        ws = self._weights_from(out)
+        out["gap"] = math.sqrt(sum(ws[s] * out[s] ** 2 for s in ws))
+        self._ktfree_cache[key] = out
+        return out
+
+    @staticmethod
+    def _weights_from(floor: Mapping[str, float]) -> dict[str, float]:
+        """Inverse-noise weights of the signals, normalised to sum 1.
+
+        A floor is bounded below at 0.005 (0.5 % of the signal) so that an
+        almost noise-free signal does not take all the weight on the strength of an
+        estimate: the comparison has model-form errors below that (sensor pole, ZOH
+        timing) that the noise estimate does not see."""
+        inv = {s: 1.0 / max(floor[s], 0.005) ** 2 for s in ("i", "a") if s in floor}
+        tot = sum(inv.values())
+        return {s: v / tot for s, v in inv.items()}
+
+    def _signal_weights(self, logs: Sequence[TrialLog]) -> tuple[float, float]:
+        w = self._weights_from(self.noise_floor(logs))
+        return w.get("i", 1.0), w.get("a", 0.0)
 
     @staticmethod
     def _to_physical(coef: Mapping[str, float], kt_free: bool, Kt_fixed: float) -> dict[str, float]:
@@ -566,6 +687,13 @@ class BallscrewDevice:
 
     def gap(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects=None) -> float:
         return self._evaluate(logs, params, effects)[0]
+
+    def gap_parts(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects=None) -> dict:
+        """Per-signal nrmse behind :meth:`gap` and the weights that combine them."""
+        _, parts = self._evaluate(logs, params, effects)
+        w = self._weights_from(self.noise_floor(logs))
+        return {"i_cmd": parts["nrmse_i"], "acc_meas": parts["nrmse_a"],
+                "weight_i_cmd": w.get("i", 1.0), "weight_acc_meas": w.get("a", 0.0)}
 
     def _evaluate(self, logs, params, effects):
         nom_log = self._nominal(logs[0])

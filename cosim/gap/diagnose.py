@@ -47,6 +47,11 @@ __all__ = ["diagnose", "localize", "run_diagnosis", "DEFAULT_MARGIN"]
 
 #: minimum held-out reduction of the gap energy (fraction) for an effect to count
 DEFAULT_MARGIN = 0.10
+#: ``unknown`` when no effect is selected and the held-out gap exceeds this many times the
+#: sensor-noise floor estimated from the data (a gap ratio of 2 is a noise-energy ratio
+#: of 4; a correct model leaves its model-form residue (sensor pole, ZOH timing,
+#: recalibration error) on top of the noise, measured 1.2-1.5 x on no-effect logs)
+UNKNOWN_FACTOR = 2.0
 BANDS_HZ = (0.0, 1.0, 5.0, 20.0, 50.0, 100.0, math.inf)
 WINDOW_S = 1.0
 
@@ -327,8 +332,15 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
                 c.setdefault("heldout", {})["added_to_selection"] = red
                 if min(red) >= margin:
                     selected.append(c["effect"])
-    # held-out residual after the selection vs the device's noise floor
+    # held-out residual after the selection vs the device's noise floor: estimated from
+    # the held-out data themselves when the device can (``noise_floor``), else a constant
     floor = getattr(device, "gap_floor", None)
+    nf = getattr(device, "noise_floor", None)
+    if nf is not None:
+        fl = [float(nf(v)["gap"]) for _, v in folds]
+        out["noise_floor"] = float(np.sqrt(np.mean(np.square(fl))))
+        out["unknown_factor"] = UNKNOWN_FACTOR
+        floor = UNKNOWN_FACTOR * out["noise_floor"]
     if len(selected) == 1:
         ge = passing[0]["heldout"]["gap_with"]
     elif selected:
@@ -343,8 +355,10 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     out["selected"] = selected
     out["selection_rule"] = (f"an effect is selected when fitting it on one half of every fit log lowers the "
                              f"gap energy on the other half by >= {margin:.0%} in both folds; 'unknown' when "
-                             f"none does and the held-out gap exceeds the device's noise floor "
-                             f"({floor if floor is not None else 'none declared'})")
+                             f"none does and the held-out gap exceeds "
+                             + (f"{UNKNOWN_FACTOR:g} x the sensor-noise floor estimated from the held-out "
+                                f"halves ({floor:.4f})" if nf is not None else
+                                f"the device's noise floor ({floor if floor is not None else 'none declared'})"))
 
     # ---- FMU confirmation of the top candidates (same replay without the effect as reference)
     try:
@@ -376,6 +390,13 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     after = device.gap(test, nom_after, effects_after) if effects_after else before
     out["gap"] = {"metric": "nrmse", "fit": float(g_fit), "test_before": float(before),
                   "test_after": float(after), "shrink": float(after / before) if before > 0 else None}
+    gp = getattr(device, "gap_parts", None)
+    if gp is not None:      # per-signal nrmse and the sensor-noise floor of the test logs
+        out["gap"]["signals_before"] = gp(test, rec)
+        out["gap"]["signals_after"] = gp(test, nom_after, effects_after) if effects_after \
+            else out["gap"]["signals_before"]
+    if nf is not None:
+        out["gap"]["test_noise_floor"] = nf(test)
     out["runtime_s"] = time.perf_counter() - t0
     extras = {"device": device, "fit": fit, "test": test, "rec": rec, "nom_after": nom_after,
               "effects_after": effects_after}
