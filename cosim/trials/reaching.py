@@ -642,6 +642,7 @@ def _reaching_session(run, build, ctx):
     v["post_total_MAE_mm"] = v[f"t{len(motors)}_total_MAE_mm"]
     on_idx = [i + 1 for i, m in enumerate(motors) if m]
     off_idx = [i + 1 for i, m in enumerate(motors) if not m]
+    v["on_total_MAE_mm"] = float(np.mean([v[f"t{i}_total_MAE_mm"] for i in on_idx])) if on_idx else float("nan")
     v["on_over_off_total_MAE"] = (np.mean([v[f"t{i}_total_MAE_mm"] for i in on_idx])
                                   / np.mean([v[f"t{i}_total_MAE_mm"] for i in off_idx]))
     if all(f"t{i}_MAE_impaired_mm" in v for i in range(1, len(motors) + 1)):
