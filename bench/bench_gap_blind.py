@@ -60,7 +60,10 @@ def main(argv=None) -> int:
                      "top": d["candidates"][0]["effect"] if d["candidates"] else None,
                      "before": g["test_before"], "after": g["test_after"],
                      "shrink": g["test_after"] / g["test_before"] if g["test_before"] else None,
-                     "t_gen": tgen, "t_diag": tdiag})
+                     "t_gen": tgen, "t_diag": tdiag,
+                     # held-out gap left after the selection / sensor-noise floor (the
+                     # 'unknown' rule compares it with the engine's UNKNOWN_FACTOR)
+                     "ho_ratio": (d["heldout_residual_gap"] / d["noise_floor"]) if d.get("noise_floor") else None})
         r = rows[-1]
         print(f"{r['case']:7s} {str(r['true']):28s} {r['pair']:27s} selected={','.join(r['selected']) or '[]':28s} "
               f"before={r['before']:.4f} after={r['after']:.4f} shrink={r['shrink']:.3f} ({tdiag:.1f} s)", flush=True)
@@ -72,12 +75,14 @@ def main(argv=None) -> int:
     unk = [r for r in ooc if r["selected"] == ["unknown"]]
     shr = [r["shrink"] for r in cat if r.get("shrink") is not None]
     print()
-    print(f"{'case':7s} {'true effect':28s} {'selected':30s} {'test_before':>11s} {'test_after':>10s} {'shrink':>7s}")
+    print(f"{'case':7s} {'true effect':28s} {'selected':30s} {'test_before':>11s} {'test_after':>10s} {'shrink':>7s}"
+          f" {'heldout/floor':>13s} {'diag_s':>6s}")
     for r in rows:
         if "before" not in r:
             continue
+        ho = f"{r['ho_ratio']:13.2f}" if r.get("ho_ratio") is not None else f"{'-':>13s}"
         print(f"{r['case']:7s} {str(r['true']):28s} {','.join(r['selected']) or '[]':30s} "
-              f"{r['before']:11.4f} {r['after']:10.4f} {r['shrink']:7.3f}")
+              f"{r['before']:11.4f} {r['after']:10.4f} {r['shrink']:7.3f} {ho} {r['t_diag']:6.1f}")
     print()
     print(f"top-1 accuracy (catalogue effects): {len(hit)}/{len(cat)}"
           + (f"  missed: {', '.join(r['true'] + '->' + (','.join(r['selected']) or '[]') for r in cat if r not in hit)}" if len(hit) < len(cat) else ""))
