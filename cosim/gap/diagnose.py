@@ -21,8 +21,11 @@
    least ``margin`` in BOTH folds. Then further effects are added greedily by the
    same rule, if the device can fit several at once (``fit_effects``).
    ``selected = []`` when no effect passes and the held-out residual is at the
-   device's noise floor (``gap_floor``); ``["unknown"]`` when none passes but the
-   residual is above it;
+   noise floor; ``["unknown"]`` when none passes but the residual is above it. The
+   floor is the device's ``noise_floor(logs)["gap"]`` (the gap that sensor noise
+   alone gives, estimated from the held-out halves themselves) times
+   :data:`UNKNOWN_FACTOR`, or, for a device without that method, its constant
+   ``gap_floor`` (none: never ``unknown``);
 5. **confirmation** of the top candidates with the device's FMU replay
    (``confirm``), when the device has one;
 6. **shrinkage** on the ``--test`` logs: ``gap.test_before`` with the recalibrated
