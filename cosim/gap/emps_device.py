@@ -427,6 +427,27 @@ class EmpsDevice:
                     r = self._fit_cfg(logs, trial, off0)
                     if r[0] < best[0] - 1e-12:
                         best, cfg = r, trial
+        # the grids are coarse (a factor of 2 for the lag): refine each one-parameter
+        # shape (delay, lag, Stribeck speed) continuously between its grid neighbours
+        from scipy.optimize import minimize_scalar
+        for e in effects:
+            if e not in grids or len(grids[e][0]) != 1:
+                continue
+            key = next(iter(grids[e][0]))
+            vals = sorted({float(c[key]) for c in grids[e]})
+            i = vals.index(float(cfg[e][key]))
+            lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]
+            if hi <= lo:
+                continue
+
+            def gap_at(v, e=e, key=key):
+                trial = dict(cfg); trial[e] = {key: float(v)}
+                return self._fit_cfg(logs, trial, off0)[0]
+            r = minimize_scalar(gap_at, bounds=(lo, hi), method="bounded",
+                                options={"xatol": 1e-3 * (hi - lo)})
+            if r.fun < best[0] - 1e-12:
+                cfg = dict(cfg); cfg[e] = {key: float(r.x)}
+                best = self._fit_cfg(logs, cfg, off0)
         g, nom, eff = best
         out = {}
         for e in effects:
