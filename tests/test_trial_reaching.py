@@ -22,10 +22,12 @@ from conftest import REPO
 # --------------------------------------------------------------------------- controller
 @pytest.mark.parametrize("form,motors", [("physical", True), ("printed", False)])
 def test_fast_step_equals_reference_controller(form, motors):
-    """AssistController is the same eq. 62-74 step as the reference class (random walk
-    over the workspace, errors of cm, clamp active): outputs and heights to 1e-12."""
+    """The fast 2-D step (what AssistController and the controller use for N = 2) is the
+    same eq. 62-74 step as the vector-form reference (random walk over the workspace,
+    errors of cm, clamp active): outputs and heights to 1e-12."""
     p = compliance_params(500.0, 0.5, damping_form=form, motors_on=motors)   # short tau: clamp hits
     fast, ref = AssistController(p), AdaptiveComplianceController(p)
+    ref.step = ref.step_reference
     rng = np.random.default_rng(3)
     x = np.clip(np.cumsum(rng.normal(0, 0.003, (4000, 2)), axis=0), -0.19, 0.19)
     r = x + rng.normal(0, 0.02, x.shape)

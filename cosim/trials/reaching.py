@@ -73,92 +73,37 @@ SESSION_MOTORS = (False, True, True, True, False)
 
 # =========================================================================== controller
 class AssistController(AdaptiveComplianceController):
-    """Adaptive compliance controller (eq. 57-74), fast 2-D step, optional initial map.
+    """The adaptive compliance controller (eq. 57-74) with what the trials add: an
+    optional initial map and snapshots of the map.
 
-    Same inputs/outputs/parameters as the reference class. ``initial_a`` (N x P) [N/m],
-    if given, replaces a(0) = alpha0 (eq. 70) at every ``reset()``: the map a session
-    carries from one training to the next. For N = 2 the Gaussian row is computed as an
-    outer product of the per-axis factors (exact: the covariance is diagonal).
+    ``initial_a`` (N x P) [N/m], if given, replaces a(0) = alpha0 (eq. 70) at every
+    ``reset()``: the map a session carries from one training to the next.
+    ``snapshot_every`` (ticks, 0: never) keeps a copy of the heights in ``snapshots``
+    as (tick, a): the map's history without recording 72 columns.
     """
 
     def __init__(self, params: AdaptiveComplianceParams = AdaptiveComplianceParams(),
                  initial_a: np.ndarray | None = None, snapshot_every: int = 0):
         self.initial_a = None if initial_a is None else np.array(initial_a, float)
-        #: keep a copy of the heights every ``snapshot_every`` ticks (0: never) in
-        #: ``snapshots`` as (tick, a) -- the map's history without recording 72 columns
         self.snapshot_every = int(snapshot_every)
         super().__init__(params)
-        g = self.grid
-        if self.initial_a is not None and self.initial_a.shape != (params.n_dof, g.P):
-            raise ValueError(f"initial_a must have shape {(params.n_dof, g.P)}, "
+        if self.initial_a is not None and self.initial_a.shape != (params.n_dof, self.grid.P):
+            raise ValueError(f"initial_a must have shape {(params.n_dof, self.grid.P)}, "
                              f"got {self.initial_a.shape}")
-        n = params.n_dof
-        m = params.cells_per_axis
-        # per-axis centres (the ij mesh of RBFGrid: centre p = (i, j) with p = i*m + j)
-        self._cx = [g.lo[j] + (np.arange(m) + 0.5) * g.cell_m[j] for j in range(n)]
-        self._h = [-0.5 * g._inv_var[j] for j in range(n)]
-        self._Ts = params.Ts_s
-        self._inv_tau = 1.0 / params.tau_s
-        self._k = params.k_N_per_m2s
-        self._amin = params.a_min_N_per_m
-        self._xi = params.xi
-        self._phys = params.damping_form == "physical"
 
     def reset(self) -> None:
         super().reset()
         if getattr(self, "initial_a", None) is not None:
             self.a = self.initial_a.copy()
-        self._err_prev: list[float] | None = None
         self._tick = 0
         self.snapshots: list[tuple[int, np.ndarray]] = []
 
     def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
-        if self.params.n_dof != 2:
-            return super().step(measurements)
-        ax, ay = self.axes
-        x = float(measurements["pos_" + ax]); y = float(measurements["pos_" + ay])
-        ex = float(measurements["ref_" + ax]) - x
-        ey = float(measurements["ref_" + ay]) - y
-        dx = x - self._cx[0]; dy = y - self._cx[1]
-        g = np.multiply.outer(np.exp(self._h[0] * dx * dx),
-                              np.exp(self._h[1] * dy * dy)).ravel()
-        g *= self.grid.prefactor                                  # row of Y(x_k), eq. 62-63
-        g2 = float(g @ g)                                         # Y Y^T = |g|^2 I
-        a = self.a
-        kp_prev = a @ g                                           # Y a_{k-1}
-        # eq. 71: a_k = a_{k-1} + Ts(-1/tau Y^T (YY^T)^-1 Y a_{k-1} + k Y^T |x~_k|)
-        if g2 > 1e-300:
-            coef = self._Ts * (self._k * np.array((abs(ex), abs(ey)))
-                               - kp_prev * (self._inv_tau / g2))
-        else:
-            coef = self._Ts * self._k * np.array((abs(ex), abs(ey)))
-        a += np.multiply.outer(coef, g)
-        np.maximum(a, self._amin, out=a)                          # eq. 78 lower bound
-        kp = a @ g                                                # eq. 72
-        self.kp = kp
+        out = super().step(measurements)
         if self.snapshot_every and self._tick % self.snapshot_every == 0:
-            self.snapshots.append((self._tick, a.copy()))
+            self.snapshots.append((self._tick, self.a.copy()))
         self._tick += 1
-        kpx, kpy = float(kp[0]), float(kp[1])
-        if self._phys:                                            # eq. 57 (digest) / eq. 60
-            kdx = 2.0 * self._xi * math.sqrt(max(kpx, 0.0) * self.masses[0])
-            kdy = 2.0 * self._xi * math.sqrt(max(kpy, 0.0) * self.masses[1])
-        else:
-            kdx = 0.5 * self._xi * math.sqrt(max(kpx, 0.0))
-            kdy = 0.5 * self._xi * math.sqrt(max(kpy, 0.0))
-        self.kd = np.array((kdx, kdy))
-        prev = self._err_prev
-        if prev is None:                                          # eq. 74, first sample: 0
-            dex = dey = 0.0
-        else:
-            dex = (ex - prev[0]) / self._Ts; dey = (ey - prev[1]) / self._Ts
-        self._err_prev = (ex, ey)
-        if self.motors_on:                                        # eq. 73
-            fx = kpx * ex + kdx * dex; fy = kpy * ey + kdy * dey
-        else:                                                     # Table 6: drivers OFF
-            fx = fy = 0.0
-        return {"f_" + ax: fx, "f_" + ay: fy, "kp_" + ax: kpx, "kp_" + ay: kpy,
-                "kd_" + ax: kdx, "kd_" + ay: kdy, "err_" + ax: ex, "err_" + ay: ey}
+        return out
 
 
 def compliance_params(k: float, tau: float, alpha0: float = 10.0, **kw) -> AdaptiveComplianceParams:
