@@ -225,6 +225,7 @@ class AdaptiveComplianceController:
             g, m = self.grid, params.cells_per_axis
             self._cx = [g.lo[j] + (np.arange(m) + 0.5) * g.cell_m[j] for j in range(2)]
             self._h = [-0.5 * g._inv_var[j] for j in range(2)]
+            self._phys = params.damping_form == "physical"
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -276,23 +277,31 @@ class AdaptiveComplianceController:
         a = self.a
         kp_prev = a @ g                                           # Y a_{k-1}
         # eq. 71: a_k = a_{k-1} + Ts(-1/tau Y^T (YY^T)^-1 Y a_{k-1} + k Y^T |x~_k|)
-        coef = p.Ts_s * p.k_N_per_m2s * np.array((abs(ex), abs(ey)))
+        Ts = p.Ts_s
         if g2 > 1e-300:
-            coef -= kp_prev * (p.Ts_s / (p.tau_s * g2))
+            coef = Ts * (p.k_N_per_m2s * np.array((abs(ex), abs(ey)))
+                         - kp_prev * (1.0 / (p.tau_s * g2)))
+        else:
+            coef = Ts * p.k_N_per_m2s * np.array((abs(ex), abs(ey)))
         a += np.multiply.outer(coef, g)
         np.maximum(a, p.a_min_N_per_m, out=a)                     # eq. 78 lower bound
         kp = a @ g                                                # eq. 72
         self.kp = kp
         kpx, kpy = float(kp[0]), float(kp[1])
-        kdx = damping_gain(kpx, p.xi, p.damping_form, float(self.masses[0]))
-        kdy = damping_gain(kpy, p.xi, p.damping_form, float(self.masses[1]))
+        xi = p.xi                                                 # damping_gain, inlined
+        if self._phys:
+            kdx = 2.0 * xi * math.sqrt(max(kpx, 0.0) * self.masses[0])
+            kdy = 2.0 * xi * math.sqrt(max(kpy, 0.0) * self.masses[1])
+        else:
+            kdx = 0.5 * xi * math.sqrt(max(kpx, 0.0))
+            kdy = 0.5 * xi * math.sqrt(max(kpy, 0.0))
         self.kd = np.array((kdx, kdy))
         prev = self.err_prev
         if prev is None:                                          # eq. 74, first sample: 0
             dex = dey = 0.0
         else:
-            dex = (ex - prev[0]) / p.Ts_s; dey = (ey - prev[1]) / p.Ts_s
-        self.err_prev = np.array((ex, ey))
+            dex = (ex - prev[0]) / Ts; dey = (ey - prev[1]) / Ts
+        self.err_prev = (ex, ey)
         if self.motors_on:                                        # eq. 73
             fx = kpx * ex + kdx * dex; fy = kpy * ey + kdy * dey
         else:                                                     # Table 6: drivers OFF
