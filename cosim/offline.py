@@ -75,7 +75,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -86,6 +85,7 @@ from .algorithms.aakf import AakfParams, AaKF, EncoderDifferentiator
 from .algorithms.aakf import EncoderDifferentiatorParams
 from .algorithms.rls import RLSIdentifier, RLSParams
 from .algorithms.whiteness import cumulative_periodogram
+from .fileio import atomic_write_text, jsonable
 from .trial_log import TrialLog, TrialLogError, format_csv, read_trial_log, require_columns
 
 __all__ = [
@@ -135,46 +135,6 @@ def _check_out(out: str | os.PathLike, log: TrialLog) -> Path:
         except OSError:
             pass
     return out_p
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder + rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    umask = os.umask(0)
-    os.umask(umask)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        os.chmod(tmp, 0o666 & ~umask)
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-        tmp = ""
-    finally:
-        if tmp:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-
-
-def _jsonable(x: Any) -> Any:
-    """Floats NaN/inf -> None, numpy scalars -> Python, recursively."""
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return [_jsonable(v) for v in x.tolist()]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    return x
 
 
 def _aakf_params_for(log: TrialLog, params: AakfParams | None) -> AakfParams:
@@ -313,8 +273,8 @@ def estimate(log_path: str | os.PathLike, out_csv: str | os.PathLike,
         "final_speed_rad_s": float(kf["omega_rad_s"][-1]),
         "columns": list(ESTIMATE_COLUMNS),
     }
-    _atomic_write_text(out_p, format_csv(ESTIMATE_COLUMNS, arr))
-    return _jsonable(summary)
+    atomic_write_text(out_p, format_csv(ESTIMATE_COLUMNS, arr))
+    return jsonable(summary)
 
 
 # ----------------------------------------------------------------------------- identify
@@ -404,9 +364,9 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
         "decimation_s": step * Ts,
         "time": t[idx], "J": hist[idx, 0], "b": hist[idx, 1], "fc": hist[idx, 2],
     }
-    result = _jsonable(result)
+    result = jsonable(result)
     text = json.dumps(result, indent=1, allow_nan=False) + "\n"
-    _atomic_write_text(out_p, text)
+    atomic_write_text(out_p, text)
     return result
 
 

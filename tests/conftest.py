@@ -12,3 +12,21 @@ def fmus():
     from cosim.fmubuild.build import build_all
     paths = build_all(REPO / "modelica" / "RehabSim", REPO / "fmus", log=lambda *_: None)
     return {p.stem: p for p in paths}
+
+
+def run_scenario_seed(scenario: str, seeds_line: str, seed: int, tmp_dir: Path):
+    """One run of ``scenarios/<scenario>`` with only ``seed``, through the scenario
+    runner: the file's ``seeds_line`` (checked to be there) is replaced. Returns the
+    run's info dict and its recorded signals (pandas, phase 'main')."""
+    import pandas as pd
+
+    from cosim.scenarios.loader import expand, load
+    from cosim.scenarios.runner import execute_run, safe_name
+    text = (REPO / "scenarios" / scenario).read_text()
+    assert seeds_line in text
+    f = tmp_dir / scenario
+    f.write_text(text.replace(seeds_line, f"seeds: [{seed}]"))
+    (run,) = expand(load(f))
+    info = execute_run(str(f), run.label, str(tmp_dir / "out"), fmu_dir=str(REPO / "fmus"))
+    assert info["status"] == "ok", info.get("error")
+    return info, pd.read_parquet(tmp_dir / "out" / "runs" / safe_name(run.label) / "main.parquet")

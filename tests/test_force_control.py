@@ -5,7 +5,6 @@ end with their requirements."""
 from __future__ import annotations
 
 import math
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -126,8 +125,9 @@ def test_stiff_coupling_between_fmus_diverges_but_rig_does_not(fmus):
     rig = Master(r, ["rig.f_lc"]).run(n * TS)
     f_rig = np.abs(rig["rig.f_lc"])
     late = slice(300, None)
-    assert not split.completed or np.max(f_split[late] if f_split.size > 300 else f_split) > 1e3 \
-        or np.max(f_split[-50:]) > 10 * np.max(f_split[:50])
+    # measured: max |f| 78 N during the push, 1.2e6 N in the last 50 ms (growing)
+    assert split.completed, split.error
+    assert np.max(f_split[-50:]) > 100 * np.max(f_split[:50])
     assert np.max(f_rig[late]) < 2.0                 # at rest, within static friction
 
 

@@ -7,11 +7,11 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from cosim.scenarios.registry import BuildContext
 from cosim.trials.free_motion import random_reach
+from conftest import run_scenario_seed
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -36,17 +36,8 @@ def test_random_reach_speed_is_the_derivative_and_seeds_differ():
 @pytest.fixture(scope="module")
 def tuning_run(fmus, tmp_path_factory):
     """Seed 0 of scenarios/free_motion.yaml (the tuning run, not among its seeds)."""
-    from cosim.scenarios.loader import expand, load
-    from cosim.scenarios.runner import execute_run, safe_name
-    text = (REPO / "scenarios" / "free_motion.yaml").read_text()
-    assert "seeds: [1, 2, 3, 4, 5]" in text
-    d = tmp_path_factory.mktemp("fm")
-    f = d / "free_motion.yaml"
-    f.write_text(text.replace("seeds: [1, 2, 3, 4, 5]", "seeds: [0]"))
-    (run,) = expand(load(f))
-    info = execute_run(str(f), run.label, str(d / "out"), fmu_dir=str(REPO / "fmus"))
-    assert info["status"] == "ok", info.get("error")
-    return pd.read_parquet(d / "out" / "runs" / safe_name(run.label) / "main.parquet")
+    return run_scenario_seed("free_motion.yaml", "seeds: [1, 2, 3, 4, 5]", 0,
+                             tmp_path_factory.mktemp("fm"))[1]
 
 
 def test_scenario_sigma_a_is_what_the_whiteness_tuning_finds(tuning_run):

@@ -14,10 +14,10 @@ import math
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from cosim.trials.identification import rls_history, settling_time_s
+from conftest import run_scenario_seed
 
 REPO = Path(__file__).resolve().parents[1]
 J_T, B_T, FC_T, KT_T, TS = 1.7e-5, 1.6e-5, 3e-3, 0.0603, 1e-3   # FMU defaults (Table 1)
@@ -39,18 +39,8 @@ def test_settling_time_is_entry_into_band_for_good():
 @pytest.fixture(scope="module")
 def seed3_run(fmus, tmp_path_factory):
     """The scenario file with seed 3 only, run through the scenario runner."""
-    from cosim.scenarios.loader import expand, load
-    from cosim.scenarios.runner import execute_run, safe_name
-    text = (REPO / "scenarios" / "identification.yaml").read_text()
-    assert "seeds: [0, 1, 2, 3, 4, 5]" in text
-    d = tmp_path_factory.mktemp("ident")
-    f = d / "identification.yaml"
-    f.write_text(text.replace("seeds: [0, 1, 2, 3, 4, 5]", "seeds: [3]"))
-    (run,) = expand(load(f))
-    info = execute_run(str(f), run.label, str(d / "out"), fmu_dir=str(REPO / "fmus"))
-    assert info["status"] == "ok", info.get("error")
-    run_dir = d / "out" / "runs" / safe_name(run.label)
-    return info, pd.read_parquet(run_dir / "main.parquet")
+    return run_scenario_seed("identification.yaml", "seeds: [0, 1, 2, 3, 4, 5]", 3,
+                             tmp_path_factory.mktemp("ident"))
 
 
 def test_fmu_current_read_back_is_the_previous_interval(seed3_run):

@@ -307,7 +307,7 @@ def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> s
            ' canNotUseMemoryManagementFunctions="false" canGetAndSetFMUstate="true"'
            ' canSerializeFMUstate="true" providesDirectionalDerivative="false"/>']
     out += _unit_definitions(units)
-    out.append(f'  <DefaultExperiment startTime="0.0" stopTime="1.0" stepSize="0.001"/>')
+    out.append('  <DefaultExperiment startTime="0.0" stopTime="1.0" stepSize="0.001"/>')
     out.append("  <ModelVariables>")
     for r in rows:
         a, inner, t = _common_attrs(r), _type_attrs(r), r["type"]

@@ -9,7 +9,7 @@ under both, and usable on any user FMI 2.0 CS FMU.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Mapping
 
 import numpy as np
 
@@ -109,7 +109,6 @@ def run_libcosim(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, o
     execution steps once.
     """
     import fmpy
-    from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
     from libcosimpy.CosimManipulator import CosimManipulator

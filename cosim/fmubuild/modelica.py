@@ -310,7 +310,7 @@ def load_model(package_dir: Path, model: str) -> FlatModel:
 
     outputs = set(m.outputs)
     params, calculated = [], []
-    p_syms, p_vals = [], {}
+    p_syms = []
     for pv in m.parameters:
         name = pv.symbol.name()
         val = pv.value

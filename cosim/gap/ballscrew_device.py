@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 from scipy import signal
@@ -297,7 +297,6 @@ class BallscrewDevice:
 
     def _grid(self, logs: Sequence[TrialLog], effect: str) -> list[dict[str, float]]:
         preps = [self._prep(lg) for lg in logs]
-        ts = preps[0].ts
         if effect == "stribeck_friction":
             return [{"ws": v} for v in np.geomspace(0.1, 20.0, 14)]
         if effect == "position_dependent_friction":
@@ -333,11 +332,9 @@ class BallscrewDevice:
         """
         rows_i: list[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]] = []
         rows_a: list[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]] = []
-        Kt = nom_params["Kt"]
         for lg in logs:
             p = self._prep(lg)
             S = p.S
-            nom = self._nominal(lg)
             y_i_raw = p.i
             a_nut = S * p.wd
             cols_i: dict[str, np.ndarray] = {"J": p.wd, "b": p.w, "fc": np.sign(p.w)}
@@ -697,7 +694,7 @@ class BallscrewDevice:
 
     def _evaluate(self, logs, params, effects):
         nom_log = self._nominal(logs[0])
-        base, own = {}, {}
+        own = {}
         nomp = dict(params)
         eff_clean = {}
         for name, prm in (effects or {}).items():

@@ -36,13 +36,13 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..fileio import atomic_write_text, jsonable
 from ..trial_log import TrialLog, TrialLogError, read_trial_log
 from .device import CannotDiagnose, GapDevice, GapInputError, get_device, slice_log, split_params
 
@@ -151,7 +151,6 @@ def localize(device: GapDevice, logs: Sequence[TrialLog], params: Mapping[str, f
     signals.sort(key=lambda d: -d["share"])
 
     windows, phase_e = [], {}
-    region_e: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     ops = []
     for lg, (e, resid) in zip(logs, e_logs):
         ts = lg.sample_time
@@ -406,39 +405,6 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     return out, extras
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", dir=path.parent)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes 0600; give the usual mode
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
-def _jsonable(o: Any) -> Any:
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, (np.floating, float)):
-        f = float(o)
-        return f if math.isfinite(f) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, np.bool_):
-        return bool(o)
-    return o
-
-
 def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_paths: Sequence[str | os.PathLike],
              out_dir: str | os.PathLike, *, report: bool = True, **kw: Any) -> dict[str, Any]:
     """Whole command: read, diagnose, write ``diagnosis.json`` (+ ``report.html``); return the dict.
@@ -450,10 +416,10 @@ def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_path
     test = load_logs(test_paths, "test")
     _check_devices(device_name, fit, test)
     result, extras = run_diagnosis(device, fit, test, **kw)
-    result = _jsonable(result)
+    result = jsonable(result)
     out = Path(out_dir)
-    _write_atomic(out / "diagnosis.json", json.dumps(result, indent=2) + "\n")
+    atomic_write_text(out / "diagnosis.json", json.dumps(result, indent=2) + "\n")
     if report:
         from .report import render_report
-        _write_atomic(out / "report.html", render_report(result, extras))
+        atomic_write_text(out / "report.html", render_report(result, extras))
     return result

@@ -90,7 +90,7 @@ import inspect
 import pkgutil
 import types
 import typing
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 
 class RegistryError(ValueError):

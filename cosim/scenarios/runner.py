@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fileio import atomic_write_text as atomic_write, jsonable
 from . import registry as reg
 from .loader import Scenario, ScenarioError, expand, fmu_file, load, make_builder
 
@@ -85,22 +86,6 @@ def run_key(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) -> str
 
 
 # =========================================================================== one run
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, (str, int, bool)) or x is None:
-        return x
-    return repr(x)
-
-
 def run_done(out_dir: Path, run: reg.RunSpec, key: str | None = None) -> dict | None:
     """The stored run.json of a finished run (with the same cache key), else None."""
     f = Path(out_dir) / "runs" / safe_name(run.label) / "run.json"
@@ -177,14 +162,14 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
             if bad and info["status"] == "ok":
                 info["status"], info["error"] = "error", f"non-finite value(s) {bad}"
             info["values"] = vals
-            info["artifacts"] = _jsonable(result.artifacts)
+            info["artifacts"] = jsonable(result.artifacts)
     except ScenarioError as exc:
         info["error"] = str(exc)
     except Exception as exc:          # a bug in the framework/trial code: recorded too
         info["error"] = f"{type(exc).__name__}: {exc}"
         info["traceback"] = traceback.format_exc(limit=6)
     info["wall_s"] = time.perf_counter() - t0
-    (tmp / "run.json").write_text(json.dumps(_jsonable(info), indent=1))
+    (tmp / "run.json").write_text(json.dumps(jsonable(info), indent=1))
     final = runs_dir / safe_name(run_label)
     if final.exists():
         shutil.rmtree(final)
@@ -338,14 +323,6 @@ def versions() -> dict:
     return out
 
 
-def atomic_write(path: Path, text: str):
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
 def finish_scenario(sc: Scenario, out_dir: Path, fmu_swaps=None) -> dict:
     """verdict.json and report.html of a scenario whose runs are stored."""
     from cosim.report.html import scenario_page
@@ -353,7 +330,7 @@ def finish_scenario(sc: Scenario, out_dir: Path, fmu_swaps=None) -> dict:
     verdict["versions"] = versions()
     verdict["seeds"] = sorted({r.seed for r in expand(sc)})
     verdict["fmu_swaps"] = {k: str(v) for k, v in (fmu_swaps or {}).items()}
-    atomic_write(Path(out_dir) / "verdict.json", json.dumps(_jsonable(verdict), indent=1))
+    atomic_write(Path(out_dir) / "verdict.json", json.dumps(jsonable(verdict), indent=1))
     try:
         html = scenario_page(sc, out_dir, verdict)
     except Exception as exc:       # a broken figure must not hide the verdict

@@ -22,7 +22,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from . import registry as reg
-from .loader import Scenario, ScenarioError, check_build, expand, load
+from .loader import Scenario, check_build, expand, load
 from .runner import (atomic_write, execute_run, finish_scenario, run_done, run_key,
                      safe_name, versions)
 
@@ -98,7 +98,7 @@ def _client(scheduler: str | None, workers: int | None):
 def _warm_worker():
     from .registry import load_trials
     load_trials()
-    import cosim.master.system  # noqa: F401
+    import cosim.master.system  # noqa: F401  (imported now, not in the first run)
     return True
 
 
