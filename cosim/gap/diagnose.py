@@ -401,8 +401,26 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
         out["gap"]["test_noise_floor"] = nf(test)
     out["runtime_s"] = time.perf_counter() - t0
     extras = {"device": device, "fit": fit, "test": test, "rec": rec, "nom_after": nom_after,
-              "effects_after": effects_after}
+              "effects_after": effects_after,
+              "plot_data": _plot_data(device, fit, test, rec, nom_after, effects_after)}
     return out, extras
+
+
+def _plot_data(device: GapDevice, fit, test, rec, nom_after, effects_after) -> dict[str, Any]:
+    """What the report draws: measured/model signals and the operating point of the
+    first fit log, and the residuals of the first test log before/after the selected
+    effects (the report only draws them)."""
+    log = fit[0]
+    data: dict[str, Any] = {"log": log.csv_path.name, "time": log.time,
+                            "sample_time": log.sample_time,
+                            "signals": device.signals(log, rec),
+                            "operating_point": device.operating_point(log, rec)}
+    if effects_after and test:
+        lt = test[0]
+        data["test"] = {"log": lt.csv_path.name, "time": lt.time,
+                        "before": device.signals(lt, rec),
+                        "after": device.signals(lt, nom_after, effects_after)}
+    return data
 
 
 def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_paths: Sequence[str | os.PathLike],

@@ -39,16 +39,13 @@ def _figures(result: Mapping[str, Any], ex: Mapping[str, Any]) -> list[tuple[str
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     figs: list[tuple[str, str]] = []
-    dev, fit, test, rec = ex["device"], ex["fit"], ex["test"], ex["rec"]
-    log = fit[0]
-    sig = dev.signals(log, rec)
-    op = dev.operating_point(log, rec)
-    t = log.time
+    pd_ = ex["plot_data"]                    # computed by the diagnosis, only drawn here
+    sig, op, t, ts = pd_["signals"], pd_["operating_point"], pd_["time"], pd_["sample_time"]
     n = len(sig)
     # measured vs simulated (2 s from the middle) and residual over time
     fig, axes = plt.subplots(n, 2, figsize=(12, 2.6 * n), squeeze=False)
-    k0 = max(0, log.n_samples // 2 - int(1.0 / log.sample_time))
-    sl = slice(k0, k0 + int(2.0 / log.sample_time))
+    k0 = max(0, t.size // 2 - int(1.0 / ts))
+    sl = slice(k0, k0 + int(2.0 / ts))
     for j, (name, (m, s)) in enumerate(sig.items()):
         axes[j, 0].plot(t[sl], m[sl], lw=0.8, label="measured")
         axes[j, 0].plot(t[sl], s[sl], lw=0.8, label="model (recalibrated)")
@@ -58,7 +55,7 @@ def _figures(result: Mapping[str, Any], ex: Mapping[str, Any]) -> list[tuple[str
         axes[j, 1].set_ylabel(f"residual {name}")
     axes[-1, 0].set_xlabel("time [s]")
     axes[-1, 1].set_xlabel("time [s]")
-    figs.append((f"Measured vs model and residual over time ({log.csv_path.name})", _png(fig)))
+    figs.append((f"Measured vs model and residual over time ({pd_['log']})", _png(fig)))
     # residual vs speed / position
     fig, axes = plt.subplots(n, 2, figsize=(12, 2.6 * n), squeeze=False)
     for j, (name, (m, s)) in enumerate(sig.items()):
@@ -80,7 +77,7 @@ def _figures(result: Mapping[str, Any], ex: Mapping[str, Any]) -> list[tuple[str
     fig, ax = plt.subplots(figsize=(8, 3))
     for name, (m, s) in sig.items():
         r = np.nan_to_num(m - s)
-        f = np.fft.rfftfreq(r.size, log.sample_time)
+        f = np.fft.rfftfreq(r.size, ts)
         P = np.abs(np.fft.rfft(r)) ** 2
         ax.semilogy(f[1:], P[1:] / P[1:].max(), lw=0.6, label=name)
     ax.set_xlabel("frequency [Hz]")
@@ -98,18 +95,17 @@ def _figures(result: Mapping[str, Any], ex: Mapping[str, Any]) -> list[tuple[str
         ax.set_xlabel("explained (fraction of the recalibrated gap energy on the fit logs)")
         figs.append(("Ranked effects (green: selected)", _png(fig)))
     # before/after on the test logs
-    if ex.get("effects_after"):
-        lt = test[0]
-        sb = dev.signals(lt, rec)
-        sa = dev.signals(lt, ex["nom_after"], ex["effects_after"])
+    held = pd_.get("test")
+    if held:
+        sb, sa, tt = held["before"], held["after"], held["time"]
         fig, axes = plt.subplots(len(sb), 1, figsize=(12, 2.6 * len(sb)), squeeze=False)
         for j, name in enumerate(sb):
-            axes[j, 0].plot(lt.time, sb[name][0] - sb[name][1], lw=0.4, label="before (recalibrated)")
-            axes[j, 0].plot(lt.time, sa[name][0] - sa[name][1], lw=0.4, label="after (with selected effects)")
+            axes[j, 0].plot(tt, sb[name][0] - sb[name][1], lw=0.4, label="before (recalibrated)")
+            axes[j, 0].plot(tt, sa[name][0] - sa[name][1], lw=0.4, label="after (with selected effects)")
             axes[j, 0].set_ylabel(f"residual {name}")
             axes[j, 0].legend(fontsize=7)
         axes[-1, 0].set_xlabel("time [s]")
-        figs.append((f"Held-out log {lt.csv_path.name}: residual before/after", _png(fig)))
+        figs.append((f"Held-out log {held['log']}: residual before/after", _png(fig)))
     return figs
 
 
