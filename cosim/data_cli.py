@@ -11,18 +11,16 @@ anything is written, so a missing or corrupt source leaves ``DIR`` untouched.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parent.parent
+from .paths import emps_dir
 
 
 def default_emps_dir() -> Path:
     """``$COSIM_EMPS_DIR`` or ``<repo>/../shared/data/real/emps``."""
-    env = os.environ.get("COSIM_EMPS_DIR")
-    return Path(env) if env else REPO.parent / "shared" / "data" / "real" / "emps"
+    return emps_dir()
 
 
 def _cmd_import_emps(a: argparse.Namespace) -> int:
