@@ -194,3 +194,69 @@ def test_fmu_swap_error_message(tmp_path):
     for need in ("missing input 'i'", "missing input 'f_ext'", "missing output 'theta'",
                  "missing output 'w'", "missing output 'a'"):
         assert need in msg
+
+
+# ---------------------------------------------------------------- the step reaches controllers
+ENCDIFF = ("controllers:\n  enc: {type: encoder_diff, wiring: {theta_enc: plant.theta_enc}}\n")
+
+
+def test_step_reaches_the_controllers(tmp_path):
+    """step 0.002: the encoder differentiator is built for 2 ms, so its speed equals the
+    plant's (frictionless unit, constant current: w settles at Kt i / b = 6 rad/s).
+    A filter discretised for 1 ms (the old Entry.make) reads twice the speed."""
+    from cosim.scenarios.runner import run_scenario
+    text = (BASE.replace("step: 0.001", "step: 0.002")
+            .replace("record: [plant.w, plant.i]", ENCDIFF + "record: [plant.w, enc.omega_rad_s]")
+            .replace("w_end: {type: final, signal: plant.w}",
+                     "w_end: {type: final, signal: plant.w}\n"
+                     "  w_enc_over_true: {type: final, signal: enc.omega_rad_s}"))
+    sc = load(write(tmp_path, text))
+    from cosim.scenarios import registry as reg
+    from cosim.scenarios.loader import make_builder
+    run = expand(sc)[0]
+    ctx = reg.BuildContext(scenario=sc.name, step_s=run.step, duration_s=run.duration)
+    system, _ = make_builder(sc, run, ctx)()
+    try:
+        block = next(c.block for c in system.controllers if c.name == "enc")
+        assert block.params.Ts == 0.002
+    finally:
+        for s in system.roles.values():
+            s.terminate()
+    v = run_scenario(sc.path, tmp_path / "out")
+    enc = v["metrics"]["w_enc_over_true"]
+    w = v["metrics"]["w_end"]
+    (label,) = enc
+    assert 5.9 < w[label] < 6.1
+    # backward difference: the mean speed over the last step, still rising (0.989 measured)
+    assert enc[label] / w[label] == pytest.approx(1.0, abs=0.03)
+
+
+def test_step_mismatch_is_an_error_naming_the_controller(tmp_path):
+    text = (BASE.replace("step: 0.001", "step: 0.002")
+            .replace("record:", "controllers:\n  enc: {type: encoder_diff, params: {Ts: 0.001},\n"
+                     "        wiring: {theta_enc: plant.theta_enc}}\nrecord:"))
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'Ts: 0.001')}:" in msg
+    assert "'encoder_diff'" in msg and "'Ts'" in msg and "0.002" in msg
+    # the same value as the step is accepted
+    load(write(tmp_path, text.replace("Ts: 0.001", "Ts: 0.002"), "ok.yaml"))
+
+
+def test_controller_without_a_step_field_must_be_declared_static():
+    from dataclasses import dataclass
+    from cosim.scenarios import registry as reg
+
+    @dataclass(frozen=True)
+    class P:
+        gain: float = 1.0
+
+    class Block:
+        def __init__(self, p):
+            self.p = p
+
+    with pytest.raises(reg.RegistryError, match="no sampling-time field"):
+        reg.register_controller("test-no-step", Block, params=P)
+    reg.register_controller("test-static", Block, params=P, static=True)
+    assert reg.get("controller", "test-static").step_field is None
+    assert reg.get("controller", "aakf").step_field == "Ts"
+    assert reg.get("controller", "dob").step_field == "Ts_s"

@@ -407,6 +407,9 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
                      f" (registered: {', '.join(reg.names('controller'))})"))
         for key, msg in reg.check_params(e, spec.get("params") or {}):
             c.err(P("controllers", name, "params", *((key,) if key else ())), msg)
+        msg = e.step_mismatch(spec.get("params") or {}, float(d.get("step", 1e-3)))
+        if msg:
+            c.err(P("controllers", name, "params", e.step_field), msg)
         for k, src in (spec.get("wiring") or {}).items():
             _check_signal_head(c, d, src, P("controllers", name, "wiring", k))
         for k, dest in (spec.get("outputs") or {}).items():

@@ -16,6 +16,10 @@ Signatures (stable; later additions are keyword-only and optional)
     against the dataclass if one is given, and passed as the dict the file gave).
     ``register_controller(name, obj, params=...)`` does the same without a decorator
     (to register a class you do not own, e.g. ``AaKF`` with ``AakfParams``).
+    The scenario's ``step`` reaches every controller: a class's params dataclass must
+    have a sampling-time field (``Ts_s``, ``Ts`` or ``step_s``), which is set from the
+    step (a YAML value that differs is an error naming the controller), or the class
+    is registered ``static=True`` (memoryless); a factory function reads ``ctx.step_s``.
 ``@stimulus(name, params=None)``
     on ``f(params: dict, ctx: BuildContext) -> Callable[[float], float]`` (time in s).
 ``@metric(name, params=None, scope="run")``
@@ -48,7 +52,7 @@ Example (a trial module ``cosim/trials/my_trial.py``)::
     class GainParams:
         k_N_per_m: float = 100.0          # stiffness [N/m]
 
-    @controller("spring", params=GainParams)
+    @controller("spring", params=GainParams, static=True)
     class Spring:                          # a DiscreteBlock
         inputs, outputs = ("x",), ("f",)
         def __init__(self, p: GainParams): self.p = p
@@ -176,12 +180,34 @@ class Entry:
     def doc(self) -> str:
         return (inspect.getdoc(self.obj) or "").split("\n")[0]
 
+    #: controllers: the params field that holds the sampling time [s] (set from the
+    #: scenario's ``step``), or None for a memoryless block (registered ``static=True``)
+    step_field: str | None = None
+
+    def step_mismatch(self, params: Mapping, step_s: float) -> str | None:
+        """The message if ``params`` fix a sampling time other than the scenario's step."""
+        if self.step_field is None or self.step_field not in params:
+            return None
+        v = params[self.step_field]
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and \
+                abs(float(v) - float(step_s)) <= 1e-12 * max(1.0, abs(step_s)):
+            return None
+        return (f"{self.kind} {self.name!r}: parameter {self.step_field!r} = {v!r} s differs "
+                f"from the scenario step {step_s!r} s (the step is set from 'step'; drop it)")
+
     def make(self, params: dict, ctx: BuildContext):
-        """Build the object (block, stimulus function) from validated params."""
+        """Build the object (block, stimulus function) from validated params. A
+        controller class gets the scenario's step (``ctx.step_s``) in its sampling-time
+        field; a params value that disagrees with the step is an error naming it."""
         if inspect.isclass(self.obj):
             if self.params is not None:
-                return self.obj(self.params(**{k: (tuple(v) if isinstance(v, list) else v)
-                                               for k, v in params.items()}))
+                kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in params.items()}
+                if self.kind == "controller" and self.step_field is not None:
+                    msg = self.step_mismatch(params, ctx.step_s)
+                    if msg:
+                        raise ValueError(msg)
+                    kw[self.step_field] = float(ctx.step_s)
+                return self.obj(self.params(**kw))
             return self.obj(**params)
         return self.obj(dict(params), ctx)
 
@@ -190,11 +216,37 @@ KINDS = ("controller", "stimulus", "metric", "procedure", "figures")
 _REG: dict[str, dict[str, Entry]] = {k: {} for k in KINDS}
 
 
-def _register(kind: str, name: str, obj, params=None, scope="run"):
+#: names of a params field holding a block's sampling time [s]
+STEP_FIELDS = ("Ts_s", "Ts", "step_s")
+
+
+def _step_field(kind, name, obj, params, static):
+    """Where a controller class takes the scenario step. A class with a params
+    dataclass must have a sampling-time field or be declared ``static=True``; a class
+    without params or a factory function (which gets ``ctx.step_s``) needs neither."""
+    if kind != "controller" or not inspect.isclass(obj) or params is None:
+        return None
+    fields = [f.name for f in dataclasses.fields(params) if f.init]
+    found = [f for f in STEP_FIELDS if f in fields]
+    if static:
+        if found:
+            raise RegistryError(f"controller {name!r}: declared static but {params.__name__} "
+                                f"has a sampling-time field {found[0]!r}")
+        return None
+    if not found:
+        raise RegistryError(f"controller {name!r}: {params.__name__} has no sampling-time "
+                            f"field ({' / '.join(STEP_FIELDS)}), so the scenario step cannot "
+                            f"reach it; add one or register it with static=True if the block "
+                            f"is memoryless")
+    return found[0]
+
+
+def _register(kind: str, name: str, obj, params=None, scope="run", static=False):
     if not isinstance(name, str) or not name:
         raise RegistryError(f"{kind} name must be a non-empty string, got {name!r}")
     if params is not None and not dataclasses.is_dataclass(params):
         raise RegistryError(f"{kind} {name!r}: params must be a dataclass, got {params!r}")
+    step_field = _step_field(kind, name, obj, params, static)
     if scope not in ("run", "scenario"):
         raise RegistryError(f"metric {name!r}: scope must be 'run' or 'scenario'")
     old = _REG[kind].get(name)
@@ -202,18 +254,20 @@ def _register(kind: str, name: str, obj, params=None, scope="run"):
     if old is not None and (old.module, getattr(old.obj, "__qualname__", "")) != \
             (mod, getattr(obj, "__qualname__", "")):
         raise RegistryError(f"{kind} {name!r} registered twice ({old.module} and {mod})")
-    _REG[kind][name] = Entry(kind, name, obj, params, scope, mod)
+    _REG[kind][name] = Entry(kind, name, obj, params, scope, mod, step_field)
     return obj
 
 
-def controller(name: str, params: type | None = None):
-    """Register a controller/estimator block class or factory function under ``name``."""
-    return lambda obj: _register("controller", name, obj, params)
+def controller(name: str, params: type | None = None, static: bool = False):
+    """Register a controller/estimator block class or factory function under ``name``.
+    A class gets the scenario step in its params' sampling-time field (``Ts_s``,
+    ``Ts`` or ``step_s``); ``static=True`` declares a memoryless block without one."""
+    return lambda obj: _register("controller", name, obj, params, static=static)
 
 
-def register_controller(name: str, obj, params: type | None = None):
+def register_controller(name: str, obj, params: type | None = None, static: bool = False):
     """Non-decorator form of :func:`controller` (for classes defined elsewhere)."""
-    return _register("controller", name, obj, params)
+    return _register("controller", name, obj, params, static=static)
 
 
 def stimulus(name: str, params: type | None = None):

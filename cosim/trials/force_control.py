@@ -30,10 +30,11 @@ from cosim.scenarios.registry import figures, metric, register_controller, stimu
 
 register_controller("sine_reference", SineReference, params=SineReferenceParams)
 register_controller("position_controller", PositionController, params=PositionControllerParams)
-register_controller("zero_force", ZeroForceController, params=ZeroForceParams)
+register_controller("zero_force", ZeroForceController, params=ZeroForceParams, static=True)
 register_controller("dob", DOB, params=DOBParams)
 register_controller("rfob", RFOB, params=RFOBParams)
-register_controller("bilateral", BilateralController, params=BilateralParams)
+register_controller("bilateral", BilateralController, params=BilateralParams,
+                    static=True)
 
 
 # =========================================================================== stimuli
