@@ -32,17 +32,23 @@ stimuli:
 record: [plant.w, plant.i]
 metrics:
   w_end: {type: final, signal: plant.w}
+negative_controls:
+  half_current:
+    what: "current halved: w = 3 rad/s"
+    override: {stimuli: {i: {params: {value: 0.05}}}}
 requirements:
   - id: R-pass
     description: "steady speed Kt i / b (eq. 32 with fc = 0)"
     metric: w_end
     rule: within
     limit: [5.9, 6.1]
+    negative_control: half_current
   - id: R-fail
     description: "deliberately wrong speed bound (eq. 32)"
     metric: w_end
     rule: "<="
     limit: 1.0
+    negative_control: half_current
 """
 
 
@@ -260,3 +266,104 @@ def test_controller_without_a_step_field_must_be_declared_static():
     assert reg.get("controller", "test-static").step_field is None
     assert reg.get("controller", "aakf").step_field == "Ts"
     assert reg.get("controller", "dob").step_field == "Ts_s"
+
+
+# ---------------------------------------------------------------- negative controls
+def test_negative_control_pass_cannot_fail_and_shared_runs(tmp_path):
+    """R-pass holds (6 rad/s) and fails on its control (3 rad/s): pass. A control that
+    changes nothing (the same current) lets the check hold twice: cannot-fail, which
+    fails the scenario. Two requirements naming one control share its run."""
+    from cosim.scenarios.runner import run_scenario
+    v = run_scenario(write(tmp_path, BASE), tmp_path / "out")
+    req = {r["id"]: r for r in v["requirements"]}
+    assert req["R-pass"]["verdict"] == "pass" and req["R-fail"]["verdict"] == "fail"
+    nc = req["R-pass"]["negative_control"]
+    assert nc["what"].startswith("current halved") and nc["held"] is False
+    assert nc["value"] == pytest.approx(0.0603 * 0.05 / 1e-3, rel=1e-3)
+    assert req["R-fail"]["negative_control"]["name"] == "half_current"
+    stored = sorted(p.name for p in (tmp_path / "out" / "runs").iterdir())
+    assert stored == ["default_seed1", "nc.half_current_default_seed1"]
+    html = (tmp_path / "out" / "report.html").read_text()
+    assert "current halved" in html and "does not hold" in html
+    # a control that is no control
+    text = BASE.replace("override: {stimuli: {i: {params: {value: 0.05}}}}",
+                        "override: {stimuli: {i: {params: {value: 0.1}}}}")
+    v = run_scenario(write(tmp_path, text, "same.yaml"), tmp_path / "out2")
+    req = {r["id"]: r for r in v["requirements"]}
+    assert req["R-pass"]["verdict"] == "cannot-fail"
+    assert req["R-pass"]["negative_control"]["held"] is True
+    assert "could not have failed" in req["R-pass"]["message"]
+    assert v["status"] == "fail"
+
+
+def test_negative_control_case_form_and_inline_sharing(tmp_path):
+    from cosim.scenarios.runner import run_scenario
+    from cosim.scenarios.verdict import all_runs, controls
+    text = (BASE.replace("    negative_control: half_current\n", "", 1)
+            .replace("    limit: [5.9, 6.1]\n",
+                     "    limit: [5.9, 6.1]\n    case: full\n"
+                     "    negative_control: {what: the half-current case, case: half}\n", 1)
+            + "cases:\n  full: {}\n  half: {stimuli: {i: {params: {value: 0.05}}}}\n")
+    sc = load(write(tmp_path, text))
+    assert set(controls(sc)) == {"half_current", "R-pass"}
+    assert len(all_runs(sc)) == 2 + 2            # two cases + half_current on both
+    v = run_scenario(sc.path, tmp_path / "out")
+    r = {x["id"]: x for x in v["requirements"]}["R-pass"]
+    assert r["verdict"] == "pass" and r["negative_control"]["held"] is False
+    assert r["negative_control"]["value"] == pytest.approx(3.015, rel=1e-2)
+
+
+def test_negative_control_bad_input_names_file_and_line(tmp_path):
+    text = BASE.replace("override: {stimuli: {i: {params: {value: 0.05}}}}",
+                        "override: {stimuli: {i: {params: {valeu: 0.05}}}}")
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'valeu')}:" in msg and "did you mean 'value'" in msg
+    text = BASE.replace("override: {stimuli:", "override: {stimulus:").replace(
+        "{params: {value: 0.05}}}}", "{params: {value: 0.05}}}}")
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'stimulus:')}:" in msg and "did you mean 'stimuli'" in msg
+    text = BASE.replace("override: {stimuli: {i: {params: {value: 0.05}}}}",
+                        "override: {controllers: {kf: {params: {Ts: 0.001}}}}")
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'kf:')}:" in msg and "unknown controller 'kf'" in msg
+    text = BASE.replace("override: {stimuli: {i: {params: {value: 0.05}}}}", "case: hlaf")
+    msg = error_of(tmp_path, text + "cases:\n  half: {}\n")
+    assert f":{line_of(text, 'case: hlaf')}:" in msg and "did you mean 'half'" in msg
+    text = BASE.replace("    negative_control: half_current\n", "    negative_control: half_curent\n", 1)
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'half_curent')}:" in msg and "did you mean 'half_current'" in msg
+    text = BASE.replace("    override:", "    runs: [nope*]\n    override:")
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'nope*')}:" in msg and "no run matches" in msg
+
+
+def test_thesis_inconsistent_verdict_derivation_and_junit_skip(tmp_path):
+    """A requirement declared thesis-inconsistent that does not hold gets that verdict
+    (not a failure), the derivation text and a JUnit skip; if it held it would fail."""
+    from cosim.scenarios.runner import run_scenario
+    from cosim.scenarios.suite import junit_xml
+    import xml.etree.ElementTree as ET
+    decl = ("    thesis_inconsistent:\n"
+            "      reason: \"as printed, eq. 90 admits no pair (test)\"\n"
+            "      derivation: \"cosim.algorithms.stability#Re-derivation of eq. 90-91\"\n")
+    text = BASE.replace("    limit: 1.0\n    negative_control: half_current\n",
+                        "    limit: 1.0\n" + decl)
+    v = run_scenario(write(tmp_path, text), tmp_path / "out")
+    r = {x["id"]: x for x in v["requirements"]}["R-fail"]
+    assert r["verdict"] == "thesis-inconsistent" and v["status"] == "pass"
+    assert "Signs. Eq. 80" in r["thesis_inconsistent"]["derivation"]
+    assert "admissibility_needs" in r["thesis_inconsistent"]["derivation"]
+    assert "Re-derivation of eq. 90-91" in (tmp_path / "out" / "report.html").read_text()
+    xml = junit_xml({"scenarios": [{"scenario": "spin", "status": v["status"], "errors": [],
+                                    "requirements": v["requirements"]}]})
+    root = ET.fromstring(xml)
+    assert root.get("skipped") == "1" and root.get("failures") == "0"
+    # the declaration is checked: a requirement that holds is not thesis-inconsistent
+    v = run_scenario(write(tmp_path, text.replace("limit: 1.0", "limit: 10.0"), "h.yaml"),
+                     tmp_path / "out2")
+    r = {x["id"]: x for x in v["requirements"]}["R-fail"]
+    assert r["verdict"] == "fail" and "declaration is wrong" in r["message"]
+    text = text.replace("cosim.algorithms.stability#Re-derivation", "cosim.algorithms.stability#Rederivation")
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'derivation:')}:" in msg and "no section" in msg
+

@@ -40,7 +40,13 @@ def test_suite_on_dask_continues_after_a_crash(suite_dir):
     assert "stimulus 'i' returned nan" in by["crash"]["errors"][0]
     assert all(r["status"] == "error" for r in by["crash"]["requirements"])
     assert s["counts"] == {"scenarios": 2, "pass": 0, "fail": 1, "error": 1, "requirements": 4}
-    assert s["runs_executed"] == 3 and s["runs_cached"] == 0
+    # 2 + 1 runs and their negative controls (the crash scenario's control, 0.05 A, runs)
+    assert s["runs_executed"] == 6 and s["runs_cached"] == 0
+    assert s["verdicts"] == {"pass": 1, "fail": 1, "cannot-fail": 0, "thesis-inconsistent": 0,
+                             "error": 2}
+    row = by["spin"]["requirements"][0]
+    assert list(row)[:5] == ["id", "verdict", "value", "limit", "negative_control"]
+    assert row["negative_control"]["held"] is False and row["negative_control"]["value"] < 3.1
     # the failing run kept what it recorded before the failure (one row at t = 0)
     info = json.loads((out / "crash" / "runs" / "default_seed1" / "run.json").read_text())
     assert info["status"] == "error" and info["phases"][0]["ticks"] == 0
@@ -69,14 +75,14 @@ def test_cache_hit_and_resume(suite_dir, tmp_path):
     t0 = time.perf_counter()
     s = run_suite([src], out2, workers=2, progress=False)
     # the successful runs are cached; the failed one is retried (and fails again)
-    assert (s["runs_executed"], s["runs_cached"]) == (1, 2)
+    assert (s["runs_executed"], s["runs_cached"]) == (1, 5)
     assert [x["status"] for x in s["scenarios"]] == [x["status"] for x in first["scenarios"]]
     # interruption: one finished run lost, a half-written temporary folder left over
     shutil.rmtree(out2 / "spin" / "runs" / "default_seed2")
     (out2 / "spin" / "runs" / ".default_seed2.tmp").mkdir()
     before = (out2 / "spin" / "runs" / "default_seed1" / "run.json").read_text()
     s = run_suite([src / "spin.yaml"], out2, serial=True, progress=False)
-    assert (s["runs_executed"], s["runs_cached"]) == (1, 1)
+    assert (s["runs_executed"], s["runs_cached"]) == (1, 3)
     assert (out2 / "spin" / "runs" / "default_seed1" / "run.json").read_text() == before
     v = json.loads((out2 / "spin" / "verdict.json").read_text())
     assert len(v["requirements"][0]["per_run"]) == 2
@@ -87,7 +93,7 @@ def test_cache_hit_and_resume(suite_dir, tmp_path):
         s = run_suite([src / "spin2.yaml"], out2, serial=True, progress=False)
     finally:
         (src / "spin2.yaml").unlink()
-    assert s["runs_executed"] == 2
+    assert s["runs_executed"] == 4
     assert s["scenarios"][0]["requirements"][0]["status"] == "fail"     # w = 3 rad/s
 
 

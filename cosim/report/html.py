@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 COLOURS = {"pass": ("#1b7f2a", "#e3f4e5"), "fail": ("#b3261e", "#fbe4e2"),
+           "cannot-fail": ("#7a1f8f", "#f3e3f7"), "thesis-inconsistent": ("#3a5a9a", "#e4ebf7"),
            "error": ("#8a5a00", "#fff1d6")}
 
 CSS = """
@@ -18,7 +19,9 @@ table{border-collapse:collapse;margin:8px 0;font-size:13px} th,td{border:1px sol
 padding:4px 8px;text-align:left;vertical-align:top} th{background:#e8eaf2}
 .badge{display:inline-block;padding:2px 10px;border-radius:10px;font-weight:bold;color:#fff}
 .pass{background:#1b7f2a}.fail{background:#b3261e}.error{background:#c07c00}
+.cannot-fail{background:#7a1f8f}.thesis-inconsistent{background:#3a5a9a}
 tr.pass td{background:#e3f4e5} tr.fail td{background:#fbe4e2} tr.error td{background:#fff1d6}
+tr.cannot-fail td{background:#f3e3f7} tr.thesis-inconsistent td{background:#e4ebf7}
 code,pre{font-family:DejaVu Sans Mono,monospace;font-size:12px} pre{background:#f5f5f8;
 padding:8px;overflow-x:auto;white-space:pre-wrap} .fig{margin:10px 0}
 .fig img{max-width:100%;border:1px solid #dde} .muted{color:#666;font-size:12px}
@@ -53,17 +56,53 @@ def _fmt(v) -> str:
     return esc(v)
 
 
+def _held(h) -> str:
+    return "holds" if h else "does not hold" if h is False else "-"
+
+
 def requirements_table(verdict: dict) -> str:
+    """Value on the scenario's runs and on the negative control, side by side."""
     rows = ["<table><tr><th>id</th><th>requirement (thesis)</th><th>metric</th><th>case</th>"
-            "<th>rule</th><th>limit</th><th>value</th><th>verdict</th></tr>"]
+            "<th>rule</th><th>limit</th><th>value</th><th>negative control</th>"
+            "<th>control value</th><th>verdict</th></tr>"]
     for r in verdict["requirements"]:
+        v = r.get("verdict", r.get("status"))
         msg = f'<br><span class="muted">{esc(r["message"])}</span>' if r.get("message") else ""
-        rows.append(f'<tr class="{esc(r["status"])}"><td><b>{esc(r["id"])}</b></td>'
+        nc = r.get("negative_control")
+        if nc:
+            ncm = f'<br><span class="muted">{esc(nc["message"])}</span>' if nc.get("message") else ""
+            what = (f'{esc(nc["what"])}<br><span class="muted">'
+                    + (f'case {esc(nc["case"])}' if nc.get("case") else
+                       f'override <code>{esc(json.dumps(nc.get("override"), default=str))}</code>'
+                       + (f' on runs {esc(nc.get("runs"))}' if nc.get("runs") else ""))
+                    + "</span>")
+            ncv = f'{_fmt(nc["value"])} ({_held(nc["held"])}){ncm}'
+        elif r.get("thesis_inconsistent"):
+            what, ncv = '<span class="muted">(thesis-inconsistent: see below)</span>', "-"
+        else:
+            what, ncv = "-", "-"
+        rows.append(f'<tr class="{esc(v)}"><td><b>{esc(r["id"])}</b></td>'
                     f'<td>{esc(r["description"])}</td><td>{esc(r["metric"])}</td>'
                     f'<td>{esc(r.get("case") or "all")}</td><td>{esc(r["rule"])}</td>'
                     f'<td>{_fmt(r["limit"])}</td><td>{_fmt(r["value"])}</td>'
-                    f'<td>{badge(r["status"])} {esc(r["status"])}{msg}</td></tr>')
+                    f'<td>{what}</td><td>{ncv}</td>'
+                    f'<td>{badge(v)} {esc(v)}{msg}</td></tr>')
     rows.append("</table>")
+    rows.append('<p class="muted">pass: holds on the scenario AND fails on its negative '
+                'control; cannot-fail: holds on both (counts as a failure); '
+                'thesis-inconsistent: the thesis\'s own numbers make it unsatisfiable '
+                '(derivation below; not counted).</p>')
+    incons = [r for r in verdict["requirements"] if r.get("thesis_inconsistent")]
+    for r in incons:
+        ti = r["thesis_inconsistent"]
+        vals = "".join(f"<li><code>{esc(k)}</code>: " + ", ".join(
+            f"{esc(lbl)} {_fmt(x)}" for lbl, x in per.items()) + "</li>"
+            for k, per in (ti.get("values") or {}).items())
+        rows.append(f'<h3>{esc(r["id"])}: thesis-inconsistent</h3><p>{esc(ti["reason"])}</p>'
+                    + (f"<ul>{vals}</ul>" if vals else "")
+                    + (f'<p class="muted">derivation (<code>{esc(ti.get("derivation_ref"))}'
+                       f'</code>):</p><pre>{esc(ti["derivation"])}</pre>'
+                       if ti.get("derivation") else ""))
     return "\n".join(rows)
 
 
@@ -130,7 +169,7 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
     import matplotlib
     matplotlib.use("Agg")
     from cosim.scenarios import registry as reg
-    from cosim.scenarios.runner import read_runs
+    from cosim.scenarios.store import read_runs
     runs, _ = read_runs(sc, out_dir)
     ok = [v for v in runs if any(r.get("label") == v.label and r.get("status") == "ok"
                                  for r in verdict.get("runs", []))]
@@ -173,16 +212,19 @@ def suite_page(summary: dict, links: dict) -> str:
     """Overview: one row per scenario with its status and a link to its page."""
     c = summary["counts"]
     rows = ["<table><tr><th>scenario</th><th>file</th><th>status</th><th>requirements "
-            "(pass/fail/error)</th><th>runs (cached)</th><th>message</th></tr>"]
+            "(pass / fail / cannot-fail / thesis-inconsistent / error)</th><th>runs (cached)"
+            "</th><th>message</th></tr>"]
     for s in summary["scenarios"]:
         reqs = s.get("requirements", [])
-        n = {k: sum(r["status"] == k for r in reqs) for k in ("pass", "fail", "error")}
+        n = {k: sum(r.get("verdict", r.get("status")) == k for r in reqs)
+             for k in ("pass", "fail", "cannot-fail", "thesis-inconsistent", "error")}
         link = links.get(s["scenario"])
         name = f'<a href="{esc(link)}">{esc(s["scenario"])}</a>' if link else esc(s["scenario"])
         msg = "; ".join(s.get("errors", [])[:3])
         rows.append(f'<tr class="{esc(s["status"])}"><td>{name}</td><td><code>{esc(s["file"])}'
                     f'</code></td><td>{badge(s["status"])} {esc(s["status"])}</td>'
-                    f'<td>{n["pass"]} / {n["fail"]} / {n["error"]}</td>'
+                    f'<td>{n["pass"]} / {n["fail"]} / {n["cannot-fail"]} / '
+                    f'{n["thesis-inconsistent"]} / {n["error"]}</td>'
                     f'<td>{len(s.get("runs", []))} ({s.get("cached_runs", 0)})</td>'
                     f'<td class="muted">{esc(msg)}</td></tr>')
     rows.append("</table>")
@@ -191,6 +233,25 @@ def suite_page(summary: dict, links: dict) -> str:
             f"{c['error']} error; {c['requirements']} requirement(s). Wall time "
             f"{summary.get('wall_s', 0):.1f} s on {esc(summary.get('cluster'))}.</p>",
             "\n".join(rows),
+            "<h2>Requirements</h2>", suite_requirements(summary),
             "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
             + "</pre>"]
     return page("cosim verification suite", "\n".join(body))
+
+
+def suite_requirements(summary: dict) -> str:
+    """Every requirement of the suite: value, limit, negative control and verdict."""
+    rows = ["<table><tr><th>scenario</th><th>id</th><th>rule</th><th>limit</th><th>value</th>"
+            "<th>negative control</th><th>control value</th><th>verdict</th></tr>"]
+    for s in summary["scenarios"]:
+        for r in s.get("requirements", []):
+            v = r.get("verdict", r.get("status"))
+            nc = r.get("negative_control") or {}
+            rows.append(f'<tr class="{esc(v)}"><td>{esc(s["scenario"])}</td>'
+                        f'<td><b>{esc(r["id"])}</b></td><td>{esc(r.get("rule"))}</td>'
+                        f'<td>{_fmt(r["limit"])}</td><td>{_fmt(r["value"])}</td>'
+                        f'<td>{esc(nc.get("what", "-"))}</td>'
+                        f'<td>{_fmt(nc.get("value"))} ({_held(nc.get("held"))})</td>'
+                        f'<td>{badge(v)} {esc(v)}</td></tr>')
+    rows.append("</table>")
+    return "\n".join(rows)

@@ -47,7 +47,9 @@ def _cmd_run(a) -> int:
     except (ScenarioError, RegistryError, SystemError_, FMUError) as exc:
         return _err(str(exc))
     for r in v["requirements"]:
-        print(f"{r['status'].upper():5s} {r['id']}: value {r['value']} {r['rule']} {r['limit']}"
+        nc = r.get("negative_control")
+        print(f"{r['verdict'].upper():5s} {r['id']}: value {r['value']} {r['rule']} {r['limit']}"
+              + (f"; negative control ({nc['what']}): {nc['value']}" if nc else "")
               + (f" ({r['message']})" if r.get("message") else ""))
     for e in v["errors"]:
         print(f"ERROR {e}")

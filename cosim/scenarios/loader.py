@@ -101,6 +101,7 @@ TOP = {
     "stimuli": (dict, False), "record": (list, False), "cases": (dict, False),
     "metrics": (dict, False), "requirements": (list, False), "sweep": (dict, False),
     "monte_carlo": (dict, False), "parameters": (dict, False),
+    "negative_controls": (dict, False),
 }
 ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
         "human_profile": (str, False), "grasp": (str, False), "kind": (str, False)}
@@ -112,7 +113,15 @@ STIM = {"type": (str, True), "params": (dict, False)}
 METRIC = {"type": (str, True), "phase": (str, False)}
 REQ = {"id": (str, True), "description": (str, True), "metric": (str, True),
        "rule": (str, True), "limit": ((int, float, list), True), "case": (str, False),
-       "aggregate": (str, False)}
+       "aggregate": (str, False), "negative_control": ((dict, str), False),
+       "thesis_inconsistent": (dict, False)}
+#: every requirement must name a negative control (or be declared thesis-inconsistent)
+REQUIRE_NEGATIVE_CONTROL = False
+#: a negative control: the scenario again, under which the requirement must NOT hold
+NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
+       "runs": (list, False), "apply_to": (list, False)}
+#: a requirement the thesis itself makes unsatisfiable (verdict 'thesis-inconsistent')
+INCONS = {"reason": (str, True), "derivation": (str, False), "values": (list, False)}
 CASE_KEYS = {"description", "system", "controllers", "stimuli", "duration", "record",
              "parameters"}
 RULES = ("<=", ">=", "<", ">", "within", "outside")
@@ -139,6 +148,8 @@ class Requirement:
     limit: Any
     case: str | None = None
     aggregate: str = "worst"
+    negative_control: Any = None          # dict (inline) or the name of a negative_controls entry
+    thesis_inconsistent: dict | None = None
 
 
 @dataclasses.dataclass
@@ -309,8 +320,143 @@ def load(path, fmu_dir=None) -> Scenario:
                   + (f"; did you mean {close!r}?" if close else f" (cases: {list(cases)})"))
         if r.get("aggregate", "worst") not in AGGREGATES:
             c.err(p + ("aggregate",), f"aggregate must be one of {AGGREGATES}")
-    expand(sc)          # sweeps / Monte Carlo: shapes and zero-run checks
+        _check_requirement_controls(c, d, r, p)
+    runs = expand(sc)          # sweeps / Monte Carlo: shapes and zero-run checks
+    for name, nc in (d.get("negative_controls") or {}).items():
+        _check_negative_control(c, d, nc, ("negative_controls", name), runs)
+    for i, r in enumerate(d.get("requirements", [])):
+        if isinstance(r.get("negative_control"), dict):
+            _check_negative_control(c, d, r["negative_control"],
+                                    ("requirements", i, "negative_control"), runs, r)
     return sc
+
+
+def _check_requirement_controls(c, d, r, p):
+    """A requirement names a negative control (or is declared thesis-inconsistent)."""
+    named = d.get("negative_controls") or {}
+    nc = r.get("negative_control")
+    ti = r.get("thesis_inconsistent")
+    if ti is not None:
+        c.keys(ti, INCONS, p + ("thesis_inconsistent",), f"requirement {r['id']}: "
+               f"thesis_inconsistent")
+        if not CITATION.search(ti["reason"]):
+            c.err(p + ("thesis_inconsistent", "reason"), f"requirement {r['id']}: the reason "
+                  f"must cite the thesis (e.g. 'eq. 90')")
+        for j, k in enumerate(ti.get("values") or []):
+            if not isinstance(k, str):
+                c.err(p + ("thesis_inconsistent", "values", j), "values: names of values "
+                      "the procedure returns")
+        der = ti.get("derivation")
+        if der is not None:
+            try:
+                derivation_text(der)
+            except ValueError as exc:
+                c.err(p + ("thesis_inconsistent", "derivation"), str(exc))
+        return
+    if nc is None and REQUIRE_NEGATIVE_CONTROL:
+        c.err(p, f"requirement {r['id']}: no negative_control: name a case, an override or "
+              f"an entry of negative_controls under which the claim must NOT hold (or "
+              f"declare it thesis_inconsistent); see docs/scenario-format.md")
+    if isinstance(nc, str) and nc not in named:
+        close = reg.suggest(nc, named)
+        c.err(p + ("negative_control",), f"requirement {r['id']}: unknown negative control "
+              f"{nc!r}" + (f"; did you mean {close!r}?" if close else
+                           f" (negative_controls: {list(named)})"))
+
+
+def _check_negative_control(c, d, nc, p, runs, req=None):
+    """Shape, case/override names (file:line), and that it selects at least one run."""
+    c.keys(nc, NEG, p, "negative control")
+    if ("case" in nc) == ("override" in nc):
+        c.err(p, "a negative control gives exactly one of 'case' (a case of the scenario "
+              "whose runs must fail the requirement) or 'override' (a partial scenario "
+              "merged over every run)")
+    cases = d.get("cases") or {}
+    if "case" in nc:
+        if nc["case"] not in cases:
+            close = reg.suggest(nc["case"], cases)
+            c.err(p + ("case",), f"negative control: unknown case {nc['case']!r}"
+                  + (f"; did you mean {close!r}?" if close else f" (cases: {list(cases)})"))
+        if req is not None:
+            spec = (d.get("metrics") or {}).get(req["metric"], {})
+            e = reg.get("metric", spec.get("type", ""))
+            if e is not None and e.scope == "scenario":
+                c.err(p + ("case",), f"requirement {req['id']}: metric {req['metric']!r} is "
+                      f"computed over all cases; its negative control must be an 'override'")
+        for k in ("runs", "apply_to"):
+            if k in nc:
+                c.err(p + (k,), f"'{k}' only goes with 'override'")
+        return
+    if "runs" in nc and "apply_to" in nc:
+        c.err(p + ("apply_to",), "give 'runs' (the control is only these runs, overridden) "
+              "or 'apply_to' (these runs overridden, the others as they are), not both")
+    ov = nc["override"]
+    for k in ov:
+        if k not in CASE_KEYS - {"description"}:
+            close = reg.suggest(k, CASE_KEYS - {"description"})
+            c.err(p + ("override", k), f"unknown key {k!r} in a negative-control override"
+                  + (f"; did you mean {close!r}?" if close else
+                     f" (allowed: {', '.join(sorted(CASE_KEYS - {'description'}))})"))
+    base_ctrl = d.get("controllers") or {}
+    for name, spec in (ov.get("controllers") or {}).items():
+        if name not in base_ctrl and not (isinstance(spec, dict) and "type" in spec):
+            close = reg.suggest(name, base_ctrl)
+            c.err(p + ("override", "controllers", name), f"negative control: unknown "
+                  f"controller {name!r}" + (f"; did you mean {close!r}?" if close else
+                                             f" (controllers: {list(base_ctrl)})"))
+    roles = d["system"]["fmus"]
+    for role in ((ov.get("system") or {}).get("fmus") or {}):
+        if role not in roles:
+            close = reg.suggest(role, roles)
+            c.err(p + ("override", "system", "fmus", role), f"negative control: unknown role "
+                  f"{role!r}" + (f"; did you mean {close!r}?" if close else
+                                 f" (roles: {list(roles)})"))
+    import fnmatch
+    key = "runs" if "runs" in nc else "apply_to"
+    pats = nc.get(key)
+    for j, pat in enumerate(pats or []):
+        if not isinstance(pat, str):
+            c.err(p + (key, j), f"{key}: run labels or patterns, got {pat!r}")
+        if not any(fnmatch.fnmatchcase(r.label, pat) for r in runs):
+            close = reg.suggest(pat, [r.label for r in runs])
+            c.err(p + (key, j), f"negative control: no run matches {pat!r}"
+                  + (f"; did you mean {close!r}?" if close else
+                     f" (runs: {[r.label for r in runs][:8]})"))
+    # every overridden run must still be a valid scenario (per case: the case's own
+    # merge first, then the override)
+    cases = d.get("cases") or {"default": {}}
+    for cname, case in cases.items():
+        if pats and not any(fnmatch.fnmatchcase(r.label, pt) for r in runs
+                            if r.case == cname for pt in pats):
+            continue
+        case = {k: v for k, v in (case or {}).items() if k != "description"}
+        _check_parts(c, deep_merge(deep_merge(d, case), ov), p + ("override",), base=d)
+
+
+def derivation_text(ref: str) -> str:
+    """The text a ``thesis_inconsistent: derivation`` reference points to:
+    ``module.path`` (its docstring) or ``module.path#Heading`` (the docstring section
+    under that heading, up to the next underlined heading)."""
+    import importlib
+    mod, _, head = str(ref).partition("#")
+    try:
+        doc = importlib.import_module(mod).__doc__ or ""
+    except ImportError as exc:
+        raise ValueError(f"derivation {ref!r}: cannot import {mod!r} ({exc})") from None
+    if not head:
+        return doc.strip()
+    lines = doc.splitlines()
+    for i, line in enumerate(lines):
+        if line.strip().startswith(head.strip()) and i + 1 < len(lines) and \
+                set(lines[i + 1].strip()) == {"-"}:
+            body = []
+            for j in range(i + 2, len(lines)):
+                if j + 1 < len(lines) and lines[j + 1].strip() and \
+                        set(lines[j + 1].strip()) == {"-"} and len(lines[j + 1].strip()) > 3:
+                    break
+                body.append(lines[j])
+            return "\n".join([line.strip()] + body).strip()
+    raise ValueError(f"derivation {ref!r}: no section {head!r} in the docstring of {mod}")
 
 
 def _metric_param_names(spec):
@@ -668,15 +814,16 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
     return system, record
 
 
-def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None):
-    """Build every case's System once and plan it (FMU variable names, controller
-    outputs, recorded names) without running: errors name the file and line."""
+def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None, runs=None):
+    """Build every case's System once (and every negative control's, if ``runs``
+    includes them) and plan it (FMU variable names, controller outputs, recorded
+    names) without running: errors name the file and line."""
     from cosim.master.system import Master, SystemError_
     seen = set()
-    for run in expand(sc):
-        if run.case in seen:
+    for run in (expand(sc) if runs is None else runs):
+        if (run.case, run.control) in seen:
             continue
-        seen.add(run.case)
+        seen.add((run.case, run.control))
         ctx = reg.BuildContext(scenario=sc.name, case=run.case, seed=run.seed, step_s=run.step,
                                duration_s=run.duration, fmu_dir=str(fmu_dir or ""))
         system, record = make_builder(sc, run, ctx, fmu_swaps)()

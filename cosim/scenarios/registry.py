@@ -116,6 +116,8 @@ class BuildContext:
     state: dict = dataclasses.field(default_factory=dict)
     #: the current phase name, set by a procedure before ``build`` (informational)
     phase: str = ""
+    #: the run's ``parameters``: the file's section with the case/sweep/control's merged
+    parameters: dict = dataclasses.field(default_factory=dict)
 
     def rng(self, stream: int = 0):
         """A numpy Generator seeded from the run's seed and a stream number, so two
@@ -134,6 +136,8 @@ class RunSpec:
     step: float
     overrides: dict = dataclasses.field(default_factory=dict)   # merged, file structure
     point: dict = dataclasses.field(default_factory=dict)       # swept/drawn values by path
+    #: the negative control this run belongs to ("" for the scenario's own runs)
+    control: str = ""
 
 
 @dataclasses.dataclass

@@ -22,9 +22,10 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from . import registry as reg
-from .loader import Scenario, check_build, expand, load
-from .runner import (atomic_write, execute_run, finish_scenario, run_done, run_key,
-                     safe_name, versions)
+from .loader import Scenario, check_build, load
+from .runner import atomic_write, execute_run, finish_scenario, versions
+from .store import run_done, run_key, safe_name
+from .verdict import all_runs, summary_row
 
 
 class SuiteError(RuntimeError):
@@ -119,7 +120,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
         names[sc.name] = f
         swaps = {r: p for r, p in (fmu_swaps or {}).items()
                  if r in sc.data["system"]["fmus"]}
-        check_build(sc, fmu_dir, swaps)    # contracts of --fmu, FMU variable names
+        check_build(sc, fmu_dir, swaps, runs=all_runs(sc))   # contracts, FMU variable names
         scenarios.append(sc)
     if fmu_swaps:
         used = {r for sc in scenarios for r in sc.data["system"]["fmus"]}
@@ -132,7 +133,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
     for sc in scenarios:
         sdir = out_dir / safe_name(sc.name)
         swaps = {r: p for r, p in (fmu_swaps or {}).items() if r in sc.data["system"]["fmus"]}
-        for run in expand(sc):
+        for run in all_runs(sc):              # the negative controls' runs too
             key = run_key(sc, run, fmu_dir, swaps)
             if use_cache and run_done(sdir, run, key):
                 cached[sc.name] += 1
@@ -187,17 +188,23 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
         v["cached_runs"] = cached[sc.name]
         results.append(v)
     statuses = [v["status"] for v in results]
+    for v in results:
+        v["requirements"] = [summary_row(r) for r in v["requirements"]]
+    verdicts = [r["verdict"] for v in results for r in v["requirements"]]
     summary = {
         "status": "error" if "error" in statuses else "fail" if "fail" in statuses else "pass",
         "counts": {"scenarios": len(results), "pass": statuses.count("pass"),
                    "fail": statuses.count("fail"), "error": statuses.count("error"),
                    "requirements": sum(len(v["requirements"]) for v in results)},
+        "verdicts": {k: verdicts.count(k) for k in ("pass", "fail", "cannot-fail",
+                                                      "thesis-inconsistent", "error")},
         "runs_executed": len(todo), "runs_cached": sum(cached.values()),
         "wall_s": time.perf_counter() - t0, "cluster": cluster_desc, "versions": versions(),
         "timing": {**timing, "verdicts_and_pages_s": time.perf_counter() - t1},
         "scenarios": [{k: v.get(k) for k in ("scenario", "file", "status", "errors",
-                                             "requirements", "runs", "cached_runs",
-                                             "provenance", "seeds")} for v in results],
+                                             "control_errors", "requirements", "runs",
+                                             "cached_runs", "provenance", "seeds")}
+                      for v in results],
     }
     atomic_write(out_dir / "summary.json", json.dumps(summary, indent=1, default=str))
     atomic_write(out_dir / "junit.xml", junit_xml(summary))
@@ -226,11 +233,24 @@ def junit_xml(summary: dict) -> str:
         cases = []
         for r in s["requirements"]:
             tc = ET.Element("testcase", classname=s["scenario"], name=r["id"])
+            nc = r.get("negative_control")
             msg = (f"value {r['value']} {r['rule']} {r['limit']}: {r['description']}"
+                   + (f"; negative control ({nc['what']}): value {nc['value']}, "
+                      f"{'holds' if nc['held'] else 'does not hold' if nc['held'] is False else 'no verdict'}"
+                      if nc else "")
                    + (f" ({r['message']})" if r.get("message") else ""))
-            if r["status"] == "fail":
+            verdict = r.get("verdict", r.get("status"))
+            if verdict == "fail":
                 ET.SubElement(tc, "failure", message=msg[:500]).text = msg
-            elif r["status"] == "error":
+            elif verdict == "cannot-fail":
+                m = "cannot fail: " + msg
+                ET.SubElement(tc, "failure", type="cannot-fail", message=m[:500]).text = m
+            elif verdict == "thesis-inconsistent":
+                ti = r.get("thesis_inconsistent") or {}
+                m = f"thesis-inconsistent: {ti.get('reason', '')} (value {r['value']})"
+                ET.SubElement(tc, "skipped", message=m[:500]).text = (
+                    m + ("\n\n" + ti["derivation"] if ti.get("derivation") else ""))
+            elif verdict == "error":
                 ET.SubElement(tc, "error", message=msg[:500]).text = msg
             cases.append(tc)
         if not s["requirements"] and s["status"] == "error":
@@ -240,9 +260,9 @@ def junit_xml(summary: dict) -> str:
             cases.append(tc)
         ts = ET.SubElement(root, "testsuite", name=s["scenario"], tests=str(len(cases)),
                            failures=str(sum(c.find("failure") is not None for c in cases)),
-                           errors=str(sum(c.find("error") is not None for c in cases)))
+                           errors=str(sum(c.find("error") is not None for c in cases)),
+                           skipped=str(sum(c.find("skipped") is not None for c in cases)))
         ts.extend(cases)
-    root.set("tests", str(sum(int(t.get("tests")) for t in root)))
-    root.set("failures", str(sum(int(t.get("failures")) for t in root)))
-    root.set("errors", str(sum(int(t.get("errors")) for t in root)))
+    for k in ("tests", "failures", "errors", "skipped"):
+        root.set(k, str(sum(int(t.get(k)) for t in root)))
     return ET.tostring(root, encoding="unicode", xml_declaration=True)

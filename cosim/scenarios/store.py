@@ -1,0 +1,118 @@
+"""Where a scenario's results live: cache keys, the stored runs and reading them back.
+
+Layout of a scenario's output folder ``DIR``::
+
+    DIR/runs/<run>/<phase>.parquet   recorded signals per phase (time first)
+    DIR/runs/<run>/run.json          status, error, values, artifacts, provenance,
+                                     cache key, wall time (written last = "done")
+
+Negative-control runs (``docs/scenario-format.md``) are stored the same way under
+``DIR/runs/nc.<control>_<run>/``. The report reads this store, never reruns.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from pathlib import Path
+
+from . import registry as reg
+from .loader import Scenario, deep_merge, fmu_file
+
+
+def safe_name(label: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.=,-]+", "_", label).strip("_") or "run"
+
+
+# =========================================================================== cache key
+_SRC_HASH = None
+
+
+def source_hash() -> str:
+    """Hash of the package's Python sources (trials, algorithms, master, scenarios):
+    a change of the code that produces results invalidates the cache."""
+    global _SRC_HASH
+    if _SRC_HASH is None:
+        root = Path(__file__).resolve().parents[1]
+        h = hashlib.sha256()
+        for p in sorted(root.rglob("*.py")):
+            if "report" in p.relative_to(root).parts:
+                continue
+            h.update(str(p.relative_to(root)).encode())
+            h.update(p.read_bytes())
+        _SRC_HASH = h.hexdigest()
+    return _SRC_HASH
+
+
+_FMU_HASHES: dict = {}
+
+
+def _fmu_sha(path: Path) -> str:
+    from cosim.master.fmu import sha256_file
+    key = (str(path), path.stat().st_mtime_ns, path.stat().st_size)
+    if key not in _FMU_HASHES:
+        _FMU_HASHES[key] = sha256_file(path)
+    return _FMU_HASHES[key]
+
+
+def run_key(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) -> str:
+    """Cache key: scenario content + run + FMU hashes + package source hash."""
+    import cosim
+    d = deep_merge(sc.data, run.overrides)
+    fmus = {}
+    for role, spec in d["system"]["fmus"].items():
+        p = Path((fmu_swaps or {}).get(role) or fmu_file(spec["fmu"], fmu_dir))
+        fmus[role] = _fmu_sha(p) if p.is_file() else f"missing:{p}"
+    blob = json.dumps({"scenario": sc.content_hash(), "run": run.label, "seed": run.seed,
+                       "overrides": run.overrides, "fmus": fmus, "src": source_hash(),
+                       "version": getattr(cosim, "__version__", "")},
+                      sort_keys=True, default=repr)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+# =========================================================================== read back
+def run_done(out_dir: Path, run: reg.RunSpec, key: str | None = None) -> dict | None:
+    """The stored run.json of a finished run (with the same cache key), else None."""
+    f = Path(out_dir) / "runs" / safe_name(run.label) / "run.json"
+    if not f.is_file():
+        return None
+    try:
+        info = json.loads(f.read_text())
+    except (OSError, ValueError):
+        return None
+    if key is not None and info.get("key") != key:
+        return None
+    if info.get("status") != "ok":
+        return None        # an error is retried on a rerun
+    return info
+
+
+def read_runs(sc: Scenario, out_dir: Path, runs: list | None = None
+              ) -> tuple[list[reg.RunView], list[dict]]:
+    """Stored runs (default: the scenario's own runs, no negative controls) as
+    RunViews (every phase) and the run.json infos."""
+    from cosim.master.system import RunResult
+    from .loader import expand
+    views, infos = [], []
+    for run in (expand(sc) if runs is None else runs):
+        d = Path(out_dir) / "runs" / safe_name(run.label)
+        f = d / "run.json"
+        if not f.is_file():
+            infos.append({"label": run.label, "case": run.case, "seed": run.seed,
+                          "status": "error", "error": "run did not finish (no results stored)"})
+            continue
+        info = json.loads(f.read_text())
+        infos.append(info)
+        for ph in info.get("phases", []):
+            rr = RunResult.read_parquet(d / ph["file"])
+            views.append(reg.RunView(label=run.label, case=run.case, phase=ph["phase"],
+                                     seed=run.seed, signals=rr.signals,
+                                     values=info.get("values", {}),
+                                     artifacts=info.get("artifacts", {}), point=run.point))
+    return views, infos
+
+
+def read_verdict(out_dir: Path) -> dict | None:
+    """The stored verdict.json of a scenario folder (None if there is none)."""
+    f = Path(out_dir) / "verdict.json"
+    return json.loads(f.read_text()) if f.is_file() else None
