@@ -14,8 +14,9 @@ from cosim.algorithms.aakf import AaKF, AakfParams  # noqa: E402
 from test_aakf_fast import _ReferenceAaKF  # noqa: E402
 
 
-def us_per_step(cls) -> float:
-    f = cls(AakfParams())
+def us_per_step(cls, params: AakfParams = AakfParams(sigma_a_bank=())) -> float:
+    """Per-step time of ``cls(params)`` (default: one filter, the thesis' aaKF)."""
+    f = cls(params)
     m = {"theta_enc": 0.1, "acc_meas": 0.2}
     for _ in range(30000):               # past convergence of the gain sequence
         f.step(m)
@@ -25,3 +26,5 @@ def us_per_step(cls) -> float:
 if __name__ == "__main__":
     fast, ref = us_per_step(AaKF), us_per_step(_ReferenceAaKF)
     print(f"AaKF.step: {fast:.2f} us/step, reference {ref:.2f} us/step, ratio {ref / fast:.1f}x")
+    bank = us_per_step(AaKF, AakfParams())
+    print(f"default AaKF (sigma_a bank of {len(AakfParams().sigma_a_bank)}): {bank:.2f} us/step")

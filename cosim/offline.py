@@ -39,26 +39,15 @@ Parameters taken from the log
   ``RLSParams.Kt_Nm_per_A``), else the parameters' value (default 0.0603, Table 1).
   The result records which was used (``Kt_source``).
 
-aaKF tuning for identification
-------------------------------
-``estimate`` uses :class:`AakfParams` as given (default sigma_a = 300
-rad/s^3/sqrt(Hz), tuned for human-like reaching). ``identify`` with
-``speed="aakf"`` and no ``aakf_params`` uses the same filter with
-``sigma_a = IDENTIFY_SIGMA_A = 2e4``: the band-limited white-noise current of the
-start-up trial (50 Hz, 0.15 A rms in :mod:`cosim.synth`) gives the motor a jerk whose
-spectral density near the band edge is about 2 pi 50 Hz * 530 rad/s^2 / sqrt(50 Hz)
-= 2.4e4 rad/s^3/sqrt(Hz), two orders of magnitude above reaching. With the
-reaching tuning the filter lags the excitation and the RLS estimates come out worse
-than with encoder differencing (measured on synthetic logs, seeds 0-3: b -28..+15 %,
-fc -9..-13 %). The value 2e4 was picked by scanning 1e4-5e4 against the true
-parameters of synthetic logs (seeds 0-7); on held-out seeds 8-19 it gave J within
-0.5 %, fc -2.8..-4.8 %, b -24..+7.5 % (within +-10 % in 10 of 12), against encoder
-differencing J +2.0..+2.4 %, fc -5.9..-10 %, b -78..+1 % (within +-10 % in 5 of 12).
-The thesis' own criterion (whiteness of the innovations, :func:`cosim.algorithms.
-aakf_tuning.tune_aakf`) does not help here: no pair is white on an identification
-log (the current steps of the ZOH make the jerk impulsive, not white) and the
-"whitest" pair gave b errors of +40..+98 % (seeds 0-2). A log with a different excitation may
-need a different ``aakf_params``.
+aaKF settings
+-------------
+Both operations use the default :class:`AakfParams`: the bank of single filters
+over sigma_a (:class:`cosim.algorithms.aakf.AaKFBank`) weighed by the likelihood of
+their innovations, so the jerk intensity is taken from the log itself (a hand-moved
+axis and a white-noise current differ by more than a decade); ``--sigma-a`` runs one
+filter with that value instead (the thesis' single aaKF). ``identify`` runs the RLS
+with its default integral regression, which takes the viscous term from
+``theta_enc`` (:mod:`cosim.algorithms.rls`).
 
 Errors and outputs
 ------------------
@@ -91,7 +80,6 @@ from .trial_log import TrialLog, TrialLogError, format_csv, read_trial_log, requ
 __all__ = [
     "DEVICE",
     "ESTIMATE_COLUMNS",
-    "IDENTIFY_SIGMA_A",
     "estimate",
     "identify",
     "settling_time",
@@ -108,9 +96,6 @@ ESTIMATE_COLUMNS = (
 DEFAULT_KT = 0.0603
 #: settling band of ``identify`` (thesis Fig. 26: +-10 %)
 SETTLING_BAND = 0.10
-#: aaKF motor-jerk intensity used by ``identify`` when no aaKF parameters are given
-#: [rad/s^3/sqrt(Hz)] (see the module docstring, "aaKF tuning for identification")
-IDENTIFY_SIGMA_A = 2.0e4
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -286,8 +271,7 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
 
     Needs ``i_cmd`` [A] and ``theta_enc`` [rad], and ``acc_meas`` [m/s^2] when
     ``speed="aakf"``. ``speed``: ``"aakf"`` (the aaKF speed estimate; ``aakf_params``,
-    default :class:`AakfParams` with ``sigma_a = IDENTIFY_SIGMA_A``; lead from the
-    sidecar) or ``"encoder"`` (backward difference of the encoder). ``params``: RLS parameters (``Ts`` from the log; ``Kt`` from the
+    default :class:`AakfParams`; lead from the sidecar) or ``"encoder"`` (backward difference of the encoder). ``params``: RLS parameters (``Ts`` from the log; ``Kt`` from the
     sidecar's ``nominal.Kt`` when present). ``decimation_s``: spacing of the
     history written (the settling times are computed at the full rate).
 
@@ -317,8 +301,7 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
     rp = replace(rp, Ts_s=Ts, Kt_Nm_per_A=Kt)
     enc = log["theta_enc"]
     if speed == "aakf":
-        kp = _aakf_params_for(log, aakf_params if aakf_params is not None
-                              else AakfParams(sigma_a=IDENTIFY_SIGMA_A))
+        kp = _aakf_params_for(log, aakf_params)
         w = _run_aakf(kp, enc, log["acc_meas"])["omega_rad_s"]
     else:
         kp = None
@@ -327,8 +310,8 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
     n = log.n_samples
     hist = np.empty((n, 3))
     used = 0
-    for k, (i, wk) in enumerate(zip(log["i_cmd"].tolist(), w.tolist())):
-        r = rls.step({"i_cmd": i, "w": wk})
+    for k, (i, wk, th) in enumerate(zip(log["i_cmd"].tolist(), w.tolist(), enc.tolist())):
+        r = rls.step({"i_cmd": i, "w": wk, "theta_enc": th})
         hist[k] = (r["J_hat"], r["b_hat"], r["fc_hat"])
         used += int(r["updated"])
     t = log.time
@@ -377,9 +360,10 @@ def _print_err(exc: BaseException) -> None:
 
 
 def _cmd_estimate(a: argparse.Namespace) -> int:
-    kw: dict[str, float] = {}
+    kw: dict[str, Any] = {}
     if a.sigma_a is not None:
         kw["sigma_a"] = a.sigma_a
+        kw["sigma_a_bank"] = ()                      # one filter with this sigma_a
     if a.sigma_b is not None:
         kw["sigma_b"] = a.sigma_b
     try:
@@ -400,7 +384,9 @@ def _cmd_identify(a: argparse.Namespace) -> int:
     try:
         kp = None
         if a.sigma_a is not None or a.sigma_b is not None:
-            kw: dict[str, float] = {"sigma_a": IDENTIFY_SIGMA_A if a.sigma_a is None else a.sigma_a}
+            kw: dict[str, Any] = {}
+            if a.sigma_a is not None:
+                kw.update(sigma_a=a.sigma_a, sigma_a_bank=())   # one filter with this sigma_a
             if a.sigma_b is not None:
                 kw["sigma_b"] = a.sigma_b
             kp = AakfParams(**kw)
@@ -433,7 +419,8 @@ def add_commands(subparsers: Any) -> None:
     e.add_argument("--log", required=True, help="trial log (stem, .csv or .json)")
     e.add_argument("--out", required=True, help="output CSV")
     e.add_argument("--sigma-a", type=float, default=None, dest="sigma_a",
-                   help="motor-jerk process noise [rad/s^3/sqrt(Hz)] (default 300)")
+                   help="motor-jerk process noise [rad/s^3/sqrt(Hz)] of a single filter "
+                        "(default: the sigma_a bank, weighed by the data)")
     e.add_argument("--sigma-b", type=float, default=None, dest="sigma_b",
                    help="bias random-walk intensity [(m/s^2)/sqrt(s)] (default 1e-3)")
     e.set_defaults(func=_cmd_estimate)
@@ -446,8 +433,8 @@ def add_commands(subparsers: Any) -> None:
     i.add_argument("--speed", choices=("aakf", "encoder"), default="aakf",
                    help="speed fed to the RLS (default aakf)")
     i.add_argument("--sigma-a", type=float, default=None, dest="sigma_a",
-                   help=f"aaKF motor-jerk process noise for --speed aakf [rad/s^3/sqrt(Hz)] "
-                        f"(default {IDENTIFY_SIGMA_A:g})")
+                   help="aaKF motor-jerk process noise of a single filter for --speed aakf "
+                        "[rad/s^3/sqrt(Hz)] (default: the sigma_a bank, weighed by the data)")
     i.add_argument("--sigma-b", type=float, default=None, dest="sigma_b",
                    help="aaKF bias random-walk intensity for --speed aakf [(m/s^2)/sqrt(s)] (default 1e-3)")
     i.set_defaults(func=_cmd_identify)

@@ -9,6 +9,12 @@ and white noise of std 0.0737 m/s^2 (150 ug/sqrt(Hz) over 1600 Hz, Table 2).
 
 Every threshold below was set from measured values (quoted next to it) with a margin,
 and every one of them fails for a filter that does not work as intended.
+
+Most tests here check the thesis' single filter (``THESIS``: one sigma_a, the white-jerk
+Q_d of eq. 28, the literal reset of Sec. 2.2.2 on the prediction); the project's
+default (the sigma_a bank, acceleration-increment Q_d, reset off) is checked on this
+simulator in ``test_default_filter_human_trial`` and on the independent simulator's
+logs in ``tests/test_aakf_independent.py``.
 """
 from __future__ import annotations
 
@@ -32,6 +38,9 @@ DELTA = 2 * math.pi / 21600       # encoder step [rad]
 KT = 0.0603                       # N m / A
 J = 1.7e-5                        # kg m^2
 BIAS0 = 0.3                       # m/s^2
+#: the thesis' aaKF, literally: one filter, eq. 28, the reset on the prediction (eq. 29-31)
+THESIS = AakfParams(sigma_a_bank=(), process_noise="jerk", reset_enabled=True,
+                    reset_stage="prediction", reset_speed_bound="eq31")
 
 
 # ----------------------------------------------------------------------------- truth
@@ -137,7 +146,7 @@ BURN = 1000  # 1 s of transient excluded from the RMS figures
 def test_gain_converges_to_dlqe(sigma_a):
     # with sigma_a = 3000 the short covariance update (I - K C) P drifts >10x away from
     # the stationary gain; the Joseph form used by AaKF does not
-    p = AakfParams(sigma_a=sigma_a, sigma_b=1e-2)
+    p = replace(THESIS, sigma_a=sigma_a, sigma_b=1e-2)
     ss = steady_state_gain(p)
     m = discretise(p)
     # python-control returns the predictor gain L = A_d K
@@ -158,7 +167,7 @@ def test_gain_converges_to_dlqe(sigma_a):
 
 # -------------------------------------------------------------------- (b) P is SPD
 def test_covariance_symmetric_psd_long_run(human_trial):
-    p = AakfParams()  # thesis reset on; P is not touched by it
+    p = THESIS  # thesis reset on; P is not touched by it
     f = AaKF(p)
     worst_asym, worst_eig = 0.0, np.inf
     for k, (e, a) in enumerate(zip(human_trial["enc"].tolist(), human_trial["acc"].tolist())):
@@ -181,10 +190,11 @@ def test_covariance_symmetric_psd_long_run(human_trial):
 def test_block_protocol_and_batch_equivalence(human_trial):
     assert isinstance(AaKF(), DiscreteBlock)
     assert isinstance(EncoderDifferentiator(), DiscreteBlock)
-    f = AaKF()
+    assert isinstance(AaKF(THESIS), DiscreteBlock)
+    f = AaKF(THESIS)
     out = run_block(f, human_trial["enc"][:3000], human_trial["acc"][:3000])
     assert set(out) == set(AaKF.outputs)
-    log = filter_log(AakfParams(), human_trial["enc"][:3000], human_trial["acc"][:3000])
+    log = filter_log(THESIS, human_trial["enc"][:3000], human_trial["acc"][:3000])
     assert np.allclose(out["omega_rad_s"], log["x_post"][:, 1], rtol=0, atol=1e-6)
     assert np.allclose(out["bias_m_s2"], log["x_post"][:, 3], rtol=0, atol=1e-8)
     assert np.array_equal(out["reset_pos_fired"] > 0, log["reset_pos"])
@@ -210,7 +220,7 @@ def test_speed_bias_and_reset_bounds_human_trial(human_trial):
     rms_diff = rms(diff["omega_rad_s"][BURN:] - om[BURN:])          # measured 0.180 rad/s
 
     # thesis configuration (literal reset), through the block interface
-    f = AaKF(AakfParams())
+    f = AaKF(THESIS)
     preds, lo, hi = [], [], []
     rows = []
     for e, a in zip(tr["enc"].tolist(), tr["acc"].tolist()):
@@ -238,7 +248,7 @@ def test_speed_bias_and_reset_bounds_human_trial(human_trial):
     res = {}
     for name, kw in {"off": dict(reset_enabled=False),
                      "post": dict(reset_stage="posterior", reset_speed_bound="eq31_accel")}.items():
-        log = filter_log(AakfParams(**kw), tr["enc"], tr["acc"])
+        log = filter_log(replace(THESIS, **kw), tr["enc"], tr["acc"])
         res[name] = log
         r = rms(log["x_post"][BURN:, 1] - om[BURN:])
         assert rms_diff / r > 4.0                                   # measured 5.4 and 5.4
@@ -258,13 +268,13 @@ def test_bias_converges_when_started_mid_movement():
     tr = simulate_axis(14.0, seed=4)
     i0 = 1000 + int(np.argmax(np.abs(tr["alpha"][1000:8000])))   # peak acceleration
     sl = slice(i0, i0 + 6000)
-    log = filter_log(AakfParams(reset_enabled=False), tr["enc"][sl], tr["acc"][sl])
+    log = filter_log(replace(THESIS, reset_enabled=False), tr["enc"][sl], tr["acc"][sl])
     err = log["x_post"][:, 3] - tr["bias"][sl]
     assert abs(err[0]) > 0.1                     # it does start wrong (measured -0.34)
     t_off = settle_time(err, 0.02)
     assert t_off < 0.5                           # measured 0.011 s
     # the literal thesis reset hides the position drift that reveals the bias
-    thesis = filter_log(AakfParams(), tr["enc"][sl], tr["acc"][sl])
+    thesis = filter_log(THESIS, tr["enc"][sl], tr["acc"][sl])
     t_thesis = settle_time(thesis["x_post"][:, 3] - tr["bias"][sl], 0.02)
     assert t_thesis > 10 * t_off                 # measured 2.1 s
 
@@ -272,10 +282,10 @@ def test_bias_converges_when_started_mid_movement():
 def test_floor_quantiser_bounds():
     tr = simulate_axis(3.0, seed=2)
     enc = DELTA * np.floor(tr["theta"] / DELTA)
-    log = filter_log(AakfParams(encoder_quantiser="floor"), enc, tr["acc"])
+    log = filter_log(replace(THESIS, encoder_quantiser="floor"), enc, tr["acc"])
     xp = log["x_pred"][:, 0]
     assert np.all((xp >= enc - 1e-12) & (xp <= enc + DELTA + 1e-12))
-    ref = filter_log(AakfParams(), tr["enc"], tr["acc"])
+    ref = filter_log(THESIS, tr["enc"], tr["acc"])
     a = rms(log["x_post"][BURN:, 1] - tr["omega"][BURN:])
     b = rms(ref["x_post"][BURN:, 1] - tr["omega"][BURN:])
     assert a < 1.2 * b                           # same accuracy as a rounding encoder
@@ -313,10 +323,10 @@ def test_whiteness_false_alarm_rate():
 
 # ----------------------------------------------------------------------- (e) tuning
 def test_tuning_picks_white_pair():
-    # ball-screw driven by a random-walk current: motor jerk close to white with
-    # intensity Kt * 0.3 / J = 1064 rad/s^3/sqrt(Hz)
+    # ball-screw driven by a random-walk current redrawn every 0.1 ms: motor jerk close
+    # to white (the eq. 28 model) with intensity Kt * 0.3 / J = 1064 rad/s^3/sqrt(Hz)
     tr = simulate_axis(10.0, seed=3, drive="rw", cur_rw=0.3)
-    base = AakfParams(reset_enabled=False)
+    base = replace(THESIS, reset_enabled=False)
     res = tune_aakf(tr["enc"], tr["acc"], Ts=TS, base=base, sigma_b_range=(1e-4, 1e0), n_b=3)
     assert res.white and res.score < 1.0                        # measured 0.61
     assert 500 < res.sigma_a < 2200                             # measured 1000

@@ -1,4 +1,5 @@
-"""Fast AaKF.step (precomputed gain sequence, float arithmetic) against the original step.
+"""Fast AaKF.step (precomputed gain sequence, float arithmetic) against the original step,
+and the sigma_a bank (AaKFBank) against a readable numpy bank of those original steps.
 
 ``_ReferenceAaKF`` below is a verbatim copy of ``AaKF.__init__/reset/_state_reset/step``
 as they were before the speed-up (commit d56dd7a): numpy 4x4 products and the
@@ -28,8 +29,8 @@ import numpy as np
 import pytest
 
 from cosim.algorithms import aakf as aakf_mod
-from cosim.algorithms.aakf import (AakfParams, AaKF, _check_params, _position_bounds,
-                                   _speed_centre, discretise)
+from cosim.algorithms.aakf import (AakfParams, AaKF, AaKFBank, _check_params,
+                                   _position_bounds, _speed_centre, discretise)
 from cosim.synth import simulate_ballscrew
 
 
@@ -115,6 +116,10 @@ class _ReferenceAaKF:
 
         if p.reset_enabled and p.reset_stage == "posterior":              # variant, not thesis
             fired = self._state_reset(x_post, enc)
+        x_out = x_post
+        if p.reset_enabled and p.reset_stage == "output":   # (added with this variant)
+            x_out = x_post.copy()                           # the state is not clamped
+            fired = self._state_reset(x_out, enc)
 
         self.x_pred, self.P_pred = x_pred, P_pred
         self.x_post, self.P = x_post, P_post
@@ -124,11 +129,11 @@ class _ReferenceAaKF:
 
         s = p.m_per_rad
         return {
-            "theta_rad": float(x_post[0]),
-            "omega_rad_s": float(x_post[1]),
+            "theta_rad": float(x_out[0]),
+            "omega_rad_s": float(x_out[1]),
             "alpha_rad_s2": float(x_post[2]),
-            "x_m": float(s * x_post[0]),
-            "v_m_s": float(s * x_post[1]),
+            "x_m": float(s * x_out[0]),
+            "v_m_s": float(s * x_out[1]),
             "a_m_s2": float(s * x_post[2]),
             "bias_m_s2": float(x_post[3]),
             "innov_enc_rad": float(e[0]),
@@ -146,6 +151,7 @@ _RESET_OPTIONS = [
     dict(reset_enabled=True, reset_speed_bound="eq31_accel", reset_stage="prediction"),
     dict(reset_enabled=True, reset_speed_bound="eq31", reset_stage="posterior"),
     dict(reset_enabled=True, reset_speed_bound="eq31_accel", reset_stage="posterior"),
+    dict(reset_enabled=True, reset_speed_bound="eq31_accel", reset_stage="output"),
 ]
 _ATTR_STEPS = {0, 1, 2, 999, 5000, 19999, 25000, 29999}
 
@@ -197,11 +203,13 @@ def _max_rel(names, r_out, f_out) -> float:
 
 
 # -------------------------------------------------------------------------------- tests
+@pytest.mark.parametrize("noise", ["jerk", "increment"])
 @pytest.mark.parametrize("scenario", ["free_motion", "identification"])
 @pytest.mark.parametrize("opts", _RESET_OPTIONS, ids=lambda o: "-".join(str(v) for v in o.values()))
-def test_fast_step_matches_reference_30s(logs, scenario, opts):
+def test_fast_step_matches_reference_30s(logs, scenario, opts, noise):
     enc, acc = logs[scenario]
-    names, r_out, f_out, attr_err = _run_both(AakfParams(**opts), enc, acc)
+    p = AakfParams(sigma_a_bank=(), process_noise=noise, **opts)     # one filter
+    names, r_out, f_out, attr_err = _run_both(p, enc, acc)
     worst = _max_rel(names, r_out, f_out)
     # measured (30 s, 30000 steps): <= 9.8e-11 (see the module docstring)
     assert worst <= 1e-9, worst
@@ -218,14 +226,14 @@ def test_fast_step_matches_reference_30s(logs, scenario, opts):
 def test_fast_step_matches_reference_other_options(logs, extra):
     enc, acc = logs["free_motion"]
     enc = enc[:8000] + (0.0 if extra.get("encoder_quantiser") != "floor" else 0.0)
-    names, r_out, f_out, attr_err = _run_both(AakfParams(**extra), enc, acc[:8000])
+    names, r_out, f_out, attr_err = _run_both(AakfParams(sigma_a_bank=(), **extra), enc, acc[:8000])
     assert _max_rel(names, r_out, f_out) <= 1e-9
     assert attr_err <= 1e-9
 
 
 def test_gain_sequence_shared_and_read_only():
-    p = AakfParams(sigma_a=123.0)
-    f1, f2 = AaKF(p), AaKF(replace(p, reset_stage="posterior"))
+    p = AakfParams(sigma_a=123.0, sigma_a_bank=())
+    f1, f2 = AaKF(p), AaKF(replace(p, reset_stage="prediction"))
     assert f1._seq is f2._seq                      # reset options do not change K_k
     assert np.array_equal(f1.P, f1.model.P0) and np.all(f1.gain == 0.0)   # before step 1
     for _ in range(3):
@@ -246,3 +254,75 @@ def test_gain_sequence_shared_and_read_only():
 
 # Speed is measured by bench/bench_aakf.py (a ratio against the reference step in
 # the same run), never asserted in a unit test: these machines are shared and noisy.
+
+
+# ----------------------------------------------------------------------- sigma_a bank
+def _reference_bank(p: AakfParams, enc: np.ndarray, acc: np.ndarray) -> dict[str, np.ndarray]:
+    """The bank of AaKFBank written out with numpy: one _ReferenceAaKF per sigma_a,
+    l_i = -(log det S_i + e_i^T S_i^-1 e_i)/2 with S_i = C P_i,k|k-1 C^T + R,
+    L_i = lambda L_i + l_i, w = softmax(L), estimate = w @ x_i, innovation = w_prev @ e_i."""
+    out_reset = p.reset_enabled and p.reset_stage == "output"   # on the mixed estimate
+    members = [_ReferenceAaKF(replace(p, sigma_a=sa, sigma_a_bank=(),
+                                      reset_enabled=p.reset_enabled and not out_reset))
+               for sa in p.sigma_a_bank]
+    lam = math.exp(-p.Ts / p.bank_memory_s)
+    L = np.zeros(len(members))
+    w_prev = np.full(len(members), 1.0 / len(members))
+    out = {"omega_rad_s": [], "theta_rad": [], "bias_m_s2": [], "innov_acc_m_s2": [],
+           "reset_fired": []}
+    enc_prev = None
+    for e, a in zip(enc.tolist(), acc.tolist()):
+        rows = [f.step({"theta_enc": e, "acc_meas": a}) for f in members]
+        ll = []
+        for f in members:
+            C, R = f.model.Cd, f.model.Rd
+            S = C @ f.P_pred @ C.T + R
+            ll.append(-0.5 * (math.log(np.linalg.det(S)) + f.innovation @ np.linalg.solve(S, f.innovation)))
+        L = lam * L + np.array(ll)
+        w = np.exp(L - L.max())
+        w /= w.sum()
+        mixed = {key: w @ np.array([r[key] for r in rows])
+                 for key in ("omega_rad_s", "theta_rad", "alpha_rad_s2", "bias_m_s2")}
+        fired = rows[int(np.argmax(w))]["reset_fired"]
+        if out_reset:                                    # eq. 29-31 on the mixed estimate
+            lo, hi = _position_bounds(p, e)
+            th = min(max(mixed["theta_rad"], lo), hi)
+            om = mixed["omega_rad_s"]
+            if enc_prev is not None:
+                v = _speed_centre(p, e, enc_prev, mixed["alpha_rad_s2"])
+                om = min(max(om, v - p.delta_rad / p.Ts), v + p.delta_rad / p.Ts)
+            fired = float(th != mixed["theta_rad"] or om != mixed["omega_rad_s"])
+            mixed["theta_rad"], mixed["omega_rad_s"] = th, om
+        for key in ("omega_rad_s", "theta_rad", "bias_m_s2"):
+            out[key].append(mixed[key])
+        out["innov_acc_m_s2"].append(w_prev @ np.array([r["innov_acc_m_s2"] for r in rows]))
+        out["reset_fired"].append(fired)
+        w_prev = w
+        enc_prev = e
+    return {k: np.array(v) for k, v in out.items()}
+
+
+@pytest.mark.parametrize("opts", [dict(), dict(reset_enabled=True),
+                                  dict(reset_enabled=True, reset_stage="prediction")],
+                         ids=["reset-off", "reset-output", "reset-prediction"])
+def test_bank_matches_reference_bank(logs, opts):
+    p = AakfParams(sigma_a_bank=(100.0, 1000.0, 10000.0), **opts)
+    bank = AaKF(p)
+    assert isinstance(bank, AaKFBank) and len(bank.members) == 3
+    for scen in ("free_motion", "identification"):
+        enc, acc = (x[:6000] for x in logs[scen])
+        ref = _reference_bank(p, enc, acc)
+        bank.reset()
+        rows, leaders = [], set()
+        for e, a in zip(enc.tolist(), acc.tolist()):
+            rows.append(bank.step({"theta_enc": e, "acc_meas": a}))
+            leaders.add(int(np.argmax(bank.weights)))
+        assert len(leaders) > 1, scen            # the weights do move between members
+        for key, r in ref.items():
+            f = np.array([row[key] for row in rows])
+            if key == "reset_fired":
+                assert np.array_equal(f, r), scen
+                continue
+            assert np.max(np.abs(f - r)) <= 1e-9 * np.max(np.abs(r)), (scen, key)
+        assert bank.weights.sum() == pytest.approx(1.0)
+

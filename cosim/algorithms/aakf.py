@@ -52,35 +52,58 @@ rad^2/s^4) the short form (I - K C) P iterated without symmetrisation ends more 
 10x away from the ``dlqe`` gain after 20 000 steps for sigma_a = 3e3; the Joseph form
 converges to it within 1e-10.
 
-State reset (Sec. 2.2.2) and what we found
-------------------------------------------
-Default = the thesis pseudocode, literally: after the prediction, x(1)_k|k-1 is
-clamped into [theta_enc_k - Delta/2, theta_enc_k + Delta/2] (eq. 29) and
-x(2)_k|k-1 into (theta_enc_k - theta_enc_k-1)/Ts -+ Delta/Ts (eq. 31); P is not
-touched; the update and the innovation use the clamped prediction. Two variants are
-available and documented as *not* the thesis:
+Acceleration noise timing (``process_noise``)
+---------------------------------------------
+Eq. 28 (``process_noise="jerk"``) spreads a continuous white jerk over each
+interval. On the ball screw the only fast input is the motor current, held by the
+driver over [t_k, t_k+1) (trial-log convention): the acceleration *steps* right after
+t_k and stays nearly constant until t_k+1, and the accelerometer read at t_k+1 sees
+the acceleration of the interval that just ended. ``process_noise="increment"`` (the
+default) models exactly that, the discrete Wiener-process-acceleration model::
 
-* ``reset_speed_bound="eq31_accel"``: eq. 31 bounds the *mean* speed over the last
-  sample, which differs from the speed at t_k by about alpha*Ts/2; that exceeds the
-  bound half-width Delta/Ts as soon as |alpha| > 2 Delta/Ts^2 = 582 rad/s^2
-  (0.93 m/s^2 at the nut), which ordinary arm movements reach. The variant centres the
-  interval on (theta_enc_k - theta_enc_k-1)/Ts + alpha_k|k-1 Ts/2.
-* ``reset_stage="posterior"``: clamp x_k|k after the update instead of the
-  prediction, so the innovations (the information the filter learns from) are not
-  saturated.
+    alpha_k+1 = alpha_k + w_k,   w_k white, var(w_k) = sigma_a^2 Ts
+    x_k+1 = A_d x_k + G w_k,     G = [Ts^2/2, Ts, 1, 0]^T,   Q_d = sigma_a^2 Ts G G^T
 
-In our simulated human-like trial (tests/test_aakf.py) the literal reset makes the
-speed estimate worse, not better: RMS speed error 2.2x below encoder differencing
-against 5.4x with the reset disabled, and the reset fires at 28 % of the samples
-(the predicted position, whose spread is comparable to Delta, often falls outside
-the cell even with a correct filter; with faster random motion we saw 50-90 %).
-With the filter started mid-movement the literal reset delays the bias convergence
-from about 10 ms to 2-4 s (with a narrower P_0 it kept a wrong bias for a whole 20 s
-run): the clamps hide the position drift that would reveal the bias error. It does cut the largest
-overshoots of a too-slowly tuned filter under step changes of acceleration, the
-benefit the thesis shows in Fig. 21. The posterior variant with the corrected speed
-bound was never more than 1 % worse than no reset in our runs, and better under
-step changes of acceleration with a slow tuning.
+(same A_d and C_d as eq. 26-27; sigma_a keeps its units, sigma_a^2 Ts being the
+variance of one acceleration step). With a white-noise current the acceleration
+jumps at every sample and eq. 28 attributes only part of each jump to the speed of
+the interval; for a smoothly varying force (a hand) the two models coincide.
+
+sigma_a from the data (``sigma_a_bank``)
+----------------------------------------
+The filter is kinematic, so sigma_a is a property of what moves the axis, not of
+the device: a hand and a white-noise current differ by more than a decade. The
+default :class:`AaKF` is therefore a bank of single filters over a fixed log grid of
+sigma_a, weighed sample by sample by the likelihood of their innovations
+(:class:`AaKFBank`); ``sigma_a_bank=()`` gives the single filter of the thesis with
+``sigma_a``.
+
+State reset (Sec. 2.2.2)
+------------------------
+The thesis pseudocode, literally (``reset_stage="prediction"``,
+``reset_speed_bound="eq31"``): after the prediction, x(1)_k|k-1 is clamped into
+[theta_enc_k - Delta/2, theta_enc_k + Delta/2] (eq. 29) and x(2)_k|k-1 into
+(theta_enc_k - theta_enc_k-1)/Ts -+ Delta/Ts (eq. 31); P is not touched; the update
+and the innovation use the clamped prediction. Variants (not the thesis):
+
+* ``reset_speed_bound="eq31_accel"`` (default): eq. 31 bounds the *mean* speed over
+  the last sample, which differs from the speed at t_k by about alpha*Ts/2; that
+  exceeds the bound half-width Delta/Ts as soon as |alpha| > 2 Delta/Ts^2 = 582
+  rad/s^2 (0.93 m/s^2 at the nut). The variant centres the interval on
+  (theta_enc_k - theta_enc_k-1)/Ts + alpha Ts/2.
+* ``reset_stage="posterior"``: clamp x_k|k after the update (fed back), so the
+  innovations are not saturated.
+* ``reset_stage="output"`` (default stage): clamp only the reported position and
+  speed; the filter's state is untouched. Both intervals contain the true values
+  (in the filter's own position frame, which the encoder readings centre), so the
+  clamp can only move a reported value towards the truth.
+
+The reset is off by default (``reset_enabled=False``): the literal reset makes a
+well-tuned filter worse (the prediction, whose spread is comparable to Delta, often
+falls outside the cell, and the clipped innovations hide the position drift that
+reveals a bias error); it helps only a filter whose sigma_a is too small (the case
+of thesis Fig. 21). The output-stage reset does not hurt and does not measurably
+help. Figures: docs/decisions.md, "aaKF and RLS on independent data".
 """
 from __future__ import annotations
 
@@ -95,6 +118,8 @@ __all__ = [
     "AakfParams",
     "AakfModel",
     "AaKF",
+    "AaKFBank",
+    "SIGMA_A_BANK",
     "EncoderDifferentiator",
     "EncoderDifferentiatorParams",
     "SteadyStateGain",
@@ -112,16 +137,23 @@ G0_M_S2 = 9.80665
 ADXL335_NOISE_STD_M_S2 = 150e-6 * G0_M_S2 * math.sqrt(math.pi / 2.0 * 1600.0)
 
 
+#: default sigma_a bank [rad/s^3/sqrt(Hz)]: half-decade steps over 10 .. 1e5, from an
+#: axis at rest or moved slowly by hand (~10-300) to a white-noise current through
+#: the zero-order hold (~3e3-1e4); see :class:`AaKFBank`
+SIGMA_A_BANK: tuple[float, ...] = tuple(float(10.0 ** (e / 2.0)) for e in range(2, 11))
+
+
 @dataclass(frozen=True)
 class AakfParams:
     """Parameters of the aaKF (thesis Sec. 2.2, Table 1 and 2).
 
     Defaults are those of the ball-screw device of Table 1 and the ADXL335 of
-    Table 2. The thesis gives no values for ``sigma_a`` and ``sigma_b``: the default
-    sigma_a is what :mod:`cosim.algorithms.aakf_tuning` picks on simulated
-    human-like reaching (whitest innovations, 240-420 rad/s^3/sqrt(Hz), i.e. about
-    0.5 m/s^3/sqrt(Hz) at the nut); sigma_b is set small (the whiteness criterion
-    hardly depends on it; 1e-3 (m/s^2)/sqrt(s) is a drift of about 0.03 m/s^2 in
+    Table 2. The thesis gives no values for ``sigma_a`` and ``sigma_b``. By default
+    sigma_a is chosen from the data by the bank ``sigma_a_bank`` (:class:`AaKFBank`);
+    ``sigma_a`` itself is used by a single filter (``sigma_a_bank=()``), where 300 is
+    what :mod:`cosim.algorithms.aakf_tuning` picks on simulated human-like reaching
+    (whitest innovations, 240-420 rad/s^3/sqrt(Hz), about 0.5 m/s^3/sqrt(Hz) at the
+    nut). sigma_b is set small (1e-3 (m/s^2)/sqrt(s) is a drift of about 0.03 m/s^2 in
     15 minutes, the order of the ADXL335 thermal offset drift of 1 mg/degC). The
     initial covariance is broad (0.3 m/s, 4.8 m/s^2 at the nut, 1 m/s^2 of bias) so
     that a start in mid-movement is tolerated.
@@ -139,23 +171,40 @@ class AakfParams:
     encoder_quantiser: str = "round"
     #: motor-jerk process noise [rad/s^3/sqrt(Hz)], Q_c[0,0] = sigma_a^2 (eq. 16, 23)
     sigma_a: float = 300.0
+    #: how the acceleration noise enters Q_d: "jerk" (thesis eq. 21-28: continuous white
+    #: jerk of intensity sigma_a^2, Van Loan) or "increment" (the acceleration steps
+    #: at the sampling instants, by a white increment of variance sigma_a^2 Ts, and is
+    #: held over the interval: Q_d = sigma_a^2 Ts G G^T, G = [Ts^2/2, Ts, 1, 0]^T, the
+    #: discrete Wiener-process-acceleration model; what a zero-order-held motor current
+    #: does, see the module docstring). Same A_d, C_d and sigma_a units for both.
+    process_noise: str = "increment"
+    #: bank of sigma_a values [rad/s^3/sqrt(Hz)] run side by side and weighed by the
+    #: likelihood of their innovations (multiple-model adaptive estimation, see
+    #: :class:`AaKFBank`); empty: one filter with ``sigma_a`` (the thesis' aaKF)
+    sigma_a_bank: tuple[float, ...] = SIGMA_A_BANK
+    #: memory of the bank's likelihood weights [s]: the log-likelihoods are summed with
+    #: the forgetting factor exp(-Ts / bank_memory_s)
+    bank_memory_s: float = 0.02
     #: bias random-walk intensity [(m/s^2)/sqrt(s)], Q_c[1,1] = sigma_b^2 (eq. 15, 23)
     sigma_b: float = 1.0e-3
     #: accelerometer white-noise standard deviation per sample [m/s^2] (Table 2)
     acc_noise_std_m_s2: float = ADXL335_NOISE_STD_M_S2
     #: encoder noise variance override [rad^2]; None -> Delta^2/12 (Sec. 2.2.1.1)
     enc_noise_var_rad2: float | None = None
-    #: apply the state reset of Sec. 2.2.2 (eq. 29-31)
-    reset_enabled: bool = True
+    #: apply the state reset of Sec. 2.2.2 (eq. 29-31); off by default (see the module
+    #: docstring: the thesis' reset makes the estimate worse, the variant does not help)
+    reset_enabled: bool = False
     #: speed bound of the reset: "eq31" (thesis, literal: the backward difference of the
     #: encoder +- Delta/Ts, which bounds the *mean* speed over [t_k-1, t_k]) or
     #: "eq31_accel" (same bound shifted by alpha_k|k-1 * Ts/2, the mean-to-endpoint
     #: speed difference under the model's acceleration; an extension, see module doc)
-    reset_speed_bound: str = "eq31"
+    reset_speed_bound: str = "eq31_accel"
     #: where the reset acts: "prediction" (thesis: on x_k|k-1, between eq. 99 and
-    #: eq. 100, so the update and the innovation use the clamped prediction) or
-    #: "posterior" (variant: on x_k|k after eq. 102; innovations are untouched)
-    reset_stage: str = "prediction"
+    #: eq. 100, so the update and the innovation use the clamped prediction),
+    #: "posterior" (variant: on x_k|k after eq. 102, fed back; innovations untouched) or
+    #: "output" (variant: only the reported position and speed are clamped, the
+    #: filter's state is not; in a sigma_a bank, the bank's mixed estimate)
+    reset_stage: str = "output"
     #: initialise the position estimate from the first encoder reading (otherwise
     #: x_0 = 0 as in Appendix A)
     init_from_first_measurement: bool = True
@@ -223,6 +272,12 @@ def discretise(p: AakfParams) -> AakfModel:
     Faug = expm(Maug * p.Ts)
     Bdw = Faug[:4, 4:]
     Ad, Qd = _van_loan(Ac, Bcw @ Qc @ Bcw.T, p.Ts)                    # eq. 26, 28
+    if p.process_noise == "increment":
+        # acceleration increment at t_k, held over [t_k, t_k+1) (not the thesis' eq. 28):
+        # x_k+1 = A_d x_k + G w_k, var(w_k) = sigma_a^2 Ts; the bias part stays eq. 28's
+        G = np.array([0.5 * p.Ts ** 2, p.Ts, 1.0, 0.0])
+        Qd = p.sigma_a ** 2 * p.Ts * np.outer(G, G)
+        Qd[3, 3] = p.sigma_b ** 2 * p.Ts                               # eq. 28, bias block
     Cd = Cc.copy()                                                    # eq. 27
     enc_var = p.delta_rad ** 2 / 12.0 if p.enc_noise_var_rad2 is None else p.enc_noise_var_rad2
     Rd = np.diag([enc_var, p.acc_noise_std_m_s2 ** 2])                # eq. 23, sigma_enc = Delta^2/12
@@ -268,13 +323,36 @@ def _position_bounds(p: AakfParams, enc: float) -> tuple[float, float]:
     return enc - 0.5 * d, enc + 0.5 * d                  # eq. 29
 
 
+def _clamp(p: AakfParams, theta: float, omega: float, alpha: float, enc: float,
+           enc_prev: float | None) -> tuple[float, float, bool, bool]:
+    """Sec. 2.2.2 on a position [rad] and speed [rad/s]: clamp theta into eq. 29 and
+    omega into eq. 31 (centred per ``reset_speed_bound``; ``alpha`` [rad/s^2] is the
+    acceleration used by "eq31_accel"); returns (theta, omega, pos_fired, speed_fired)."""
+    lo, hi = _position_bounds(p, enc)                                    # eq. 29
+    pos = theta > hi or theta < lo
+    theta = min(max(theta, lo), hi)
+    spd = False
+    if enc_prev is not None:
+        v = _speed_centre(p, enc, enc_prev, alpha)                       # eq. 30
+        dv = p.delta_rad / p.Ts
+        spd = omega > v + dv or omega < v - dv                           # eq. 31
+        omega = min(max(omega, v - dv), v + dv)
+    return theta, omega, pos, spd
+
+
 def _check_params(p: AakfParams) -> None:
     if p.encoder_quantiser not in ("round", "floor"):
         raise ValueError("encoder_quantiser must be 'round' or 'floor'")
     if p.reset_speed_bound not in ("eq31", "eq31_accel"):
         raise ValueError("reset_speed_bound must be 'eq31' or 'eq31_accel'")
-    if p.reset_stage not in ("prediction", "posterior"):
-        raise ValueError("reset_stage must be 'prediction' or 'posterior'")
+    if p.reset_stage not in ("prediction", "posterior", "output"):
+        raise ValueError("reset_stage must be 'prediction', 'posterior' or 'output'")
+    if p.process_noise not in ("jerk", "increment"):
+        raise ValueError("process_noise must be 'jerk' or 'increment'")
+    if any(not (math.isfinite(v) and v > 0.0) for v in p.sigma_a_bank):
+        raise ValueError("sigma_a_bank values must be finite and > 0")
+    if not p.bank_memory_s > 0.0:
+        raise ValueError("bank_memory_s must be > 0")
 
 
 #: Riccati steps computed per chunk of the shared gain sequence
@@ -285,7 +363,7 @@ _RICCATI_RTOL = 1e-13
 _RICCATI_RUN = 300
 _RICCATI_CAP = 200_000
 #: number of parameter sets whose gain sequences are kept (oldest dropped first)
-_GAIN_CACHE_SIZE = 8
+_GAIN_CACHE_SIZE = 32
 _GAIN_CACHE: dict[AakfParams, "_GainSequence"] = {}
 
 
@@ -305,7 +383,9 @@ class _GainSequence:
         self.K: list[np.ndarray] = []       # chunks (n, 4, 2)
         self.P_pred: list[np.ndarray] = []  # chunks (n, 4, 4)
         self.P: list[np.ndarray] = []       # chunks (n, 4, 4)
-        self.K_tuples: list[list[tuple[float, ...]]] = []  # per chunk: (K00, K01, ..., K31)
+        #: per chunk, per step: (K00, K01, ..., K31, Si00, Si01, Si11, log det S), with
+        #: S = C P_k|k-1 C^T + R the innovation covariance (eq. 100) and Si its inverse
+        self.K_tuples: list[list[tuple[float, ...]]] = []
         self.n = 0                          # steps computed
         self.done = False                   # converged (or cap reached): hold entry n - 1
         self._P_last: np.ndarray | None = None
@@ -321,7 +401,7 @@ class _GainSequence:
         CT = C.T
         I4 = np.eye(4)
         P, Kprev, run, k = self._P_last, self._K_last, self._run, self.n
-        Ks, Pps, Ps = [], [], []
+        Ks, Pps, Ps, Ss = [], [], [], []
         while len(Ks) < _RICCATI_CHUNK:
             if k == 0:
                 P_pred = m.P0.copy()
@@ -334,6 +414,8 @@ class _GainSequence:
             P = IKC @ P_pred @ IKC.T + K @ R @ K.T                        # eq. 103, Joseph
             P = 0.5 * (P + P.T)
             Ks.append(K)
+            Si = np.linalg.inv(S)
+            Ss.append((Si[0, 0], Si[0, 1], Si[1, 1], math.log(np.linalg.det(S))))
             Pps.append(P_pred)
             Ps.append(P)
             if Kprev is not None:
@@ -350,7 +432,8 @@ class _GainSequence:
         self.K.append(Kc)
         self.P_pred.append(Ppc)
         self.P.append(Pc)
-        self.K_tuples.append([tuple(r) for r in Kc.reshape(len(Ks), 8).tolist()])
+        self.K_tuples.append([tuple(r) + tuple(float(v) for v in si)
+                              for r, si in zip(Kc.reshape(len(Ks), 8).tolist(), Ss)])
         self.n, self._P_last, self._K_last, self._run = k, P, Kprev, run
 
     def index(self, k: int) -> tuple[int, int]:
@@ -364,7 +447,7 @@ def _gain_sequence(p: AakfParams, model: AakfModel) -> _GainSequence:
     """The shared gain sequence of ``p`` (fields that only affect the reset or the
     initial state are normalised out of the cache key)."""
     key = replace(p, reset_enabled=True, reset_speed_bound="eq31", reset_stage="prediction",
-                  init_from_first_measurement=True)
+                  init_from_first_measurement=True, sigma_a_bank=(), bank_memory_s=1.0)
     seq = _GAIN_CACHE.get(key)
     if seq is None:
         seq = _GainSequence(model)
@@ -405,9 +488,18 @@ class AaKF:
     recordable: tuple[str, ...] = ("gain", "P", "P_pred", "x_pred", "x_post", "innovation",
                                    "reset_lo", "reset_hi")
 
+    def __new__(cls, params: AakfParams | None = None):
+        # AaKF(p) with a non-empty p.sigma_a_bank is the bank of single filters
+        # (AaKFBank); with an empty bank it is the single filter of the thesis
+        if cls is AaKF and (params if params is not None else AakfParams()).sigma_a_bank:
+            return super().__new__(AaKFBank)
+        return super().__new__(cls)
+
     def __init__(self, params: AakfParams | None = None) -> None:
         self.params = p = params if params is not None else AakfParams()
         _check_params(p)
+        if p.sigma_a_bank:
+            raise ValueError("a single AaKF needs sigma_a_bank=() (AaKF(p) builds the bank)")
         self.model = m = discretise(p)
         self._seq = _gain_sequence(p, m)
         # constants of the hot path, computed as the original expressions compute them
@@ -420,6 +512,7 @@ class AaKF:
         self._dv = p.delta_rad / p.Ts
         self._reset_pred = p.reset_enabled and p.reset_stage == "prediction"
         self._reset_post = p.reset_enabled and p.reset_stage == "posterior"
+        self._reset_out = p.reset_enabled and p.reset_stage == "output"
         self._s = p.m_per_rad
         self._s_row = float(m.Cd[1, 2]), float(m.Cd[1, 3])
         A = m.Ad
@@ -448,6 +541,7 @@ class AaKF:
         self._kss: tuple[float, ...] | None = None   # held (steady-state) gain
         self.reset_lo = math.nan
         self.reset_hi = math.nan
+        self.loglik = 0.0
         self._enc_prev: float | None = None
 
     # --- recordable attributes (views of the shared, read-only gain sequence) ---
@@ -577,7 +671,10 @@ class AaKF:
             C = self.model.Cd
             e0 = y_enc - float(C[0] @ np.array((x0, x1, x2, x3)))
             e1 = acc - float(C[1] @ np.array((x0, x1, x2, x3)))
-        k00, k01, k10, k11, k20, k21, k30, k31 = K
+        k00, k01, k10, k11, k20, k21, k30, k31, i00, i01, i11, logdet = K
+        # Gaussian log-likelihood of the innovation, -(log det S + e^T S^-1 e)/2 (the
+        # constant -log(2 pi) dropped): what the sigma_a bank weighs the members by
+        self.loglik = -0.5 * (logdet + (i00 * e0 * e0 + 2.0 * i01 * e0 * e1 + i11 * e1 * e1))
         self._x_pred = (x0, x1, x2, x3)
         x0 = x0 + (k00 * e0 + k01 * e1)                                   # eq. 102
         x1 = x1 + (k10 * e0 + k11 * e1)
@@ -585,23 +682,7 @@ class AaKF:
         x3 = x3 + (k30 * e0 + k31 * e1)
 
         if self._reset_post:                                              # variant, not thesis
-            if x0 > hi:
-                x0 = hi
-                pos_fired = True
-            elif x0 < lo:
-                x0 = lo
-                pos_fired = True
-            if enc_prev is not None:
-                v = (enc - enc_prev) / self._Ts
-                if self._accel_bound:
-                    v += self._half_Ts * x2
-                dv = self._dv
-                if x1 > v + dv:
-                    x1 = v + dv
-                    speed_fired = True
-                elif x1 < v - dv:
-                    x1 = v - dv
-                    speed_fired = True
+            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
 
         self._x_post = (x0, x1, x2, x3)
         self._innov = (e0, e1)
@@ -609,6 +690,8 @@ class AaKF:
         self._enc_prev = enc
         self.k = k + 1
 
+        if self._reset_out:                                    # variant: the output only
+            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
         s = self._s
         return {
             "theta_rad": x0,
@@ -624,6 +707,149 @@ class AaKF:
             "reset_pos_fired": 1.0 if pos_fired else 0.0,
             "reset_speed_fired": 1.0 if speed_fired else 0.0,
         }
+
+
+class AaKFBank(AaKF):
+    """Bank of single aaKFs that differ only in sigma_a, weighed by the likelihood of
+    their innovations (multiple-model adaptive estimation, Magill 1965).
+
+    Built by ``AaKF(p)`` when ``p.sigma_a_bank`` is not empty (the default). Member i is
+    the single :class:`AaKF` of ``p`` with ``sigma_a = p.sigma_a_bank[i]`` (every other
+    field, the reset included, as in ``p``); all members see the same measurements
+    and none feeds back into another. At tick k, member i gives its a-posteriori state
+    x_i and the Gaussian log-likelihood of its innovation e_i (eq. 101, covariance
+    S_i = C P_i,k|k-1 C^T + R of eq. 100)::
+
+        l_i,k = -(log det S_i,k + e_i,k^T S_i,k^-1 e_i,k) / 2
+        L_i,k = lambda L_i,k-1 + l_i,k,      lambda = exp(-Ts / bank_memory_s)
+        w_i,k = exp(L_i,k) / sum_j exp(L_j,k)
+
+    and the bank's estimate is sum_i w_i,k x_i (outputs ``theta_rad`` ... ``bias_m_s2``).
+    The innovation outputs are those of the mixed prediction, sum_i w_i,k-1 e_i,k
+    (C is linear, so this is y_k - C sum_i w_i,k-1 x_i,k|k-1); the recordable
+    ``gain``/``P``/``P_pred``/``reset_lo``/``reset_hi`` are those of the most probable
+    member. The state reset: with ``reset_stage="output"`` the members run without it
+    and the bank's position and speed are clamped into eq. 29/31 (the ``reset_*``
+    flags say when); with "prediction" or "posterior" every member applies it to its
+    own state and the flags are those of the most probable member. Extra recordables: ``weights`` (w_k) and ``sigma_a_eff``
+    (exp(sum_i w_i log sigma_a_i) [rad/s^3/sqrt(Hz)]).
+
+    Why: the aaKF is kinematic, and the jerk it must follow depends on what moves
+    the axis (about 300 rad/s^3/sqrt(Hz) for a hand, 3e3 for a white-noise current
+    whose zero-order-held steps make the acceleration jump at every sample); the
+    likelihood picks it from the data sample by sample.
+    """
+
+    def __init__(self, params: AakfParams | None = None) -> None:
+        self.params = p = params if params is not None else AakfParams()
+        _check_params(p)
+        if not p.sigma_a_bank:
+            raise ValueError("AaKFBank needs a non-empty sigma_a_bank")
+        # the "output" reset acts on the bank's estimate, not inside the members
+        self._reset_out = p.reset_enabled and p.reset_stage == "output"
+        member_reset = p.reset_enabled and not self._reset_out
+        self.members = [AaKF(replace(p, sigma_a=float(sa), sigma_a_bank=(),
+                                     reset_enabled=member_reset))
+                        for sa in p.sigma_a_bank]
+        self.model = self.members[0].model
+        self._lam = math.exp(-p.Ts / p.bank_memory_s)
+        self._log_sa = [math.log(sa) for sa in p.sigma_a_bank]
+        self._s = p.m_per_rad
+        self.reset()
+
+    def reset(self) -> None:
+        for f in self.members:
+            f.reset()
+        n = len(self.members)
+        self.k = 0
+        self._L = [0.0] * n
+        self._w = [1.0 / n] * n
+        self._w_prior = self._w
+        self._innov = (0.0, 0.0)
+        self._x_mix = (0.0, 0.0, 0.0, 0.0)
+        self._best = 0
+        self._enc_prev: float | None = None
+        self.sigma_a_eff = math.exp(sum(self._log_sa) / n)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """w_k, one weight per member of ``sigma_a_bank``."""
+        return np.array(self._w)
+
+    def _best_member(self) -> AaKF:
+        return self.members[self._best]
+
+    gain = property(lambda self: self._best_member().gain, doc="K_k of the most probable member.")
+    P = property(lambda self: self._best_member().P, doc="P_k|k of the most probable member.")
+    P_pred = property(lambda self: self._best_member().P_pred,
+                      doc="P_k|k-1 of the most probable member.")
+    reset_lo = property(lambda self: self._best_member().reset_lo)
+    reset_hi = property(lambda self: self._best_member().reset_hi)
+
+    @property
+    def x_post(self) -> np.ndarray:
+        """sum_i w_i,k x_i,k|k (before an output-stage reset)."""
+        return np.array(self._x_mix)
+
+    @property
+    def x_pred(self) -> np.ndarray:
+        """sum_i w_i,k-1 x_i,k|k-1 (the mixed prediction the innovations refer to)."""
+        return np.array(self._w_prior) @ np.array([f.x_pred for f in self.members])
+
+    @property
+    def innovation(self) -> np.ndarray:
+        return np.array(self._innov)
+
+    def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
+        """One sample: every member steps (eq. 98-103), then the weights are updated."""
+        outs = [f.step(measurements) for f in self.members]
+        w_prior = self._w
+        lam = self._lam
+        L = [lam * Li + f.loglik for Li, f in zip(self._L, self.members)]
+        top = max(L)
+        L = [Li - top for Li in L]                  # keep exp() in range; w unchanged
+        ex = [math.exp(Li) for Li in L]
+        tot = sum(ex)
+        w = [e / tot for e in ex]
+        self._L, self._w, self._w_prior = L, w, w_prior
+        self._best = best = max(range(len(w)), key=w.__getitem__)
+        self.sigma_a_eff = math.exp(sum(wi * la for wi, la in zip(w, self._log_sa)))
+        th = om = al = bi = 0.0
+        e0 = e1 = 0.0
+        for wi, wp, o in zip(w, w_prior, outs):
+            th += wi * o["theta_rad"]
+            om += wi * o["omega_rad_s"]
+            al += wi * o["alpha_rad_s2"]
+            bi += wi * o["bias_m_s2"]
+            e0 += wp * o["innov_enc_rad"]
+            e1 += wp * o["innov_acc_m_s2"]
+        self._innov = (e0, e1)
+        self._x_mix = (th, om, al, bi)
+        self.k += 1
+        ob = outs[best]
+        flags = ob["reset_fired"], ob["reset_pos_fired"], ob["reset_speed_fired"]
+        enc = float(measurements["theta_enc"])
+        if self._reset_out:                           # Sec. 2.2.2 on the bank's estimate
+            th, om, pos, spd = _clamp(self.params, th, om, al, enc, self._enc_prev)
+            flags = float(pos or spd), float(pos), float(spd)
+        self._enc_prev = enc
+        s = self._s
+        return {
+            "theta_rad": th,
+            "omega_rad_s": om,
+            "alpha_rad_s2": al,
+            "x_m": s * th,
+            "v_m_s": s * om,
+            "a_m_s2": s * al,
+            "bias_m_s2": bi,
+            "innov_enc_rad": e0,
+            "innov_acc_m_s2": e1,
+            "reset_fired": flags[0],
+            "reset_pos_fired": flags[1],
+            "reset_speed_fired": flags[2],
+        }
+
+    recordable: tuple[str, ...] = AaKF.recordable + ("weights", "sigma_a_eff")
 
 
 _SHARED_FIELDS = ("Ts", "lead_m", "encoder_counts_per_rev", "encoder_quantiser",
@@ -642,8 +868,10 @@ def filter_log(params: AakfParams | Sequence[AakfParams], theta_enc: np.ndarray,
     form) is run until no gain changes by more than ``gain_rtol`` (relative) in one
     step, and the last gains are then held.
 
+    Each entry is one single filter (its ``sigma_a``; ``sigma_a_bank`` is ignored).
     Returns arrays, with a leading filter axis when ``params`` is a sequence:
-    ``x_post`` (N x 4), ``x_pred`` (N x 4, the prediction the update used),
+    ``x_post`` (N x 4, what :meth:`AaKF.step` outputs: with ``reset_stage="output"``
+    the clamped estimate, the state itself unclamped), ``x_pred`` (N x 4, the prediction the update used),
     ``innov`` (N x 2), ``reset_pos`` and ``reset_speed`` (N, bool), and
     ``gain_steps`` (number of Riccati steps run).
     """
@@ -676,6 +904,7 @@ def filter_log(params: AakfParams | Sequence[AakfParams], theta_enc: np.ndarray,
     accel_bound = p.reset_speed_bound == "eq31_accel"
     reset_pred = p.reset_enabled and p.reset_stage == "prediction"
     reset_post = p.reset_enabled and p.reset_stage == "posterior"
+    reset_out = p.reset_enabled and p.reset_stage == "output"
 
     x_post = np.empty((nf, n, 4))
     x_pred_out = np.empty((nf, n, 4))
@@ -731,7 +960,12 @@ def filter_log(params: AakfParams | Sequence[AakfParams], theta_enc: np.ndarray,
         if reset_post:
             clamp(x, k)
         x_pred_out[:, k] = xp
-        x_post[:, k] = x
+        if reset_out:                                  # the output only, not the state
+            xo = x.copy()
+            clamp(xo, k)
+            x_post[:, k] = xo
+        else:
+            x_post[:, k] = x
         innov[:, k, 0] = e0
         innov[:, k, 1] = e1
     out = {"x_post": x_post, "x_pred": x_pred_out, "innov": innov,

@@ -54,10 +54,35 @@ Interpretations of the thesis made here (documented decisions)
   reliable. ``skip_reversals=False, w_min_rad_s=0`` gives the thesis' literal algorithm.
 * lambda and delta are not given in the thesis; the defaults below are choices
   (lambda = 0.9999: a 10 s memory, matching the ~10 s start-up trial of Sec. 2.5.2).
+
+Regression (extension, default): the plant integrated over a window
+---------------------------------------------------------------------
+Eq. 39-45 determine b only through 1 - a1 = Ts b/J (about 2e-3): the viscous torque
+b w is a few per cent of the inertial torque J w' at the excitation frequencies, so
+the regression of w_k on w_{k-1} reads b from a difference that a speed estimate
+must reproduce to a small fraction of its own error. A speed estimate that runs
+ahead of (or behind) the true speed by a few microseconds per rad/s^2 of
+acceleration (w_hat = w + c w', |c| = 2e-5 s, a fiftieth of a sample) moves b by
+about 20 %; the encoder backward difference (half a sample late) more. With
+``regression="integral"`` (default) the RLS of eq. 46-50 is run instead on the
+plant of eq. 35-36 integrated over the last N = ``window_samples`` intervals::
+
+    J (w_k - w_{k-N}) + b (theta_k - theta_{k-N}) + fc Ts sum_j sign(w_j)
+        = Ts sum_{j=k-N+1..k} tau_j                                   (eq. 35-36, integrated)
+
+with tau_j the torque held over [t_{j-1}, t_j). It is linear in the physical
+parameters (theta = [J, b, fc], no eq. 51-53 needed); the viscous term is measured
+by the encoder (theta_enc, rad: the integral of w over the window, up to one
+quantisation step), and the speed estimate enters only through the end points of
+the window (the inertial term) and the sign. The window is used only when every
+speed w_{k-N} .. w_k has the same sign and |w_j| >= ``w_min_rad_s`` (the Coulomb
+term is then -+fc over the whole window; reversals and stiction are skipped as
+in the eq. 44 form). ``regression="eq44"`` is the thesis' form above.
 """
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -86,6 +111,10 @@ class RLSParams:
         interval, w_{k-1} w_k <= 0 (extension, see the module docstring).
     w_min_rad_s: skip the update when |w_{k-1}| or |w_k| is below this speed [rad/s]
         (extension; 0 disables).
+    regression: "integral" (default: the plant integrated over ``window_samples``
+        intervals, needs ``theta_enc``; see the module docstring) or "eq44" (the
+        thesis' ZOH one-step regression, eq. 38-45).
+    window_samples: N, the window of the integral regression [samples].
     """
 
     Ts_s: float = 1e-3
@@ -97,6 +126,8 @@ class RLSParams:
     i_cmd_is_previous: bool = False
     skip_reversals: bool = True
     w_min_rad_s: float = 0.5
+    regression: str = "integral"
+    window_samples: int = 20
 
 
 def theta_to_physical(theta: np.ndarray, Ts_s: float) -> tuple[float, float, float]:
@@ -145,6 +176,8 @@ class RLSIdentifier:
     last update), updated [-] (1.0 if this tick's sample was used, else 0.0).
     """
 
+    #: inputs of the eq. 44 regression; the integral regression adds ``theta_enc``
+    #: (the instance's ``inputs`` says which)
     inputs: tuple[str, ...] = ("i_cmd", "w")
     outputs: tuple[str, ...] = (
         "J_hat",
@@ -167,6 +200,12 @@ class RLSIdentifier:
             raise ValueError("delta must be > 0")
         if p.coulomb_regressor_sign not in (-1.0, 1.0):
             raise ValueError("coulomb_regressor_sign must be -1 or +1")
+        if p.regression not in ("integral", "eq44"):
+            raise ValueError("regression must be 'integral' or 'eq44'")
+        if p.window_samples < 1:
+            raise ValueError("window_samples must be >= 1")
+        if p.regression == "integral":
+            self.inputs = ("i_cmd", "w", "theta_enc")
         self.reset()
 
     def reset(self) -> None:
@@ -176,6 +215,15 @@ class RLSIdentifier:
         self.e_pred = 0.0
         self._w_prev: float | None = None
         self._tau_prev: float | None = None  # torque held over the last interval
+        self._n_updates = 0
+        if p.regression == "integral":
+            # the integral form estimates [J, b, fc] directly (eq. 46-47 on that vector)
+            self.theta = np.zeros(3)
+            n = p.window_samples + 1
+            self._hist_w: deque[float] = deque(maxlen=n)      # w_{k-N} .. w_k
+            self._hist_th: deque[float] = deque(maxlen=n)     # theta_{k-N} .. theta_k
+            self._hist_tau: deque[float] = deque(maxlen=p.window_samples)  # tau_j, j = k-N+1..k
+            self._run = 0          # number of consecutive usable speeds of one sign, up to k
 
     def update(self, x: np.ndarray, y: float) -> float:
         """One RLS step with regressor x and output y (eq. 34, 48-50); returns e."""
@@ -189,6 +237,8 @@ class RLSIdentifier:
         return float(e)
 
     def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
+        if self.params.regression == "integral":
+            return self._step_integral(measurements)
         p = self.params
         w = float(measurements["w"])
         tau = p.Kt_Nm_per_A * float(measurements["i_cmd"])  # tau_tot = Kt i
@@ -217,6 +267,63 @@ class RLSIdentifier:
             "theta_a1": float(self.theta[0]),
             "theta_b0": float(self.theta[1]),
             "theta_fcb0": float(self.theta[2]),
+            "e_pred": self.e_pred,
+            "updated": float(informative),
+        }
+
+
+    def _step_integral(self, measurements: Mapping[str, float]) -> dict[str, float]:
+        """One tick of the integral regression (module docstring; RLS of eq. 46-50)."""
+        p = self.params
+        w = float(measurements["w"])
+        th = float(measurements["theta_enc"])
+        tau = p.Kt_Nm_per_A * float(measurements["i_cmd"])  # tau_tot = Kt i
+        tau_held = tau if p.i_cmd_is_previous else self._tau_prev   # over [t_{k-1}, t_k)
+        # run of usable speeds: |w| >= w_min and (with skip_reversals) one sign
+        usable = abs(w) >= p.w_min_rad_s and w != 0.0
+        same = self._w_prev is not None and self._w_prev * w > 0.0
+        if not usable:
+            self._run = 0
+        elif same or not p.skip_reversals:
+            self._run += 1
+        else:
+            self._run = 1
+        self._hist_w.append(w)
+        self._hist_th.append(th)
+        if tau_held is not None:
+            self._hist_tau.append(tau_held)
+        else:
+            self._hist_tau.clear()
+        N = p.window_samples
+        informative = (self._run >= N + 1 and len(self._hist_tau) == N
+                       and len(self._hist_w) == N + 1)
+        if informative:
+            Ts = p.Ts_s
+            y = Ts * math.fsum(self._hist_tau)                      # Ts sum tau_j
+            x = np.array([w - self._hist_w[0],                      # J: w_k - w_{k-N}
+                          th - self._hist_th[0],                    # b: theta_k - theta_{k-N}
+                          -p.coulomb_regressor_sign * N * Ts * math.copysign(1.0, w)])  # fc
+            self.e_pred = self.update(x, y)                         # eq. 34, 48-50
+        self._w_prev = w
+        self._tau_prev = tau
+        J, b, fc = (float(v) for v in self.theta)
+        if not (J > 0.0 and math.isfinite(J) and math.isfinite(b)) or not np.any(self.theta):
+            a1 = b0 = fcb0 = math.nan
+        else:
+            a1, b0, fcb0 = (float(v) for v in physical_to_theta(J, b, fc, p.Ts_s))
+        if informative:
+            self._n_updates += 1
+        if self._n_updates >= 3:       # before: the P0 prior, NaN like eq. 51-53's undefined
+            Jo, bo, fco = J, b, fc
+        else:
+            Jo = bo = fco = math.nan
+        return {
+            "J_hat": Jo,
+            "b_hat": bo,
+            "fc_hat": fco,
+            "theta_a1": a1,
+            "theta_b0": b0,
+            "theta_fcb0": fcb0,
             "e_pred": self.e_pred,
             "updated": float(informative),
         }

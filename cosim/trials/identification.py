@@ -6,9 +6,8 @@ its reading at t_k is the acceleration at t_k, not one step late) are read every
 1 ms. The RLS of Sec. 2.3 (:class:`cosim.algorithms.rls.RLSIdentifier`) then runs
 over the recorded current with three speeds:
 
-* ``aakf``: the on-line aaKF of the scenario (``aakf.omega_rad_s``; its tuning is in
-  the scenario file: the identification tuning ``sigma_a = IDENTIFY_SIGMA_A`` of
-  :mod:`cosim.offline`);
+* ``aakf``: the on-line aaKF of the scenario (``aakf.omega_rad_s``; its settings are in
+  the scenario file: the default sigma_a bank of :class:`cosim.algorithms.aakf.AaKFBank`);
 * ``encoder``: encoder backward differencing (``encdiff.omega_rad_s``);
 * ``exact``: the FMU's own speed ``plant.w``, a control. The plant's LuGre friction
   with fs = fc has the steady-state curve fc sign(w) + b w exactly, and the RLS skips
@@ -17,7 +16,10 @@ over the recorded current with three speeds:
   J, b, fc *are* what the RLS must return: an error here is a defect of the set-up
   (timing, units, model), not of a speed estimate.
 
-The RLS runs after the simulation on the recorded signals, exactly as on a trial
+The RLS of the ``aakf`` and ``encoder`` phases uses its default integral regression
+(the viscous term measured by ``plant.theta_enc``, :mod:`cosim.algorithms.rls`); the
+``exact`` control keeps the one-step regression of eq. 44, which is exact on this
+record. The RLS runs after the simulation on the recorded signals, exactly as on a trial
 log (its estimates are NaN until the regressor has excited all three directions,
 which the master would reject as a controller output).
 
@@ -56,18 +58,26 @@ def _true_parameters(system, role="plant") -> dict:
 
 
 def rls_history(i_held_A: np.ndarray, w_rad_s: np.ndarray, Ts_s: float, Kt_Nm_per_A: float,
-                **rls_params) -> np.ndarray:
+                theta_enc_rad: np.ndarray | None = None, **rls_params) -> np.ndarray:
     """Run the RLS (eq. 32-53) over a record; return the (n, 3) history of J, b, fc.
 
     ``i_held_A[k]`` is the current held over [t_{k-1}, t_k) (an FMU input read back at
-    tick k), ``w_rad_s[k]`` the speed at t_k."""
+    tick k), ``w_rad_s[k]`` the speed at t_k. With ``theta_enc_rad`` (encoder angle at
+    t_k [rad]) the RLS uses its default integral regression (the viscous term from
+    the encoder, :mod:`cosim.algorithms.rls`); without it, the thesis' one-step
+    regression of eq. 44 (``regression="eq44"``)."""
     from cosim.algorithms.rls import RLSIdentifier, RLSParams
+    if theta_enc_rad is None:
+        rls_params = {"regression": "eq44", **rls_params}
+        th = np.zeros(np.asarray(w_rad_s).size)
+    else:
+        th = np.asarray(theta_enc_rad, dtype=float)
     rls = RLSIdentifier(RLSParams(Ts_s=Ts_s, Kt_Nm_per_A=Kt_Nm_per_A, i_cmd_is_previous=True,
                                   **rls_params))
     hist = np.empty((w_rad_s.size, 3))
-    for k, (i, wk) in enumerate(zip(np.asarray(i_held_A).tolist(),
-                                    np.asarray(w_rad_s).tolist())):
-        r = rls.step({"i_cmd": i, "w": wk})
+    for k, (i, wk, tk) in enumerate(zip(np.asarray(i_held_A).tolist(),
+                                        np.asarray(w_rad_s).tolist(), th.tolist())):
+        r = rls.step({"i_cmd": i, "w": wk, "theta_enc": tk})
         hist[k] = (r["J_hat"], r["b_hat"], r["fc_hat"])
     return hist
 
@@ -95,7 +105,7 @@ def identification(run, build, ctx):
         # independent accelerometer noise per run unless the file fixes it
         system.set_parameters("acc", seed=int(run.seed))
     truth = _true_parameters(system)
-    need = ["plant.i", "plant.w"] + [SPEEDS[k] for k in ("aakf", "encoder")]
+    need = ["plant.i", "plant.w", "plant.theta_enc"] + [SPEEDS[k] for k in ("aakf", "encoder")]
     record = list(dict.fromkeys(record + need))
     res = Master(system, record).run(run.duration)
     s = res.signals
@@ -106,7 +116,10 @@ def identification(run, build, ctx):
     idx = np.arange(dec - 1, t.size, dec)
     tv = np.array([truth[p] for p in PARAMS])
     for name, sig_name in SPEEDS.items():
-        hist = rls_history(s["plant.i"], s[sig_name], Ts, truth["Kt"])
+        # aaKF and encoder speeds: the integral regression (viscous term from the
+        # encoder); the exact-speed control keeps eq. 44, exact for this record
+        theta = None if name == "exact" else s["plant.theta_enc"]
+        hist = rls_history(s["plant.i"], s[sig_name], Ts, truth["Kt"], theta)
         err = hist / tv - 1.0
         sig = {"time": t[idx]}
         for j, p in enumerate(PARAMS):
