@@ -15,7 +15,7 @@ result file, used by the ``cosim estimate`` and ``cosim identify`` subcommands
 
     (aaKF a-posteriori motor angle, nut position, motor speed, nut speed, nut
     acceleration, accelerometer-bias estimate, the two innovations, 1.0 where the
-    state reset clamped the prediction; encoder-differencing motor and nut speed).
+    state reset clamped the estimate (off by default); encoder-differencing motor and nut speed).
     Returns a summary: sample count, Bartlett cumulative-periodogram whiteness
     verdict per innovation channel (:func:`cosim.algorithms.whiteness.
     cumulative_periodogram`, 95 %, after a burn-in), the reset firing fraction and
