@@ -367,3 +367,10 @@ def test_thesis_inconsistent_verdict_derivation_and_junit_skip(tmp_path):
     msg = error_of(tmp_path, text)
     assert f":{line_of(text, 'derivation:')}:" in msg and "no section" in msg
 
+
+def test_requirement_without_negative_control_is_an_error(tmp_path):
+    """Every requirement names a negative control (or is declared thesis-inconsistent)."""
+    text = BASE.replace("    negative_control: half_current\n", "", 1)
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'id: R-pass')}:" in msg and "no negative_control" in msg
+

@@ -255,12 +255,17 @@ def test_reaching_procedure_five_trainings(fmus, tmp_path):
     d.pop("sweep")
     d["requirements"] = [r for r in d["requirements"] if r["id"] in ("RE-1", "RE-9")]
     d["metrics"] = {k: d["metrics"][k] for k in ("off_force", "admissible")}
+    # the scenario's control for RE-1 (drivers left on in trainings 1 and 5), on this run
+    nc = d.pop("negative_controls")["drivers_left_on"]
+    nc.pop("runs")
+    nc["override"]["duration"] = 2.0
+    d["requirements"][0]["negative_control"] = nc
     f = tmp_path / "reaching_short.yaml"
     f.write_text(yaml.safe_dump(d, sort_keys=False))
     out = tmp_path / "out"
     run_scenario(f, out)
-    runs = list((out / "runs").iterdir())
-    assert len(runs) == 1
+    runs = sorted((out / "runs").iterdir())
+    assert [r.name for r in runs] == ["S1_seed0", "nc.RE-1_S1_seed0"]
     info = json.loads((runs[0] / "run.json").read_text())
     assert info["status"] == "ok", info.get("error")
     assert [p["phase"] for p in info["phases"]] == ["t1", "t2", "t3", "t4", "t5"]
@@ -273,4 +278,10 @@ def test_reaching_procedure_five_trainings(fmus, tmp_path):
     assert np.asarray(info["artifacts"]["maps"]).shape == (5, 2, 36)
     verdict = json.loads((out / "verdict.json").read_text())
     st = {r["id"]: r["status"] for r in verdict["requirements"]}
-    assert st == {"RE-1": "pass", "RE-9": "fail"}
+    assert st == {"RE-1": "pass", "RE-9": "thesis-inconsistent"}
+    # RE-1 measures the force at the table (Kf |i|): 0 with the drivers off, > 0 when
+    # the control leaves them on in trainings 1 and 5
+    re1 = verdict["requirements"][0]
+    assert re1["value"] == 0.0 and re1["negative_control"]["value"] > 0.0
+    assert info["values"]["table6_off_force_N"] == 0.0
+    assert min(info["values"][f"t{i}_table_force_N"] for i in (2, 3, 4)) > 0.0

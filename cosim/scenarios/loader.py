@@ -116,7 +116,7 @@ REQ = {"id": (str, True), "description": (str, True), "metric": (str, True),
        "aggregate": (str, False), "negative_control": ((dict, str), False),
        "thesis_inconsistent": (dict, False)}
 #: every requirement must name a negative control (or be declared thesis-inconsistent)
-REQUIRE_NEGATIVE_CONTROL = False
+REQUIRE_NEGATIVE_CONTROL = True
 #: a negative control: the scenario again, under which the requirement must NOT hold
 NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
        "runs": (list, False), "apply_to": (list, False)}

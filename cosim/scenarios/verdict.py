@@ -232,7 +232,7 @@ def verdict_of(real: dict, control: dict | None, inconsistent: bool) -> tuple[st
     if not real["held"]:
         return "fail", None
     if control is None:
-        return "pass", "no negative control: this check was not shown able to fail"
+        return "error", "no negative control: this check was not shown able to fail"
     if control["held"] is None:
         return "error", f"negative control: {control['message']}"
     if control["held"]:

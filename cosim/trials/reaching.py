@@ -69,6 +69,8 @@ from ..algorithms.stability import (HumanImpedance, StabilityProblem, admissibil
 TABLE_AXIS_MASS_KG = (1.5, 0.5)
 #: Table 6: motor drivers per training of a weekly session (controller always computing)
 SESSION_MOTORS = (False, True, True, True, False)
+#: linear-motor force constant of the X-Y table [N/A] (Table 4; XYTable.mo's Kf)
+XY_TABLE_KF_N_PER_A = 33.0
 
 
 # =========================================================================== controller
@@ -368,14 +370,29 @@ def worst_human_axes(human_params: Mapping[str, float], workspace_m: float = 0.2
     return out
 
 
+#: what ``parameters.stability_sim`` may change in the simulated 1-DOF loop only
+STABILITY_SIM_KEYS = ("xi", "k_N_per_m2s", "tau_s", "scale_b")
+
+
 def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str, float], *,
                     r_dot_max: float, v_max: float, x_max: float = 0.2,
-                    simulate: bool = True, sim_s: float | None = None) -> dict:
+                    simulate: bool = True, sim_s: float | None = None,
+                    sim_changes: Mapping[str, float] | None = None) -> dict:
     """Eq. 90-91 per axis (Sec. 3.3.2.2, strictest bound kept) and, if ``simulate``, a
     direct simulation of each axis' 1-DOF loop (eq. 80) with the same human, the axis
     mass and a triangle target at r'_max over +-x_max/2, for ``sim_s`` (default: four
     periods of the triangle, so that simulate_1dof's growth ratio -- peak error of the
-    last quarter / first quarter -- compares whole periods)."""
+    last quarter / first quarter -- compares whole periods). ``sim_changes`` (keys of
+    STABILITY_SIM_KEYS) alter the simulated loop only, e.g. a negative control that
+    removes its damping (xi = 0, human scale_b = 0)."""
+    ch = dict(sim_changes or {})
+    bad = sorted(set(ch) - set(STABILITY_SIM_KEYS))
+    if bad:
+        raise ValueError(f"stability_sim: unknown key(s) {bad} (allowed: {STABILITY_SIM_KEYS})")
+    sim_params = dataclasses.replace(params, **{k: float(ch[k]) for k in
+                                                ("xi", "k_N_per_m2s", "tau_s") if k in ch})
+    sim_humans = worst_human_axes(dict(human_params, **({"scale_b": float(ch["scale_b"])}
+                                                         if "scale_b" in ch else {})), x_max)
     humans = worst_human_axes(human_params, x_max)
     probs = [StabilityProblem.from_controller(params, x_max_m=x_max, v_max_m_per_s=v_max,
                                               r_dot_max_m_per_s=r_dot_max,
@@ -408,8 +425,9 @@ def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str,
             return -amp + 4 * amp * (ph - 0.75), r_dot_max
 
         sims = []
-        for j, h in enumerate(humans):
-            p1 = dataclasses.replace(params, n_dof=1, axis_names=("q",),
+        out["simulation_changes"] = ch
+        for j, h in enumerate(sim_humans):
+            p1 = dataclasses.replace(sim_params, n_dof=1, axis_names=("q",),
                                      workspace_min_m=(params.workspace_min_m[j],),
                                      workspace_size_m=(params.workspace_size_m[j],),
                                      damping_mass_kg=(None if params.damping_mass_kg is None
@@ -538,7 +556,7 @@ def _reaching_session(run, build, ctx):
     ``parameters.week``; phases t1..t5 (decimated 10x), values per training."""
     from ..master import Master
     from .patients import subject as get_subject
-    pr = dict(run.overrides.get("parameters") or {})
+    pr = dict(ctx.parameters or run.overrides.get("parameters") or {})
     subj = get_subject(pr.get("subject", "S1"))
     week = int(pr.get("week", 0))
     motors = tuple(bool(m) for m in pr.get("motors", SESSION_MOTORS))
@@ -566,6 +584,10 @@ def _reaching_session(run, build, ctx):
         (mx, sx), (my, sy) = mae_sde(ex), mae_sde(ey)
         tag = f"t{i + 1}"
         fmax = float(np.max(np.abs(np.r_[sig["ac.f_x"], sig["ac.f_y"]])))
+        if "table.ix" in sig and "table.iy" in sig:   # the force the table's motors apply
+            kf = float(system.params["table"].get("Kf", XY_TABLE_KF_N_PER_A))
+            out.values[f"{tag}_table_force_N"] = kf * float(
+                np.max(np.abs(np.r_[sig["table.ix"], sig["table.iy"]])))
         out.values.update({f"{tag}_MAE_x_mm": 1e3 * mx, f"{tag}_SDE_x_mm": 1e3 * sx,
                            f"{tag}_MAE_y_mm": 1e3 * my, f"{tag}_SDE_y_mm": 1e3 * sy,
                            f"{tag}_total_MAE_mm": 500.0 * (mx + my), f"{tag}_motors_on": float(on),
@@ -588,12 +610,18 @@ def _reaching_session(run, build, ctx):
     on_idx = [i + 1 for i, m in enumerate(motors) if m]
     off_idx = [i + 1 for i, m in enumerate(motors) if not m]
     v["on_total_MAE_mm"] = float(np.mean([v[f"t{i}_total_MAE_mm"] for i in on_idx])) if on_idx else float("nan")
-    v["on_over_off_total_MAE"] = (np.mean([v[f"t{i}_total_MAE_mm"] for i in on_idx])
-                                  / np.mean([v[f"t{i}_total_MAE_mm"] for i in off_idx]))
-    if all(f"t{i}_MAE_impaired_mm" in v for i in range(1, len(motors) + 1)):
+    if on_idx and off_idx:         # (a session with every driver on has no ON/OFF ratio)
+        v["on_over_off_total_MAE"] = (np.mean([v[f"t{i}_total_MAE_mm"] for i in on_idx])
+                                      / np.mean([v[f"t{i}_total_MAE_mm"] for i in off_idx]))
+    if on_idx and off_idx and all(f"t{i}_MAE_impaired_mm" in v for i in range(1, len(motors) + 1)):
         v["on_over_off_impaired_MAE"] = (np.mean([v[f"t{i}_MAE_impaired_mm"] for i in on_idx])
                                          / np.mean([v[f"t{i}_MAE_impaired_mm"] for i in off_idx]))
     v["off_max_force_N"] = max(v[f"t{i}_max_force_N"] for i in off_idx) if off_idx else 0.0
+    # RE-1: the motor force measured at the table (Kf times the FMU's motor currents) in
+    # the trainings Table 6 has OFF (1 and 5), whatever the drivers were told
+    t6_off = [i + 1 for i, m in enumerate(SESSION_MOTORS) if not m]
+    if all(f"t{i}_table_force_N" in v for i in t6_off):
+        v["table6_off_force_N"] = max(v[f"t{i}_table_force_N"] for i in t6_off)
     # Fig. 49: where is the stiffness highest (motors-OFF pre assessment map, on the path)?
     cp = AdaptiveComplianceController(compliance_params(1.0, 1.0))
     path = ctx.state.get("reaching_path") or ReachingTargetParams().path()
@@ -608,7 +636,7 @@ def _reaching_session(run, build, ctx):
     xyp = ctx.state["controller"].params
     st = stability_check(xyp, hp0, r_dot_max=path.speed_m_per_s, v_max=v_max,
                          simulate=bool(pr.get("simulate_stability", True)),
-                         sim_s=pr.get("stability_sim_s"))
+                         sim_s=pr.get("stability_sim_s"), sim_changes=pr.get("stability_sim"))
     v["eq90_91_admissible"] = float(st["admissible"])
     v["eq90_k_max"] = st["k_max"]
     v["eq91_tau_max_s"] = st["tau_max_s"]
@@ -686,12 +714,15 @@ def _worst_weekly_slope(params, ctx):
     ss = _sessions(ctx)
     subs = sorted({k[0] for k in ss if not params.get("subjects") or k[0] in params["subjects"]})
     slopes = []
+    weeks = {s: sorted(w for (k, w) in ss if k == s) for s in subs}
     for s in subs:
-        wk = sorted(w for (k, w) in ss if k == s)
-        if len(wk) < 2:
-            raise ValueError(f"subject {s}: a trend needs >= 2 weeks, got {wk}")
+        wk = weeks[s]
+        if len(wk) < 2:          # (a negative control may hold one session of a subject)
+            continue
         y = [ss[(s, w)]["pre_total_MAE_mm"] for w in wk]
         slopes.append(float(np.polyfit(wk, y, 1)[0]))
+    if not slopes:
+        raise ValueError(f"no subject with >= 2 weeks: a trend needs two (weeks: {weeks})")
     return max(slopes)
 
 
