@@ -374,3 +374,40 @@ def test_requirement_without_negative_control_is_an_error(tmp_path):
     msg = error_of(tmp_path, text)
     assert f":{line_of(text, 'id: R-pass')}:" in msg and "no negative_control" in msg
 
+
+def test_no_import_circles_in_the_scenario_pipeline():
+    """scenarios/* and report/*: the import graph (module-level and function-level
+    imports) has no cycle, e.g. report.html reads the store, never the runner."""
+    import ast
+    root = REPO / "cosim"
+    mods = {}
+    for pkg in ("scenarios", "report"):
+        for f in (root / pkg).glob("*.py"):
+            name = f"cosim.{pkg}.{f.stem}".removesuffix(".__init__")
+            deps = set()
+            for node in ast.walk(ast.parse(f.read_text())):
+                if isinstance(node, ast.ImportFrom):
+                    base = (f"cosim.{pkg}" if node.level == 1 else "cosim" if node.level == 2
+                            else "") + ("." + node.module if node.module and node.level else
+                                        node.module or "")
+                    base = base.lstrip(".")
+                    deps.add(base)
+                    deps.update(f"{base}.{a.name}" for a in node.names)
+                elif isinstance(node, ast.Import):
+                    deps.update(a.name for a in node.names)
+            mods[name] = deps
+    graph = {m: {d for d in deps if d in mods and d != m} for m, deps in mods.items()}
+    assert "cosim.scenarios.runner" not in graph["cosim.report.html"]
+    assert "cosim.scenarios.store" in graph["cosim.report.html"]
+    assert not (root / "scenarios" / "builtins.py").exists()
+
+    def cycle_from(m, path):
+        for d in graph[m]:
+            if d in path:
+                return path[path.index(d):] + [d]
+            c = cycle_from(d, path + [d])
+            if c:
+                return c
+        return None
+    for m in graph:
+        assert cycle_from(m, [m]) is None, cycle_from(m, [m])
