@@ -14,7 +14,7 @@ from cosim.algorithms.aakf import AaKF, AakfParams  # noqa: E402
 from test_aakf_fast import _ReferenceAaKF  # noqa: E402
 
 
-def us_per_step(cls, params: AakfParams = AakfParams(sigma_a_bank=())) -> float:
+def us_per_step(cls, params: AakfParams = AakfParams(sigma_a=300.0)) -> float:
     """Per-step time of ``cls(params)`` (default: one filter, the thesis' aaKF)."""
     f = cls(params)
     m = {"theta_enc": 0.1, "acc_meas": 0.2}

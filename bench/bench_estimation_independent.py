@@ -40,7 +40,7 @@ SETTINGS = {
     "default + thesis reset (prediction, eq. 31)": AakfParams(
         reset_enabled=True, reset_stage="prediction", reset_speed_bound="eq31"),
     "thesis single filter, sigma_a 300, jerk Q_d, thesis reset": AakfParams(
-        sigma_a_bank=(), process_noise="jerk", reset_enabled=True, reset_stage="prediction",
+        sigma_a=300.0, process_noise="jerk", reset_enabled=True, reset_stage="prediction",
         reset_speed_bound="eq31"),
 }
 

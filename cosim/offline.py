@@ -362,8 +362,7 @@ def _print_err(exc: BaseException) -> None:
 def _cmd_estimate(a: argparse.Namespace) -> int:
     kw: dict[str, Any] = {}
     if a.sigma_a is not None:
-        kw["sigma_a"] = a.sigma_a
-        kw["sigma_a_bank"] = ()                      # one filter with this sigma_a
+        kw["sigma_a"] = a.sigma_a                    # one filter with this sigma_a
     if a.sigma_b is not None:
         kw["sigma_b"] = a.sigma_b
     try:
@@ -386,7 +385,7 @@ def _cmd_identify(a: argparse.Namespace) -> int:
         if a.sigma_a is not None or a.sigma_b is not None:
             kw: dict[str, Any] = {}
             if a.sigma_a is not None:
-                kw.update(sigma_a=a.sigma_a, sigma_a_bank=())   # one filter with this sigma_a
+                kw["sigma_a"] = a.sigma_a            # one filter with this sigma_a
             if a.sigma_b is not None:
                 kw["sigma_b"] = a.sigma_b
             kp = AakfParams(**kw)

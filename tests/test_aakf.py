@@ -39,7 +39,7 @@ KT = 0.0603                       # N m / A
 J = 1.7e-5                        # kg m^2
 BIAS0 = 0.3                       # m/s^2
 #: the thesis' aaKF, literally: one filter, eq. 28, the reset on the prediction (eq. 29-31)
-THESIS = AakfParams(sigma_a_bank=(), process_noise="jerk", reset_enabled=True,
+THESIS = AakfParams(sigma_a=300.0, process_noise="jerk", reset_enabled=True,
                     reset_stage="prediction", reset_speed_bound="eq31")
 
 

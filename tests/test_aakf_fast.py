@@ -208,7 +208,7 @@ def _max_rel(names, r_out, f_out) -> float:
 @pytest.mark.parametrize("opts", _RESET_OPTIONS, ids=lambda o: "-".join(str(v) for v in o.values()))
 def test_fast_step_matches_reference_30s(logs, scenario, opts, noise):
     enc, acc = logs[scenario]
-    p = AakfParams(sigma_a_bank=(), process_noise=noise, **opts)     # one filter
+    p = AakfParams(sigma_a=300.0, process_noise=noise, **opts)     # one filter
     names, r_out, f_out, attr_err = _run_both(p, enc, acc)
     worst = _max_rel(names, r_out, f_out)
     # measured (30 s, 30000 steps): <= 9.8e-11 (see the module docstring)
@@ -226,13 +226,13 @@ def test_fast_step_matches_reference_30s(logs, scenario, opts, noise):
 def test_fast_step_matches_reference_other_options(logs, extra):
     enc, acc = logs["free_motion"]
     enc = enc[:8000] + (0.0 if extra.get("encoder_quantiser") != "floor" else 0.0)
-    names, r_out, f_out, attr_err = _run_both(AakfParams(sigma_a_bank=(), **extra), enc, acc[:8000])
+    names, r_out, f_out, attr_err = _run_both(AakfParams(**{"sigma_a": 300.0, **extra}), enc, acc[:8000])
     assert _max_rel(names, r_out, f_out) <= 1e-9
     assert attr_err <= 1e-9
 
 
 def test_gain_sequence_shared_and_read_only():
-    p = AakfParams(sigma_a=123.0, sigma_a_bank=())
+    p = AakfParams(sigma_a=123.0)
     f1, f2 = AaKF(p), AaKF(replace(p, reset_stage="prediction"))
     assert f1._seq is f2._seq                      # reset options do not change K_k
     assert np.array_equal(f1.P, f1.model.P0) and np.all(f1.gain == 0.0)   # before step 1
@@ -262,7 +262,7 @@ def _reference_bank(p: AakfParams, enc: np.ndarray, acc: np.ndarray) -> dict[str
     l_i = -(log det S_i + e_i^T S_i^-1 e_i)/2 with S_i = C P_i,k|k-1 C^T + R,
     L_i = lambda L_i + l_i, w = softmax(L), estimate = w @ x_i, innovation = w_prev @ e_i."""
     out_reset = p.reset_enabled and p.reset_stage == "output"   # on the mixed estimate
-    members = [_ReferenceAaKF(replace(p, sigma_a=sa, sigma_a_bank=(),
+    members = [_ReferenceAaKF(replace(p, sigma_a=sa,
                                       reset_enabled=p.reset_enabled and not out_reset))
                for sa in p.sigma_a_bank]
     lam = math.exp(-p.Ts / p.bank_memory_s)

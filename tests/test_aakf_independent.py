@@ -43,7 +43,7 @@ pytestmark = pytest.mark.skipif(not (DEV / "truth.json").is_file(),
                                 reason=f"independent estimation-dev data absent ({DEV})")
 
 #: the thesis' aaKF, literally: one filter, eq. 28 Q_d, sigma_a 300, reset on the prediction
-THESIS = AakfParams(sigma_a_bank=(), process_noise="jerk", sigma_a=300.0, reset_enabled=True,
+THESIS = AakfParams(process_noise="jerk", sigma_a=300.0, reset_enabled=True,
                     reset_stage="prediction", reset_speed_bound="eq31")
 
 
@@ -73,7 +73,7 @@ def runs(dev):
         "reset_thesis": AakfParams(reset_enabled=True, reset_stage="prediction",
                                    reset_speed_bound="eq31"),
         "thesis": THESIS,
-        "thesis_off": AakfParams(sigma_a_bank=(), process_noise="jerk", sigma_a=300.0),
+        "thesis_off": AakfParams(process_noise="jerk", sigma_a=300.0),
     }
     out = {}
     for name, d in dev.items():

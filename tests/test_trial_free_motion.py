@@ -56,7 +56,7 @@ def test_thesis_whiteness_tuning_of_the_single_filter_on_seed0(tuning_run):
     from cosim.algorithms.aakf_tuning import innovation_whiteness, tune_aakf
     enc = tuning_run["plant.theta_enc"].to_numpy()
     acc = tuning_run["acc.acc_meas"].to_numpy()
-    base = AakfParams(sigma_a_bank=(), process_noise="jerk", reset_enabled=True,
+    base = AakfParams(sigma_a=THESIS_TUNED_SIGMA_A, process_noise="jerk", reset_enabled=True,
                       reset_stage="posterior", reset_speed_bound="eq31_accel")
     r = tune_aakf(enc, acc, base=base)
     assert r.sigma_a == pytest.approx(THESIS_TUNED_SIGMA_A, rel=0.01)

@@ -73,10 +73,10 @@ sigma_a from the data (``sigma_a_bank``)
 ----------------------------------------
 The filter is kinematic, so sigma_a is a property of what moves the axis, not of
 the device: a hand and a white-noise current differ by more than a decade. The
-default :class:`AaKF` is therefore a bank of single filters over a fixed log grid of
-sigma_a, weighed sample by sample by the likelihood of their innovations
-(:class:`AaKFBank`); ``sigma_a_bank=()`` gives the single filter of the thesis with
-``sigma_a``.
+default :class:`AaKF` (``sigma_a=None``) is therefore a bank of single filters over a
+fixed log grid of sigma_a (``sigma_a_bank``), weighed sample by sample by the
+likelihood of their innovations (:class:`AaKFBank`); a number for ``sigma_a`` gives
+the single filter of the thesis with that value.
 
 State reset (Sec. 2.2.2)
 ------------------------
@@ -149,11 +149,10 @@ class AakfParams:
 
     Defaults are those of the ball-screw device of Table 1 and the ADXL335 of
     Table 2. The thesis gives no values for ``sigma_a`` and ``sigma_b``. By default
-    sigma_a is chosen from the data by the bank ``sigma_a_bank`` (:class:`AaKFBank`);
-    ``sigma_a`` itself is used by a single filter (``sigma_a_bank=()``), where 300 is
-    what :mod:`cosim.algorithms.aakf_tuning` picks on simulated human-like reaching
-    (whitest innovations, 240-420 rad/s^3/sqrt(Hz), about 0.5 m/s^3/sqrt(Hz) at the
-    nut). sigma_b is set small (1e-3 (m/s^2)/sqrt(s) is a drift of about 0.03 m/s^2 in
+    (``sigma_a=None``) sigma_a is chosen from the data by the bank ``sigma_a_bank``
+    (:class:`AaKFBank`); a number makes one filter with that value (for human-like
+    reaching :mod:`cosim.algorithms.aakf_tuning` picks 240-420 rad/s^3/sqrt(Hz), about
+    0.5 m/s^3/sqrt(Hz) at the nut, for a white-noise current ~3e3). sigma_b is set small (1e-3 (m/s^2)/sqrt(s) is a drift of about 0.03 m/s^2 in
     15 minutes, the order of the ADXL335 thermal offset drift of 1 mg/degC). The
     initial covariance is broad (0.3 m/s, 4.8 m/s^2 at the nut, 1 m/s^2 of bias) so
     that a start in mid-movement is tolerated.
@@ -169,8 +168,9 @@ class AakfParams:
     #: "floor" (theta_enc <= theta < theta_enc + Delta; the filter then uses
     #: theta_enc + Delta/2 as the unbiased measurement and shifts the eq. 29 interval)
     encoder_quantiser: str = "round"
-    #: motor-jerk process noise [rad/s^3/sqrt(Hz)], Q_c[0,0] = sigma_a^2 (eq. 16, 23)
-    sigma_a: float = 300.0
+    #: motor-jerk process noise [rad/s^3/sqrt(Hz)], Q_c[0,0] = sigma_a^2 (eq. 16, 23):
+    #: one filter with this value; None (default): the bank over ``sigma_a_bank``
+    sigma_a: float | None = None
     #: how the acceleration noise enters Q_d: "jerk" (thesis eq. 21-28: continuous white
     #: jerk of intensity sigma_a^2, Van Loan) or "increment" (the acceleration steps
     #: at the sampling instants, by a white increment of variance sigma_a^2 Ts, and is
@@ -179,8 +179,8 @@ class AakfParams:
     #: does, see the module docstring). Same A_d, C_d and sigma_a units for both.
     process_noise: str = "increment"
     #: bank of sigma_a values [rad/s^3/sqrt(Hz)] run side by side and weighed by the
-    #: likelihood of their innovations (multiple-model adaptive estimation, see
-    #: :class:`AaKFBank`); empty: one filter with ``sigma_a`` (the thesis' aaKF)
+    #: likelihood of their innovations when ``sigma_a`` is None (multiple-model
+    #: adaptive estimation, see :class:`AaKFBank`)
     sigma_a_bank: tuple[float, ...] = SIGMA_A_BANK
     #: memory of the bank's likelihood weights [s]: the log-likelihoods are summed with
     #: the forgetting factor exp(-Ts / bank_memory_s)
@@ -255,7 +255,10 @@ def _van_loan(A: np.ndarray, GQGt: np.ndarray, Ts: float) -> tuple[np.ndarray, n
 
 
 def discretise(p: AakfParams) -> AakfModel:
-    """Build the continuous model (eq. 17-23) and its ZOH discretisation (eq. 24-28)."""
+    """Build the continuous model (eq. 17-23) and its ZOH discretisation (eq. 24-28)
+    of one filter (``p.sigma_a`` must be a number)."""
+    if p.sigma_a is None:
+        raise ValueError("discretise needs one sigma_a (sigma_a=None is the bank, AaKFBank)")
     Ac = np.zeros((4, 4))
     Ac[0, 1] = 1.0
     Ac[1, 2] = 1.0                                                    # eq. 21
@@ -351,6 +354,10 @@ def _check_params(p: AakfParams) -> None:
         raise ValueError("process_noise must be 'jerk' or 'increment'")
     if any(not (math.isfinite(v) and v > 0.0) for v in p.sigma_a_bank):
         raise ValueError("sigma_a_bank values must be finite and > 0")
+    if p.sigma_a is None and not p.sigma_a_bank:
+        raise ValueError("sigma_a=None needs a non-empty sigma_a_bank")
+    if p.sigma_a is not None and not (math.isfinite(p.sigma_a) and p.sigma_a >= 0.0):
+        raise ValueError("sigma_a must be finite and >= 0 (or None for the bank)")
     if not p.bank_memory_s > 0.0:
         raise ValueError("bank_memory_s must be > 0")
 
@@ -489,17 +496,17 @@ class AaKF:
                                    "reset_lo", "reset_hi")
 
     def __new__(cls, params: AakfParams | None = None):
-        # AaKF(p) with a non-empty p.sigma_a_bank is the bank of single filters
-        # (AaKFBank); with an empty bank it is the single filter of the thesis
-        if cls is AaKF and (params if params is not None else AakfParams()).sigma_a_bank:
+        # AaKF(p) with p.sigma_a None (default) is the bank of single filters
+        # (AaKFBank); with a number it is the single filter of the thesis
+        if cls is AaKF and (params if params is not None else AakfParams()).sigma_a is None:
             return super().__new__(AaKFBank)
         return super().__new__(cls)
 
     def __init__(self, params: AakfParams | None = None) -> None:
         self.params = p = params if params is not None else AakfParams()
         _check_params(p)
-        if p.sigma_a_bank:
-            raise ValueError("a single AaKF needs sigma_a_bank=() (AaKF(p) builds the bank)")
+        if p.sigma_a is None:
+            raise ValueError("a single AaKF needs a sigma_a (AaKF(p) builds the bank for None)")
         self.model = m = discretise(p)
         self._seq = _gain_sequence(p, m)
         # constants of the hot path, computed as the original expressions compute them
@@ -713,7 +720,7 @@ class AaKFBank(AaKF):
     """Bank of single aaKFs that differ only in sigma_a, weighed by the likelihood of
     their innovations (multiple-model adaptive estimation, Magill 1965).
 
-    Built by ``AaKF(p)`` when ``p.sigma_a_bank`` is not empty (the default). Member i is
+    Built by ``AaKF(p)`` when ``p.sigma_a`` is None (the default). Member i is
     the single :class:`AaKF` of ``p`` with ``sigma_a = p.sigma_a_bank[i]`` (every other
     field, the reset included, as in ``p``); all members see the same measurements
     and none feeds back into another. At tick k, member i gives its a-posteriori state
@@ -743,8 +750,8 @@ class AaKFBank(AaKF):
     def __init__(self, params: AakfParams | None = None) -> None:
         self.params = p = params if params is not None else AakfParams()
         _check_params(p)
-        if not p.sigma_a_bank:
-            raise ValueError("AaKFBank needs a non-empty sigma_a_bank")
+        if p.sigma_a is not None or not p.sigma_a_bank:
+            raise ValueError("AaKFBank needs sigma_a=None and a non-empty sigma_a_bank")
         # the "output" reset acts on the bank's estimate, not inside the members
         self._reset_out = p.reset_enabled and p.reset_stage == "output"
         member_reset = p.reset_enabled and not self._reset_out
@@ -868,7 +875,7 @@ def filter_log(params: AakfParams | Sequence[AakfParams], theta_enc: np.ndarray,
     form) is run until no gain changes by more than ``gain_rtol`` (relative) in one
     step, and the last gains are then held.
 
-    Each entry is one single filter (its ``sigma_a``; ``sigma_a_bank`` is ignored).
+    Each entry is one single filter (its ``sigma_a`` must be a number).
     Returns arrays, with a leading filter axis when ``params`` is a sequence:
     ``x_post`` (N x 4, what :meth:`AaKF.step` outputs: with ``reset_stage="output"``
     the clamped estimate, the state itself unclamped), ``x_pred`` (N x 4, the prediction the update used),
