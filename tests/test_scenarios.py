@@ -411,3 +411,29 @@ def test_no_import_circles_in_the_scenario_pipeline():
         return None
     for m in graph:
         assert cycle_from(m, [m]) is None, cycle_from(m, [m])
+
+
+def test_negative_control_apply_to_keeps_the_other_runs(tmp_path):
+    """A ratio between cases (scope 'scenario'): the control overrides one case's run
+    (apply_to) and takes the other unchanged, so only one extra run is made; the
+    ratio falls from 2 (0.1 A / 0.05 A) to 1 and the requirement fails on it."""
+    from cosim.scenarios.runner import run_scenario
+    text = (BASE.replace("    negative_control: half_current\n", "", 1)
+            .replace("  w_end: {type: final, signal: plant.w}\n",
+                     "  w_end: {type: final, signal: plant.w}\n"
+                     "  ratio: {type: case_ratio, metric: final, params: {signal: plant.w},\n"
+                     "          numerator: full, denominator: half}\n")
+            .replace("    metric: w_end\n    rule: within\n    limit: [5.9, 6.1]\n",
+                     "    metric: ratio\n    rule: \">=\"\n    limit: 1.5\n"
+                     "    negative_control:\n      what: the half case at full current\n"
+                     "      apply_to: [half]\n"
+                     "      override: {stimuli: {i: {params: {value: 0.1}}}}\n")
+            + "cases:\n  full: {}\n  half: {stimuli: {i: {params: {value: 0.05}}}}\n")
+    v = run_scenario(write(tmp_path, text), tmp_path / "out")
+    r = {x["id"]: x for x in v["requirements"]}["R-pass"]
+    assert r["value"] == pytest.approx(2.0, rel=0.01)
+    assert r["negative_control"]["value"] == pytest.approx(1.0, rel=1e-9)
+    assert r["verdict"] == "pass" and r["negative_control"]["held"] is False
+    stored = sorted(p.name for p in (tmp_path / "out" / "runs").iterdir())
+    assert stored == ["full", "half", "nc.R-pass_half", "nc.half_current_full",
+                      "nc.half_current_half"]
