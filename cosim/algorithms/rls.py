@@ -167,13 +167,17 @@ class RLSIdentifier:
     ------
     i_cmd: motor current command [A] (see ``RLSParams.i_cmd_is_previous`` for timing).
     w: motor speed [rad/s] at this tick (encoder differencing or aaKF estimate).
+    theta_enc: encoder angle [rad] at this tick (integral regression only).
 
     Outputs
     -------
-    J_hat [kg m^2], b_hat [N m s/rad], fc_hat [N m] (physical estimates, eq. 51-53, NaN
-    while undefined), theta_a1 [-], theta_b0 [rad/s per N m], theta_fcb0 [rad/s] (the raw
-    RLS vector of eq. 43), e_pred [rad/s] (a-priori prediction error, eq. 34, of the
-    last update), updated [-] (1.0 if this tick's sample was used, else 0.0).
+    J_hat [kg m^2], b_hat [N m s/rad], fc_hat [N m] (physical estimates: eq. 51-53 for
+    the eq. 44 regression, the RLS vector itself for the integral one; NaN while
+    undefined or, for the integral regression, before the third update),
+    theta_a1 [-], theta_b0 [rad/s per N m], theta_fcb0 [rad/s] (the vector of eq. 43;
+    for the integral regression computed from J, b, fc by eq. 39), e_pred (a-priori
+    error of the last update, eq. 34: [rad/s] for eq. 44, [N m s] for the integral
+    regression), updated [-] (1.0 if this tick's sample was used, else 0.0).
     """
 
     #: inputs of the eq. 44 regression; the integral regression adds ``theta_enc``
