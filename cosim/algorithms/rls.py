@@ -227,6 +227,7 @@ class RLSIdentifier:
             self._hist_w: deque[float] = deque(maxlen=n)      # w_{k-N} .. w_k
             self._hist_th: deque[float] = deque(maxlen=n)     # theta_{k-N} .. theta_k
             self._hist_tau: deque[float] = deque(maxlen=p.window_samples)  # tau_j, j = k-N+1..k
+            self._hist_sgn: deque[float] = deque(maxlen=p.window_samples)  # sign(w_j), same j
             self._run = 0          # number of consecutive usable speeds of one sign, up to k
 
     def update(self, x: np.ndarray, y: float) -> float:
@@ -294,6 +295,7 @@ class RLSIdentifier:
             self._run = 1
         self._hist_w.append(w)
         self._hist_th.append(th)
+        self._hist_sgn.append(float(np.sign(w)))   # the sign over [t_{j-1}, t_j) taken at t_j
         if tau_held is not None:
             self._hist_tau.append(tau_held)
         else:
@@ -306,7 +308,7 @@ class RLSIdentifier:
             y = Ts * math.fsum(self._hist_tau)                      # Ts sum tau_j
             x = np.array([w - self._hist_w[0],                      # J: w_k - w_{k-N}
                           th - self._hist_th[0],                    # b: theta_k - theta_{k-N}
-                          -p.coulomb_regressor_sign * N * Ts * math.copysign(1.0, w)])  # fc
+                          -p.coulomb_regressor_sign * Ts * math.fsum(self._hist_sgn)])  # fc
             self.e_pred = self.update(x, y)                         # eq. 34, 48-50
         self._w_prev = w
         self._tau_prev = tau
