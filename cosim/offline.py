@@ -271,8 +271,10 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
 
     Needs ``i_cmd`` [A] and ``theta_enc`` [rad], and ``acc_meas`` [m/s^2] when
     ``speed="aakf"``. ``speed``: ``"aakf"`` (the aaKF speed estimate; ``aakf_params``,
-    default :class:`AakfParams`; lead from the sidecar) or ``"encoder"`` (backward difference of the encoder). ``params``: RLS parameters (``Ts`` from the log; ``Kt`` from the
-    sidecar's ``nominal.Kt`` when present). ``decimation_s``: spacing of the
+    default :class:`AakfParams`; lead from the sidecar) or ``"encoder"`` (backward
+    difference of the encoder, given to the RLS as the mean speed over the last
+    interval: ``RLSParams.speed_timing="interval_mean"``). ``params``: RLS parameters
+    (``Ts`` from the log; ``Kt`` from the sidecar's ``nominal.Kt`` when present). ``decimation_s``: spacing of the
     history written (the settling times are computed at the full rate).
 
     Returns (and writes as JSON; NaN written as null)::
@@ -298,7 +300,10 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
     else:
         Kt = rp.Kt_Nm_per_A
         kt_source = "default (Table 1)" if Kt == DEFAULT_KT else "parameters"
-    rp = replace(rp, Ts_s=Ts, Kt_Nm_per_A=Kt)
+    # the speed's timing is a property of the signal: the aaKF estimates the speed at
+    # t_k, the backward difference is the mean speed over [t_k-1, t_k]
+    rp = replace(rp, Ts_s=Ts, Kt_Nm_per_A=Kt,
+                 speed_timing="interval_mean" if speed == "encoder" else "sample")
     enc = log["theta_enc"]
     if speed == "aakf":
         kp = _aakf_params_for(log, aakf_params)

@@ -115,6 +115,9 @@ class RLSParams:
         intervals, needs ``theta_enc``; see the module docstring) or "eq44" (the
         thesis' ZOH one-step regression, eq. 38-45).
     window_samples: N, the window of the integral regression [samples].
+    speed_timing: what ``w`` is, for the integral regression: "sample" (the speed at
+        the tick, e.g. the aaKF estimate) or "interval_mean" (the mean speed over the
+        last interval, e.g. the encoder backward difference (theta_k - theta_k-1)/Ts).
     """
 
     Ts_s: float = 1e-3
@@ -128,6 +131,7 @@ class RLSParams:
     w_min_rad_s: float = 0.5
     regression: str = "integral"
     window_samples: int = 20
+    speed_timing: str = "sample"
 
 
 def theta_to_physical(theta: np.ndarray, Ts_s: float) -> tuple[float, float, float]:
@@ -208,6 +212,8 @@ class RLSIdentifier:
             raise ValueError("regression must be 'integral' or 'eq44'")
         if p.window_samples < 1:
             raise ValueError("window_samples must be >= 1")
+        if p.speed_timing not in ("sample", "interval_mean"):
+            raise ValueError("speed_timing must be 'sample' or 'interval_mean'")
         if p.regression == "integral":
             self.inputs = ("i_cmd", "w", "theta_enc")
         self.reset()
@@ -223,11 +229,11 @@ class RLSIdentifier:
         if p.regression == "integral":
             # the integral form estimates [J, b, fc] directly (eq. 46-47 on that vector)
             self.theta = np.zeros(3)
-            n = p.window_samples + 1
-            self._hist_w: deque[float] = deque(maxlen=n)      # w_{k-N} .. w_k
-            self._hist_th: deque[float] = deque(maxlen=n)     # theta_{k-N} .. theta_k
-            self._hist_tau: deque[float] = deque(maxlen=p.window_samples)  # tau_j, j = k-N+1..k
-            self._hist_sgn: deque[float] = deque(maxlen=p.window_samples)  # sign(w_j), same j
+            n = p.window_samples + 2
+            self._hist_w: deque[float] = deque(maxlen=n)      # w_{k-N-1} .. w_k
+            self._hist_th: deque[float] = deque(maxlen=n)     # theta_{k-N-1} .. theta_k
+            self._hist_tau: deque[float] = deque(maxlen=n - 1)  # tau_j, j = k-N .. k
+            self._hist_sgn: deque[float] = deque(maxlen=n - 1)  # sign(w_j), j = k-N .. k
             self._run = 0          # number of consecutive usable speeds of one sign, up to k
 
     def update(self, x: np.ndarray, y: float) -> float:
@@ -301,14 +307,30 @@ class RLSIdentifier:
         else:
             self._hist_tau.clear()
         N = p.window_samples
-        informative = (self._run >= N + 1 and len(self._hist_tau) == N
-                       and len(self._hist_w) == N + 1)
+        Ts = p.Ts_s
+        sgn_c = -p.coulomb_regressor_sign
+        mean = p.speed_timing == "interval_mean"
+        informative = (self._run >= N + 1 + mean and len(self._hist_tau) >= N + mean
+                       and len(self._hist_w) >= N + 1 + mean)
+        if informative and not mean:
+            # w_k: the speed at t_k; the window is [t_{k-N}, t_k]
+            tau_w = list(self._hist_tau)[-N:]                       # tau_j, j = k-N+1..k
+            sgn_w = list(self._hist_sgn)[-N:]
+            y = Ts * math.fsum(tau_w)                               # Ts sum tau_j
+            x = np.array([w - self._hist_w[-1 - N],                 # J: w_k - w_{k-N}
+                          th - self._hist_th[-1 - N],               # b: theta_k - theta_{k-N}
+                          sgn_c * Ts * math.fsum(sgn_w)])           # fc: Ts sum sign(w_j)
+        elif informative:
+            # w_k: the mean speed over [t_{k-1}, t_k] (a backward difference). Averaging
+            # the window [t - N Ts, t] over t in [t_{k-1}, t_k] weighs the torque and the
+            # sign of the two end intervals by 1/2 and the angle by its interval mean
+            # (trapezoid of the encoder readings)
+            tau_w, sgn_w, thw = list(self._hist_tau), list(self._hist_sgn), self._hist_th
+            y = Ts * (math.fsum(tau_w[1:-1]) + 0.5 * (tau_w[0] + tau_w[-1]))
+            x = np.array([w - self._hist_w[-1 - N],
+                          0.5 * (thw[-1] + thw[-2]) - 0.5 * (thw[-1 - N] + thw[-2 - N]),
+                          sgn_c * Ts * (math.fsum(sgn_w[1:-1]) + 0.5 * (sgn_w[0] + sgn_w[-1]))])
         if informative:
-            Ts = p.Ts_s
-            y = Ts * math.fsum(self._hist_tau)                      # Ts sum tau_j
-            x = np.array([w - self._hist_w[0],                      # J: w_k - w_{k-N}
-                          th - self._hist_th[0],                    # b: theta_k - theta_{k-N}
-                          -p.coulomb_regressor_sign * Ts * math.fsum(self._hist_sgn)])  # fc
             self.e_pred = self.update(x, y)                         # eq. 34, 48-50
         self._w_prev = w
         self._tau_prev = tau

@@ -118,8 +118,10 @@ def identification(run, build, ctx):
     for name, sig_name in SPEEDS.items():
         # aaKF and encoder speeds: the integral regression (viscous term from the
         # encoder); the exact-speed control keeps eq. 44, exact for this record
+        # the encoder difference is the mean speed over the last interval
         theta = None if name == "exact" else s["plant.theta_enc"]
-        hist = rls_history(s["plant.i"], s[sig_name], Ts, truth["Kt"], theta)
+        timing = {"speed_timing": "interval_mean"} if name == "encoder" else {}
+        hist = rls_history(s["plant.i"], s[sig_name], Ts, truth["Kt"], theta, **timing)
         err = hist / tv - 1.0
         sig = {"time": t[idx]}
         for j, p in enumerate(PARAMS):
