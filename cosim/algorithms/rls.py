@@ -78,6 +78,12 @@ the window (the inertial term) and the sign. The window is used only when every
 speed w_{k-N} .. w_k has the same sign and |w_j| >= ``w_min_rad_s`` (the Coulomb
 term is then -+fc over the whole window; reversals and stiction are skipped as
 in the eq. 44 form). ``regression="eq44"`` is the thesis' form above.
+
+A speed that is the *mean* over the last interval (the encoder backward difference
+(theta_k - theta_k-1)/Ts) is not the speed at t_k: with ``speed_timing=
+"interval_mean"`` the window above is averaged over that interval, which gives the
+two end intervals half weight in the torque and sign sums and takes the angle at the
+interval mean, (theta_k + theta_k-1)/2.
 """
 from __future__ import annotations
 
