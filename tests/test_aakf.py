@@ -252,7 +252,11 @@ def test_speed_bias_and_reset_bounds_human_trial(human_trial):
         res[name] = log
         r = rms(log["x_post"][BURN:, 1] - om[BURN:])
         assert rms_diff / r > 4.0                                   # measured 5.4 and 5.4
-        assert rms_diff / r > 1.5 * rms_diff / rms_thesis           # literal reset costs accuracy
+        # literal reset costs accuracy. Thesis Fig. 21 shows it improving the estimate;
+        # we see that only for a filter whose sigma_a is too small for the motion (the
+        # independent driven log: 1.57 -> 1.29 x differencing, test_aakf_independent.py),
+        # never for a well-tuned one (here, the project's scenarios, the independent logs)
+        assert rms_diff / r > 1.5 * rms_diff / rms_thesis
         # bias: 0.3 m/s^2 found within 0.5 s (measured 0.04 s) and kept within 0.02
         assert settle_time(log["x_post"][:, 3] - bias, 0.02) < 0.5
     post = res["post"]["x_post"]
