@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from cosim.data_cli import default_emps_dir  # noqa: E402
 from cosim.emps import EMPS_PUBLISHED, import_emps  # noqa: E402
-from cosim.gap.emps_device import EMPS_EFFECTS, EmpsDevice, select_effects  # noqa: E402
+from cosim.gap.devices.emps import EMPS_EFFECTS, EmpsDevice, select_effects  # noqa: E402
 from cosim.trial_log import read_trial_log  # noqa: E402
 
 

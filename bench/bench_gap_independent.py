@@ -27,7 +27,7 @@ import statistics
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
@@ -110,7 +110,14 @@ def main(argv=None) -> int:
     names = [n for n in sorted(labels) if not a.only or n in a.only]
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=max(1, a.jobs)) as ex:
-        rows = list(ex.map(lambda n: run_case(cosim, data / "cases" / n, labels[n], out), names))
+        futs = {ex.submit(run_case, cosim, data / "cases" / n, labels[n], out): n for n in names}
+        done = {}
+        for f in as_completed(futs):
+            r = f.result()
+            done[futs[f]] = r
+            print(f"  {r['case']}: {r['selected'] if not r['error'] else r['error']} "
+                  f"shrink {r['shrink']:.3f} ({r['seconds']:.0f} s)", flush=True)
+        rows = [done[n] for n in names]
     wall = time.perf_counter() - t0
     print(f"{'case':8s} {'true effect(s)':40s} {'selected':40s} {'before':>7s} {'after':>7s} {'shrink':>6s} "
           f"{'top1':>4s} {'ho/fl':>6s} {'s':>5s}")

@@ -14,7 +14,7 @@ import pytest
 
 from cosim.emps import EMPS_PUBLISHED, import_emps
 from cosim.gap.device import CannotDiagnose, GapInputError, get_device, split_params
-from cosim.gap.emps_device import EMPS_EFFECTS, EmpsDevice, fmu_parameters
+from cosim.gap.devices.emps import EMPS_EFFECTS, EmpsDevice, fmu_parameters
 from cosim.trial_log import read_trial_log
 
 _DEFAULT_EMPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "emps"

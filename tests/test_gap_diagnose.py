@@ -1,4 +1,4 @@
-"""Gap diagnosis engine on generated ball-screw logs (cosim.gap.diagnose, ballscrew_device, cli)."""
+"""Gap diagnosis engine on generated ball-screw logs (cosim.gap.diagnose, devices.ballscrew, cli)."""
 from __future__ import annotations
 
 import json
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cosim.cli import main
-from cosim.gap.ballscrew_device import EFFECTS, BallscrewDevice
+from cosim.gap.devices.ballscrew import EFFECTS, BallscrewDevice
 from cosim.gap.diagnose import localize, run_diagnosis
 from cosim.gap.truth import NOMINAL, write_truth_log
 from cosim.trial_log import read_trial_log, write_trial_log

@@ -22,6 +22,7 @@ from scipy.integrate import solve_ivp
 
 from cosim.fmubuild.importers import run_fmpy
 from cosim.gap import effects as E
+from cosim.gap import replay as R
 from cosim.trial_log import TrialLogError, read_trial_log, write_trial_log
 
 REPO = Path(__file__).resolve().parent.parent
@@ -57,7 +58,7 @@ def multisine(n: int, seed: int = 0, rms: float = 0.15, fmax: float = 40.0) -> n
     return rms * u / np.sqrt(np.mean(u ** 2))
 
 
-def sim(fmu, i_cmd, f_ext=None, params=None, outputs=E.OUTPUTS, tight=True):
+def sim(fmu, i_cmd, f_ext=None, params=None, outputs=R.OUTPUTS, tight=True):
     n = len(i_cmd)
     ins = {"i_cmd": np.asarray(i_cmd, float)}
     if f_ext is not None:
@@ -199,7 +200,7 @@ def test_gap_fmus_validate_and_carry_the_catalogue(gap_fmus):
         assert sig == ref, f"{ident}: interface differs from BallScrewDevice"
         for n in ("i_cmd", "f_ext"):
             assert v[n].causality == "input"
-        for n in E.OUTPUTS:
+        for n in R.OUTPUTS:
             assert v[n].causality == "output"
         for e in E.CATALOGUE.values():
             for p, s in e.params.items():
@@ -212,11 +213,11 @@ def test_gap_fmus_validate_and_carry_the_catalogue(gap_fmus):
 
 
 def test_effect_fmu_names(gap_fmus):
-    assert E.effect_fmu(None).name == "BallScrewDevice.fmu"
-    assert E.effect_fmu("backlash").name == "WithBacklash.fmu"
-    assert E.effect_fmu(["backlash", "actuator_delay"]).name == "BallScrewDevice.fmu"
+    assert R.effect_fmu(None).name == "BallScrewDevice.fmu"
+    assert R.effect_fmu("backlash").name == "WithBacklash.fmu"
+    assert R.effect_fmu(["backlash", "actuator_delay"]).name == "BallScrewDevice.fmu"
     with pytest.raises(ValueError, match="unknown effect 'friction'"):
-        E.effect_fmu("friction")
+        R.effect_fmu("friction")
 
 
 # ----------------------------------------------------------------------------- nominal
@@ -458,16 +459,16 @@ def _nrmse(m, s):
 def test_replay_of_a_nominal_log_has_near_zero_gap(tmp_path, gap_fmus):
     log, truth = _log(tmp_path, "nom", gap_fmus, f_ext=True)
     t0 = time.perf_counter()
-    out = E.replay(log, {"J": NOM["J"], "b": NOM["b"], "fc": NOM["fc"], "Kt": NOM["Kt"]})
+    out = R.replay(log, {"J": NOM["J"], "b": NOM["b"], "fc": NOM["fc"], "Kt": NOM["Kt"]})
     dt = time.perf_counter() - t0
     print(f"replay: {dt / log.n_samples * 1e6:.1f} us per 1 ms step ({log.n_samples} samples)")
-    assert set(E.OUTPUTS) <= set(out) and all(len(out[k]) == log.n_samples for k in out)
+    assert set(R.OUTPUTS) <= set(out) and all(len(out[k]) == log.n_samples for k in out)
     assert np.array_equal(out["time"], log.time)
     g = _nrmse(log["acc_meas"], out["acc_spec"])
     assert g < 0.02, g
     assert np.max(np.abs(out["theta"] - truth["theta"])) < 0.05       # rad, 10 s of 0.5 s windows
     # a 10 % inertia error is a clear gap
-    wrong = E.replay(log, {"J": 1.1 * NOM["J"]})
+    wrong = R.replay(log, {"J": 1.1 * NOM["J"]})
     assert _nrmse(log["acc_meas"], wrong["acc_spec"]) > 3 * g
 
 
@@ -476,8 +477,8 @@ def test_replay_sets_effect_parameters(tmp_path, gap_fmus):
     log, _ = _log(tmp_path, "eff", gap_fmus, params=params)
     effects = {"actuator_delay": {"Td": 4e-3}, "gravity_load": {"alpha": 0.08},
                "accel_bias_drift": {"db_acc": 0.3, "T_acc": 2.0}}
-    nominal = E.replay(log, {})
-    right = E.replay(log, {}, effects)
+    nominal = R.replay(log, {})
+    right = R.replay(log, {}, effects)
     g0, g1 = _nrmse(log["acc_meas"], nominal["acc_spec"]), _nrmse(log["acc_meas"], right["acc_spec"])
     assert g1 < 0.02 and g0 > 5 * g1, (g0, g1)
 
@@ -486,8 +487,8 @@ def test_windowed_replay_bounds_drift(tmp_path, gap_fmus):
     """A gravity load the replay does not know pushes the open-loop replay away
     quadratically in time; the 0.5 s windows keep the position error bounded."""
     log, truth = _log(tmp_path, "tilt", gap_fmus, params={"alpha": 0.05})   # 0.1 N, 5 % of fc
-    win = E.replay(log, {}, window_s=0.5)
-    ol = E.replay(log, {}, window_s=None)
+    win = R.replay(log, {}, window_s=0.5)
+    ol = R.replay(log, {}, window_s=None)
     assert np.all(ol["window"] == 0) and win["window"].max() == 9
     e_win = np.max(np.abs(win["theta"] - truth["theta"]))
     e_ol = np.max(np.abs(ol["theta"] - truth["theta"]))
@@ -498,15 +499,15 @@ def test_windowed_replay_bounds_drift(tmp_path, gap_fmus):
 def test_replay_bad_input(tmp_path, gap_fmus):
     log, _ = _log(tmp_path, "ok", gap_fmus, n=201)
     with pytest.raises(ValueError, match="unknown effect"):
-        E.replay(log, {}, {"friction": {}})
+        R.replay(log, {}, {"friction": {}})
     with pytest.raises(ValueError, match="unknown parameter 'width'"):
-        E.replay(log, {}, {"backlash": {"width": 1e-4}})
+        R.replay(log, {}, {"backlash": {"width": 1e-4}})
     with pytest.raises(ValueError, match="nominal parameter 'M'"):
-        E.replay(log, {"M": 1.0})
+        R.replay(log, {"M": 1.0})
     with pytest.raises(ValueError, match="not finite"):
-        E.replay(log, {"J": float("nan")})
+        R.replay(log, {"J": float("nan")})
     with pytest.raises(ValueError, match="zeta_tr"):
-        E.replay(log, {}, {"backlash": {"zeta_tr": 0.1}, "transmission_compliance": {"zeta_tr": 0.2}})
+        R.replay(log, {}, {"backlash": {"zeta_tr": 0.1}, "transmission_compliance": {"zeta_tr": 0.2}})
     write_trial_log(tmp_path / "noenc", "ballscrew-1dof", {"i_cmd": np.zeros(10)}, {"i_cmd": "A"}, H)
     with pytest.raises(TrialLogError, match="theta_enc"):
-        E.replay(read_trial_log(tmp_path / "noenc"), {})
+        R.replay(read_trial_log(tmp_path / "noenc"), {})

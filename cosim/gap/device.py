@@ -142,8 +142,8 @@ class GapDevice(Protocol):
 
 #: device name -> "module:factory" (imported on first use)
 DEVICES: dict[str, str] = {
-    "ballscrew-1dof": "cosim.gap.ballscrew_device:BallscrewDevice",
-    "emps-1dof": "cosim.gap.emps_device:EmpsDevice",
+    "ballscrew-1dof": "cosim.gap.devices.ballscrew:BallscrewDevice",
+    "emps-1dof": "cosim.gap.devices.emps:EmpsDevice",
 }
 
 

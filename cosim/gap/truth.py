@@ -51,6 +51,7 @@ import numpy as np
 from ..algorithms.rls import band_limited_white_noise
 from ..synth import _min_jerk_reference, _ref_at
 from ..trial_log import write_trial_log
+from .effects import EFFECTS
 
 __all__ = ["NOMINAL", "EFFECT_SAMPLERS", "OUT_OF_CATALOGUE", "SCENARIOS",
            "simulate_truth", "write_truth_log"]
@@ -79,32 +80,9 @@ def _signed(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(rng.choice([-1.0, 1.0])) * _u(rng, lo, hi)
 
 
-#: effect name -> sampler(rng) of its truth parameters (physically plausible ranges)
+#: effect name -> sampler(rng) of its truth parameters (each effect's module, ``gap/effects/``)
 EFFECT_SAMPLERS: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {
-    # break-away 1.5-2.2 x Coulomb, Stribeck speed 2-6 rad/s (3-10 mm/s at the nut)
-    "stribeck_friction": lambda r: {"fs_ratio": _u(r, 1.5, 2.2), "ws": _u(r, 2.0, 6.0)},
-    # Coulomb and viscous +-(25-45) % between directions
-    "asymmetric_friction": lambda r: {"dfc": _signed(r, 0.25, 0.45), "db": _signed(r, 0.25, 0.45)},
-    # Coulomb friction +-(35-60) % along the travel, period 20-60 mm (preload / wear)
-    "position_dependent_friction": lambda r: {"amp": _u(r, 0.35, 0.6), "period": _u(r, 0.02, 0.06),
-                                              "phase": _u(r, 0, 2 * math.pi)},
-    # ripple amplitude 0.5-1 fc, 4-12 periods per revolution
-    "cogging_torque": lambda r: {"amp": _u(r, 0.5, 1.0) * 3e-3, "n": float(r.choice([4, 6, 8, 12])),
-                                 "phase": _u(r, 0, 2 * math.pi)},
-    # play 0.1-0.3 mm at the nut
-    "backlash": lambda r: {"width": _u(r, 1e-4, 3e-4)},
-    # motor|nut resonance 25-70 Hz, damping ratio 0.03-0.1
-    "transmission_compliance": lambda r: {"fn": _u(r, 25, 70), "zeta": _u(r, 0.03, 0.1)},
-    "actuator_delay": lambda r: {"delay": _u(r, 2e-3, 5e-3)},
-    "current_loop_lag": lambda r: {"tau": _u(r, 2e-3, 6e-3)},
-    # clip at 1.1-1.5 x the command rms (0.15 A)
-    "current_saturation": lambda r: {"i_max_rms": _u(r, 1.1, 1.5)},
-    "accel_scale_error": lambda r: {"scale": 1.0 + _signed(r, 0.08, 0.2)},
-    # thermal drift 0.3-0.8 m/s^2 with time constant 3-20 s
-    "accel_bias_drift": lambda r: {"drift": _signed(r, 0.3, 0.8), "T": _u(r, 3.0, 20.0)},
-    # tilt 4-12 deg
-    "gravity_load": lambda r: {"tilt": _signed(r, math.radians(4), math.radians(12))},
-}
+    name: e.sample_truth for name, e in EFFECTS.items() if e.sample_truth is not None}
 
 #: effects outside the catalogue (for the ``unknown`` check)
 OUT_OF_CATALOGUE: dict[str, Callable[[np.random.Generator], dict[str, float]]] = {

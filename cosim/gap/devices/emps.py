@@ -32,7 +32,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..emps import (
+from ...emps import (
     EMPS_DEVICE,
     IDIM_DECIMATE,
     closed_loop_errors,
@@ -43,14 +43,14 @@ from ..emps import (
     idim_lowpass,
     zoh_align,
 )
-from ..trial_log import TrialLog
-from .device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, nrmse, split_params
+from ...trial_log import TrialLog
+from ..device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, nrmse, split_params
+from ..effects import EMPS, effects_for
 
 __all__ = ["EmpsDevice", "EMPS_EFFECTS", "fmu_parameters", "select_effects"]
 
 #: the catalogue's force-side effects that apply to EMPS (spec/gap-diagnosis.md)
-EMPS_EFFECTS = ("stribeck_friction", "asymmetric_friction", "position_dependent_friction",
-                "transmission_compliance", "actuator_delay", "current_loop_lag", "gravity_load")
+EMPS_EFFECTS = effects_for(EMPS)
 
 NOMINAL = ("M", "Fv", "Fc", "offset")
 REQUIRED_COLUMNS = ("x_enc", "f_cmd", "x_ref")

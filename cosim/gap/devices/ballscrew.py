@@ -54,102 +54,39 @@ nominal J, b, fc[, 1/Kt]); parameter names follow the catalogue's Modelica model
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 from scipy import signal
 
-from ..trial_log import TrialLog
-from .device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, split_params
+from ...trial_log import TrialLog
+from ..device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, split_params
+from ..effects import EFFECTS as CATALOGUE
+from ..effects import effects_for
+from ..effects.base import Terms, shift
+from .ballscrew_data import (ACC_OFFSET_SD, DEVICE, MIN_MOVING_S, W_REST, Prep, log_noise,
+                             lowpass, nominal_of, prepare)
 
 __all__ = ["BallscrewDevice", "EFFECTS"]
 
-G0 = 9.80665
-DEVICE = "ballscrew-1dof"
-DEFAULTS = {"J": 1.7e-5, "b": 1.6e-5, "fc": 3e-3, "Kt": 0.0603, "lead": 0.01, "acc_bias": 0.0, "m_n": 0.2}
-EFFECTS = ("stribeck_friction", "asymmetric_friction", "position_dependent_friction", "cogging_torque",
-           "backlash", "transmission_compliance", "actuator_delay", "current_loop_lag",
-           "current_saturation", "accel_scale_error", "accel_bias_drift", "gravity_load")
-#: nonlinear parameters refined after the grid search (all positive: searched in log scale)
-_REFINE = {"stribeck_friction": ("ws",), "position_dependent_friction": ("lp",), "transmission_compliance": ("fn", "zeta_tr"),
-           "actuator_delay": ("Td",), "current_loop_lag": ("Tcl",), "current_saturation": ("i_lim",),
-           "backlash": ("backlash",), "accel_bias_drift": ("T_acc",)}
-#: linear effect coefficients that physics bounds below by 0
-_NONNEG = ("dfs",)
-W_REST = 0.05          # rad/s: below this the motor counts as at rest
-DILATE_S = 0.015       # s
-EDGE_S = 0.1           # s cut at both ends (filter transients)
-MIN_MOVING_S = 1.0     # s of motion needed per diagnosis
-FORCE_RMS_MIN = 0.5    # N: a known force that makes Kt identifiable
+#: the catalogue effects of this device, in the contract's order
+EFFECTS = effects_for(DEVICE)
+#: regression coefficients bounded below by 0 by physics, and those of (or shared with)
+#: the acceleration equation (not torques: no Kt scaling), over all effects
+_NONNEG_KEYS = frozenset(k for e in EFFECTS for k in CATALOGUE[e].ballscrew.nonneg)
+_ACC_ONLY_KEYS = frozenset(k for e in EFFECTS for k in CATALOGUE[e].ballscrew.acc_only)
 
-
-def _lp(fc_hz: float, ts: float):
-    return signal.butter(2, fc_hz, fs=1.0 / ts, output="sos")
-
-
-@dataclass
-class _Prep:
-    """Parameter-independent quantities of one log."""
-    log: TrialLog
-    ts: float
-    S: float
-    t: np.ndarray
-    i: np.ndarray             # raw command
-    th: np.ndarray            # filtered motor angle
-    w: np.ndarray
-    wd: np.ndarray
-    x: np.ndarray             # nut position (rigid)
-    f: np.ndarray             # external force on the handle (raw -> 200 Hz)
-    has_force: bool
-    acc: np.ndarray | None    # F[acc_meas] - nominal bias
-    comp_i: np.ndarray        # bool: torque rows compared
-    comp_a: np.ndarray        # bool: acc rows compared
-    F: Callable[[np.ndarray], np.ndarray]
-    cache: dict = field(default_factory=dict)
-
-
-@dataclass
-class _Terms:
-    """What one effect changes: raw (unfiltered) pieces, filtered later."""
-    y_i: np.ndarray | None = None                     # replaced driver current (raw)
-    cols_i: dict[str, np.ndarray] = field(default_factory=dict)   # torque-unit columns
-    fixed_i: np.ndarray | None = None                 # torque added with a fixed coefficient
-    a_nut: np.ndarray | None = None                   # replaced nut acceleration
-    cols_a: dict[str, np.ndarray] = field(default_factory=dict)
-    joint: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # same coef both eqs
-
-
-def _shift(y: np.ndarray, delay_s: float, ts: float) -> np.ndarray:
-    """y(t - delay) by linear interpolation on the sample grid (held at the start)."""
-    k = np.arange(y.size) - delay_s / ts
-    return np.interp(k, np.arange(y.size), y)
-
-
-def _lag(y: np.ndarray, tau: float, ts: float) -> np.ndarray:
-    a = math.exp(-ts / tau)
-    return signal.lfilter([1 - a], [1, -a], y, zi=[a * y[0]])[0]
-
-
-def _play(xm: np.ndarray, width: float) -> np.ndarray:
-    """Nut position behind a play of total ``width`` (play/backlash operator)."""
-    h = 0.5 * width
-    out = np.empty_like(xm)
-    xn = float(xm[0])
-    for k, v in enumerate(xm.tolist()):
-        if v - xn > h:
-            xn = v - h
-        elif xn - v > h:
-            xn = v + h
-        out[k] = xn
-    return out
-
-
-def _base_excited(a_in: np.ndarray, fn: float, zeta: float, ts: float) -> np.ndarray:
-    """Nut acceleration of a nut on a spring-damper (fn, zeta) driven by the screw's acceleration."""
-    wn = 2 * math.pi * fn
-    b, a = signal.bilinear([2 * zeta * wn, wn * wn], [1, 2 * zeta * wn, wn * wn], fs=1.0 / ts)
-    return signal.lfilter(b, a, a_in)
+def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least squares through the normal equations of the column-scaled problem (the
+    regressions have a few columns and 10^4-10^5 rows: ~20x faster than an SVD of A);
+    a (near-)singular Gram matrix falls back to its minimum-norm solution."""
+    nrm = np.linalg.norm(A, axis=0)
+    nrm[nrm == 0] = 1.0
+    As = A / nrm
+    G = As.T @ As
+    r = As.T @ b
+    x, *_ = np.linalg.lstsq(G, r, rcond=1e-12)
+    return x / nrm
 
 
 class BallscrewDevice:
@@ -164,8 +101,11 @@ class BallscrewDevice:
 
     def __init__(self) -> None:
         self.recalibration_note = ""
-        self._preps: dict[int, _Prep] = {}
+        self._preps: dict[int, Prep] = {}
         self._ktfree_cache: dict[tuple, bool] = {}
+        self._kt_calibrated: float | None = None
+        #: ``{"position": (low, high)}``: compare only samples inside (held-out folds)
+        self.compare_region: dict[str, tuple[float, float]] | None = None
 
     # ------------------------------------------------------------------ input checks
     def check_logs(self, fit: Sequence[TrialLog], test: Sequence[TrialLog]) -> None:
@@ -188,141 +128,38 @@ class BallscrewDevice:
                     f"or without motion ({', '.join(lg.csv_path.name for lg in logs)})")
 
     # ------------------------------------------------------------------ preprocessing
-    def _nominal(self, log: TrialLog) -> dict[str, float]:
-        nom = dict(DEFAULTS)
-        for k, v in (log.nominal or {}).items():
-            if isinstance(v, (int, float)):
-                nom[k] = float(v)
-        return nom
+    @staticmethod
+    def _nominal(log: TrialLog) -> dict[str, float]:
+        return nominal_of(log)
 
-    def _prep(self, log: TrialLog) -> _Prep:
-        key = id(log)
-        p = self._preps.get(key)
-        if p is not None and p.log is log:
-            return p
-        nom = self._nominal(log)
-        ts = float(log.sample_time)
-        S = nom["lead"] / (2 * math.pi)
-        n = log.n_samples
-        sos200 = _lp(min(200.0, 0.4 / ts), ts)
-        sos100 = _lp(min(100.0, 0.3 / ts), ts)
-        pad = min(3 * 50, max(n - 2, 0))
-
-        def F(y: np.ndarray, _s=sos100) -> np.ndarray:
-            return signal.sosfiltfilt(_s, y, padlen=pad) if n > 12 else y.copy()
-
-        th_raw = np.asarray(log["theta_enc"], float)
-        th = signal.sosfiltfilt(sos200, th_raw, padlen=pad) if n > 12 else th_raw.copy()
-        # central differences: the second one as (th[k+1] - 2 th[k] + th[k-1])/Ts^2, whose
-        # gain sinc^2(w Ts/2) is 0.99 at 50 Hz (differentiating np.gradient twice: 0.97)
-        w = np.gradient(th, ts) if n > 1 else np.zeros(n)
-        wd = np.zeros(n)
-        if n > 2:
-            wd[1:-1] = (th[2:] - 2 * th[1:-1] + th[:-2]) / ts ** 2
-            wd[0], wd[-1] = wd[1], wd[-2]
-        if "f_ext" in log.data:
-            f, has_force = np.asarray(log["f_ext"], float), True
-        elif "f_lc" in log.data:
-            f, has_force = np.asarray(log["f_lc"], float), True
-        else:
-            f, has_force = np.zeros(n), False
-        if has_force and n > 12:
-            f = signal.sosfiltfilt(sos200, f, padlen=pad)
-        edge = int(round(EDGE_S / ts))
-        inner = np.zeros(n, bool)
-        inner[edge:n - edge] = True
-        rest = np.abs(w) < W_REST
-        dil = int(round(DILATE_S / ts))
-        if dil and rest.any():
-            rest = np.convolve(rest.astype(float), np.ones(2 * dil + 1), "same") > 0
-        acc = None
-        comp_a = np.zeros(n, bool)
-        if "acc_meas" in log.data:
-            # the reading at t_k is the acceleration of the ZOH interval before t_k, whose
-            # centre lies half a sample earlier: advance it by Ts/2
-            acc = F(_shift(np.asarray(log["acc_meas"], float), -0.5 * ts, ts)) - nom["acc_bias"]
-            comp_a = inner.copy()
-        p = _Prep(log=log, ts=ts, S=S, t=np.asarray(log.time, float), i=np.asarray(log["i_cmd"], float),
-                  th=th, w=w, wd=wd, x=S * th, f=f, has_force=has_force and float(np.std(f)) > FORCE_RMS_MIN,
-                  acc=acc, comp_i=inner & ~rest, comp_a=comp_a, F=F)
-        self._preps[key] = p
+    def _prep(self, log: TrialLog) -> Prep:
+        p = self._preps.get(id(log))
+        if p is None or p.log is not log:
+            p = self._preps[id(log)] = prepare(log)
         return p
 
+    def _in_region(self, p: Prep, mask: np.ndarray) -> np.ndarray:
+        """``mask`` restricted to :attr:`compare_region` (nut position [m])."""
+        reg = (self.compare_region or {}).get("position")
+        if reg is None:
+            return mask
+        return mask & (p.x >= reg[0]) & (p.x <= reg[1])
+
+    def compared_seconds(self, logs: Sequence[TrialLog]) -> float:
+        """Seconds of torque-comparison samples in ``logs`` (inside :attr:`compare_region`)."""
+        return sum(float(np.sum(self._in_region(self._prep(lg), self._prep(lg).comp_i))) * lg.sample_time
+                   for lg in logs)
+
     # ------------------------------------------------------------------ effects
-    def _terms(self, p: _Prep, effect: str, nl: Mapping[str, float], nom: Mapping[str, float]) -> _Terms:
-        T = _Terms()
-        s = np.sign(p.w)
-        S = p.S
-        m_n = nom["m_n"]
-        if effect == "stribeck_friction":
-            T.cols_i["dfs"] = s * np.exp(-(p.w / nl["ws"]) ** 2)
-        elif effect == "asymmetric_friction":
-            T.cols_i["dfc"] = np.ones_like(p.w)
-            T.cols_i["db"] = np.abs(p.w)
-        elif effect == "position_dependent_friction":
-            # Coulomb fc + kfx x + dfp sin(2 pi x/lp + php) (the catalogue's model)
-            ph = 2 * math.pi * p.x / nl["lp"]
-            T.cols_i["kfx"] = s * p.x
-            T.cols_i["dfp_sin"] = s * np.sin(ph)
-            T.cols_i["dfp_cos"] = s * np.cos(ph)
-        elif effect == "cogging_torque":
-            n_cog = nl["n_cog"]
-            # load-side column: the ripple tau_cog = A sin(n theta + phi) adds to the motor torque
-            T.cols_i["A_cog_sin"] = -np.sin(n_cog * p.th)
-            T.cols_i["A_cog_cos"] = -np.cos(n_cog * p.th)
-        elif effect == "backlash":
-            xn = _play(p.x, nl["backlash"])
-            an = np.gradient(np.gradient(xn, p.ts), p.ts)
-            T.a_nut = an
-            T.fixed_i = S * m_n * (an - S * p.wd)
-        elif effect == "transmission_compliance":
-            an = _base_excited(S * p.wd, nl["fn"], nl["zeta_tr"], p.ts)
-            T.a_nut = an
-            T.fixed_i = S * m_n * (an - S * p.wd)
-        elif effect == "actuator_delay":
-            T.y_i = _shift(p.i, nl["Td"], p.ts)
-        elif effect == "current_loop_lag":
-            T.y_i = _lag(p.i, nl["Tcl"], p.ts)
-        elif effect == "current_saturation":
-            T.y_i = np.clip(p.i, -nl["i_lim"], nl["i_lim"])
-        elif effect == "accel_scale_error":
-            T.cols_a["ds_acc"] = S * p.wd
-        elif effect == "accel_bias_drift":
-            T.cols_a["db_acc"] = 1.0 - np.exp(-p.t / nl["T_acc"])
-        elif effect == "gravity_load":
-            T.joint["alpha"] = (S * m_n * G0 * np.ones_like(p.w), G0 * np.ones_like(p.w))
-        else:
-            raise ValueError(f"unknown effect {effect!r}")
-        return T
+    def _terms(self, p: Prep, effect: str, nl: Mapping[str, float], nom: Mapping[str, float]) -> Terms:
+        return CATALOGUE[effect].ballscrew.terms(p, nl, nom)
 
     def _grid(self, logs: Sequence[TrialLog], effect: str) -> list[dict[str, float]]:
-        preps = [self._prep(lg) for lg in logs]
-        if effect == "stribeck_friction":
-            return [{"ws": v} for v in np.geomspace(0.1, 20.0, 14)]
-        if effect == "position_dependent_friction":
-            return [{"lp": v} for v in np.geomspace(0.005, 0.2, 24)]
-        if effect == "cogging_torque":
-            return [{"n_cog": float(k)} for k in range(1, 25)]
-        if effect == "backlash":
-            return [{"backlash": v} for v in np.geomspace(2e-5, 1e-3, 12)]
-        if effect == "transmission_compliance":
-            return [{"fn": fn, "zeta_tr": z} for fn in np.geomspace(10.0, 150.0, 16) for z in (0.03, 0.07, 0.15)]
-        if effect == "actuator_delay":
-            return [{"Td": k * 0.5e-3} for k in range(1, 21)]
-        if effect == "current_loop_lag":
-            return [{"Tcl": v} for v in np.geomspace(2e-4, 2e-2, 16)]
-        if effect == "current_saturation":
-            a = np.concatenate([np.abs(p.i) for p in preps])
-            amax = float(a.max()) if a.size else 0.0
-            return [{"i_lim": float(q)} for q in np.quantile(a, [0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98,
-                                                                0.99, 0.995, 0.999]) if 0 < q < amax]
-        if effect == "accel_bias_drift":
-            return [{"T_acc": v} for v in np.geomspace(0.5, 300.0, 14)]
-        return [{}]
+        return CATALOGUE[effect].ballscrew.grid([self._prep(lg) for lg in logs])
 
     # ------------------------------------------------------------------ regression core
     def _system(self, logs: Sequence[TrialLog], nom_params: Mapping[str, float], kt_free: bool,
-                eff_terms: Sequence[tuple[str, Callable[[_Prep], _Terms]]],
+                eff_terms: Sequence[tuple[str, Callable[[Prep], Terms]]],
                 fixed_coefs: Mapping[str, float] | None):
         """Weighted rows of both equations.
 
@@ -335,39 +172,55 @@ class BallscrewDevice:
         for lg in logs:
             p = self._prep(lg)
             S = p.S
+            base = p.cache.get("F_base")
+            if base is None:
+                # parameter-independent filtered pieces, computed once per log (F is linear)
+                base = p.cache["F_base"] = {
+                    "J": p.F(p.wd), "b": p.F(p.w), "fc": p.F(np.sign(p.w)),
+                    "y_i": p.F(shift(p.i, 0.5 * p.ts, p.ts)), "f": p.F(-S * p.f),
+                    "a_nut": p.F(S * p.wd)}
             y_i_raw = p.i
-            a_nut = S * p.wd
-            cols_i: dict[str, np.ndarray] = {"J": p.wd, "b": p.w, "fc": np.sign(p.w)}
+            a_nut = None
+            Fc_i = {"J": base["J"], "b": base["b"], "fc": base["fc"]}
             cols_a: dict[str, np.ndarray] = {}
-            fixed_t = np.zeros_like(p.w)
-            fixed_a = np.zeros_like(p.w)
-            for name, tf in eff_terms:
+            fixed_t = None
+            # the driver's chain in its physical order: delay, clip, current-loop lag
+            for name, tf in sorted(eff_terms, key=lambda nt: CATALOGUE[nt[0]].ballscrew.driver_stage):
                 T = tf(p)
-                if T.y_i is not None:
-                    y_i_raw = T.y_i if y_i_raw is p.i else y_i_raw  # one current-path effect at a time
+                if T.y_map is not None:
+                    y_i_raw = T.y_map(y_i_raw)
                 if T.a_nut is not None:
                     a_nut = T.a_nut
                 if T.fixed_i is not None:
-                    fixed_t = fixed_t + T.fixed_i
+                    fixed_t = T.fixed_i if fixed_t is None else fixed_t + T.fixed_i
                 for k, v in T.cols_i.items():
-                    cols_i[k] = v
+                    Fc_i[k] = p.F(v)
                 for k, v in T.cols_a.items():
                     cols_a[k] = v
                 for k, (vi, va) in T.joint.items():
-                    cols_i[k] = vi
+                    Fc_i[k] = p.F(vi)
                     cols_a[k] = va
             # ZOH centre: the command acts half a sample after its stamp
-            y_i = p.F(_shift(y_i_raw, 0.5 * p.ts, p.ts))
-            fixed_t = fixed_t - S * p.f
-            Fc_i = {k: p.F(v) for k, v in cols_i.items()}
-            Ff = p.F(fixed_t)
-            rows_i.append((y_i, Fc_i, Ff, p.comp_i, p.has_force))
+            y_i = base["y_i"] if y_i_raw is p.i else p.F(shift(y_i_raw, 0.5 * p.ts, p.ts))
+            Ff = base["f"] if fixed_t is None else base["f"] + p.F(fixed_t)
+            rows_i.append((y_i, Fc_i, Ff, self._in_region(p, p.comp_i), p.has_force))
+            F_anut = base["a_nut"] if a_nut is None else p.F(a_nut)
             if p.acc is not None:
-                ya = p.acc - p.F(a_nut + fixed_a)
-                Fc_a = {k: p.F(v) for k, v in cols_a.items()}
-                if "ds_acc" in Fc_a:
-                    Fc_a["ds_acc"] = p.F(a_nut)
-                rows_a.append((ya, Fc_a, p.comp_a))
+                ya = p.acc - F_anut
+                Fc_a = {k: (F_anut if k == "ds_acc" else p.F(v)) for k, v in cols_a.items()}
+                # the accelerometer's zero-g offset is a per-trial nuisance (ADXL335: +-150 mg
+                # over parts and temperature, its random walk moves it between power-ups):
+                # projected out of every log's acceleration rows (the LS fit of one constant
+                # per log), the same way with and without effects
+                # offsets' size is compared on its own, as the ``acc_dc`` signal (one row
+                # per log: the mean residual against the sensor's offset tolerance)
+                ma = self._in_region(p, p.comp_a)
+                dc = (0.0, {})
+                if ma.any():
+                    dc = (float(np.mean(ya[ma])), {k: float(np.mean(v[ma])) for k, v in Fc_a.items()})
+                    ya = ya - dc[0]
+                    Fc_a = {k: v - dc[1][k] for k, v in Fc_a.items()}
+                rows_a.append((ya, Fc_a, ma, dc))
         return rows_i, rows_a
 
     def _solve(self, logs: Sequence[TrialLog], nom_params: Mapping[str, float],
@@ -381,7 +234,7 @@ class BallscrewDevice:
             for k in ci:
                 if k not in names:
                     names.append(k)
-        for _, ca, _ in rows_a:
+        for _, ca, _, _ in rows_a:
             for k in ca:
                 if k not in names:
                     names.append(k)
@@ -414,25 +267,33 @@ class BallscrewDevice:
             off += nm
         Aa = np.zeros((ya.size, len(names)))
         off = 0
-        for y, ca, m in rows_a:
+        for y, ca, m, _ in rows_a:
             nm = int(m.sum())
             for j, k in enumerate(names):
                 if k in ca:
                     Aa[off:off + nm, j] = ca[k][m]
             off += nm
-        # joint columns: torque side is in torque units / Kt; acc side as is
-        if kt_free:
-            # acc coefficient equals the torque one only when multiplied by Kt: use Kt of nom_params
+        # accelerometer DC rows: per log, mean residual = sum of the columns' means
+        yd = np.array([r[3][0] for r in rows_a])
+        Ad = np.zeros((yd.size, len(names)))
+        for r_i, r in enumerate(rows_a):
             for j, k in enumerate(names):
-                if k in ("alpha",):
-                    Ai[:, j] /= Kt
+                Ad[r_i, j] = r[3][1].get(k, 0.0)
         # each signal's rows weighted so that the LS objective is the metric: the
         # noise-weighted mean of the per-signal nrmse^2 (see :meth:`noise_floor`)
-        ws_i, ws_a = self._signal_weights(logs) if ya.size else (1.0, 0.0)
+        # joint coefficients (sin_alpha) are not torques: their torque column carries the
+        # 1/Kt that a torque coefficient holds when Kt is free (Kt of nom_params)
+        if kt_free:
+            for j, k in enumerate(names):
+                if k in _ACC_ONLY_KEYS:
+                    Ai[:, j] /= Kt
+        ws = self._weights_from(self.noise_floor(logs)) if ya.size else {"i": 1.0}
+        ws_i, ws_a, ws_d = ws.get("i", 1.0), ws.get("a", 0.0), ws.get("dc", 0.0)
         wi = math.sqrt(ws_i) / (sd_i * math.sqrt(max(yi.size, 1)))
         wa = math.sqrt(ws_a) / (sd_a * math.sqrt(max(ya.size, 1))) if ya.size else 1.0
-        A = np.vstack([Ai * wi, Aa * wa])
-        bvec = np.concatenate([bi * wi, ya * wa])
+        wd = math.sqrt(ws_d) / (sd_a * math.sqrt(max(yd.size, 1))) if yd.size else 1.0
+        A = np.vstack([Ai * wi, Aa * wa, Ad * wd])
+        bvec = np.concatenate([bi * wi, ya * wa, yd * wd])
         if fixed_coefs is None:
             free = list(range(len(names)))
             if not fit_nominal:
@@ -445,29 +306,44 @@ class BallscrewDevice:
                     elif k == "invKt":
                         coef[j] = 1.0 / nom_params["Kt"]
             rhs = bvec - A @ coef
-            sol, *_ = np.linalg.lstsq(A[:, free], rhs, rcond=None)
+            sol = _lstsq(A[:, free], rhs)
             coef[free] = sol
             # sign constraints of the physics (one active-set step): a Stribeck excess is
             # static friction ABOVE Coulomb (dfs >= 0). A negative one only fits the
             # low-speed rows where the encoder's speed (and so sign(w)) is unreliable
             # (a clean unit-test device got dfs = -1.5 fc at ws = 0.1 rad/s and passed).
-            neg = [j for j in free if names[j] in _NONNEG and coef[j] < 0]
+            neg = [j for j in free if names[j] in _NONNEG_KEYS and coef[j] < 0]
             if neg:
                 free = [j for j in free if j not in neg]
                 coef[neg] = 0.0
-                sol, *_ = np.linalg.lstsq(A[:, free], bvec - A @ np.where(np.isin(np.arange(len(names)), free),
-                                                                           0.0, coef), rcond=None)
+                sol = _lstsq(A[:, free], bvec - A @ np.where(np.isin(np.arange(len(names)), free), 0.0, coef))
                 coef[free] = sol
+            # a joint coefficient's torque column carries 1/Kt; with Kt free, iterate so that
+            # it is the fitted Kt, not the one the fit started from (a gravity fit would put
+            # the ratio of the two into the mass)
+            joint = [j for j, k in enumerate(names) if k in _ACC_ONLY_KEYS and np.any(Ai[:, j])]
+            if kt_free and joint and fit_nominal and "invKt" in names:
+                kt_used = Kt
+                for _ in range(6):
+                    ikt = coef[names.index("invKt")]
+                    if not ikt > 0 or abs(1.0 / ikt - kt_used) < 1e-6 * kt_used:
+                        break
+                    A[:yi.size, joint] *= kt_used * ikt
+                    kt_used = 1.0 / ikt
+                    coef[free] = _lstsq(A[:, free], bvec - A @ np.where(np.isin(np.arange(len(names)), free),
+                                                                         0.0, coef))
         else:
             coef = np.array([fixed_coefs.get(k, 0.0) for k in names])
         res = bvec - A @ coef
-        ni = yi.size
+        ni, na = yi.size, ya.size
         # per-signal nrmse^2 = SSE/(N sd^2) (undo the noise weight)
         sse_i = float(np.sum(res[:ni] ** 2)) / ws_i
-        sse_a = float(np.sum(res[ni:] ** 2)) / ws_a if ya.size else 0.0
-        gap = math.sqrt(ws_i * sse_i + ws_a * sse_a)
+        sse_a = float(np.sum(res[ni:ni + na] ** 2)) / ws_a if na else 0.0
+        sse_d = float(np.sum(res[ni + na:] ** 2)) / ws_d if na and ws_d > 0 else 0.0
+        gap = math.sqrt(ws_i * sse_i + ws_a * sse_a + ws_d * sse_d)
         return dict(zip(names, coef.tolist())), gap, {"nrmse_i": math.sqrt(sse_i),
-                                                      "nrmse_a": math.sqrt(sse_a) if ya.size else None}
+                                                      "nrmse_a": math.sqrt(sse_a) if na else None,
+                                                      "nrmse_dc": math.sqrt(sse_d) if na else None}
 
     def _kt_free(self, logs: Sequence[TrialLog]) -> bool:
         """Kt is free only with a known force that is not a function of the motion.
@@ -497,66 +373,7 @@ class BallscrewDevice:
 
     # ------------------------------------------------------------------ noise floor
     def _log_noise(self, log: TrialLog) -> dict[str, float]:
-        """Noise variance of each comparison signal of one log, estimated from the data.
-
-        Two sensor noises reach the comparison, neither depends on a model parameter:
-
-        * encoder quantisation: step ``q`` = the smallest non-zero change of
-          ``theta_enc`` between samples; its error is white with variance q^2/12 while
-          the axis moves many counts per sample. It enters both comparisons through the
-          twice-differentiated, filtered angle (200 Hz zero-phase low-pass, central
-          second difference, ``F``): variance = integral of the one-sided PSD
-          ``q^2/6 Ts`` times the chain's power gain, times ``(J/Kt)^2`` for the current
-          (sidecar J, Kt: a weight needs no better) and ``S^2`` for the acceleration;
-        * accelerometer noise (sensor noise aliased by the sampling, ADC steps): white;
-          its PSD from the robust spread (1.4826 MAD) of the reading high-passed above
-          0.6 Nyquist, where the motion of a band-limited excitation carries no power
-          and the few friction/impact edges are sparse outliers that the MAD ignores;
-          through the half-sample shift (cos^2 gain) and ``F``.
-
-        Returns ``{"i": var [A^2], "a": var [(m/s^2)^2], "E_i": .., "E_a": .., "n_i": .., "n_a": ..}``
-        (E = measured variance over the compared samples, n = their number).
-        """
-        p = self._prep(log)
-        key = "noise"
-        if key in p.cache:
-            return p.cache[key]
-        nom = self._nominal(log)
-        ts = p.ts
-        nyq = 0.5 / ts
-        f = np.linspace(0.0, nyq, 4097)[1:]
-        wT = 2 * math.pi * f * ts
-        _, h200 = signal.sosfreqz(_lp(min(200.0, 0.4 / ts), ts), worN=f, fs=1.0 / ts)
-        _, hF = signal.sosfreqz(_lp(min(100.0, 0.3 / ts), ts), worN=f, fs=1.0 / ts)
-        gF = np.abs(hF) ** 4                                  # filtfilt: |H|^2 in amplitude
-        g_dd = np.abs(h200) ** 4 * (2 - 2 * np.cos(wT)) ** 2 / ts ** 4 * gF
-        df = f[1] - f[0]
-        th = np.asarray(log["theta_enc"], float)
-        steps = np.abs(np.diff(th))
-        steps = steps[steps > 1e-12]
-        q = float(steps.min()) if steps.size else 0.0
-        var_wd = (q * q / 6.0 * ts) * float(np.sum(g_dd)) * df        # (rad/s^2)^2
-        out = {"i": (nom["J"] / nom["Kt"]) ** 2 * var_wd, "a": 0.0, "q_enc": q}
-        yi = p.F(_shift(p.i, 0.5 * ts, ts))[p.comp_i]
-        out["E_i"] = float(np.var(yi)) if yi.size else 0.0
-        out["n_i"] = int(yi.size)
-        out["E_a"], out["n_a"] = 0.0, 0
-        if p.acc is not None and log.n_samples > 64:
-            sos_hp = signal.butter(4, 0.6 * nyq, btype="high", fs=1.0 / ts, output="sos")
-            hp = signal.sosfiltfilt(sos_hp, np.asarray(log["acc_meas"], float))
-            edge = int(round(EDGE_S / ts))
-            core = hp[edge:hp.size - edge] if hp.size > 2 * edge + 16 else hp
-            sd = 1.4826 * float(np.median(np.abs(core - np.median(core))))
-            _, hhp = signal.sosfreqz(sos_hp, worN=f, fs=1.0 / ts)
-            psd = sd * sd / (float(np.sum(np.abs(hhp) ** 4)) * df)   # one-sided, (m/s^2)^2/Hz
-            var_acc = psd * float(np.sum(np.cos(0.5 * wT) ** 2 * gF)) * df
-            out["a"] = var_acc + p.S ** 2 * var_wd
-            out["acc_psd"] = psd
-            ya = p.acc[p.comp_a]
-            out["E_a"] = float(np.var(ya)) if ya.size else 0.0
-            out["n_a"] = int(ya.size)
-        p.cache[key] = out
-        return out
+        return log_noise(self._prep(log))
 
     def noise_floor(self, logs: Sequence[TrialLog]) -> dict[str, float]:
         """Per-signal nrmse a model with no structural error would still show (sensor noise only),
@@ -571,10 +388,22 @@ class BallscrewDevice:
                 acc[s][0] += nz[s] * nz["n_" + s]
                 acc[s][1] += nz["E_" + s] * nz["n_" + s]
         out = {s: math.sqrt(v[0] / v[1]) for s, v in acc.items() if v[1] > 0}
+        if "a" in out:
+            # the per-log accelerometer offset against the sensor's offset tolerance
+            out["dc"] = self._acc_offset_sd(logs[0]) / math.sqrt(acc["a"][1] / max(
+                sum(self._log_noise(lg)["n_a"] for lg in logs), 1))
         ws = self._weights_from(out)
         out["gap"] = math.sqrt(sum(ws[s] * out[s] ** 2 for s in ws))
         self._ktfree_cache[key] = out
         return out
+
+    @staticmethod
+    def _acc_offset_sd(log: TrialLog) -> float:
+        """Tolerance (1 sd, m/s^2) of the accelerometer's offset in a trial: the sidecar's
+        ``sensors.accelerometer.offset_sd_m_s2`` when given, else :data:`ACC_OFFSET_SD`."""
+        acc = ((log.meta or {}).get("sensors") or {}).get("accelerometer") or {}
+        v = acc.get("offset_sd_m_s2")
+        return float(v) if isinstance(v, (int, float)) and v > 0 else ACC_OFFSET_SD
 
     @staticmethod
     def _weights_from(floor: Mapping[str, float]) -> dict[str, float]:
@@ -584,7 +413,7 @@ class BallscrewDevice:
         almost noise-free signal does not take all the weight on the strength of an
         estimate: the comparison has model-form errors below that (sensor pole, ZOH
         timing) that the noise estimate does not see."""
-        inv = {s: 1.0 / max(floor[s], 0.005) ** 2 for s in ("i", "a") if s in floor}
+        inv = {s: 1.0 / max(floor[s], 0.005) ** 2 for s in ("i", "a", "dc") if s in floor}
         tot = sum(inv.values())
         return {s: v / tot for s, v in inv.items()}
 
@@ -600,16 +429,27 @@ class BallscrewDevice:
         for k, v in coef.items():
             if k == "invKt":
                 continue
-            out[k] = v * Kt if kt_free and k not in ("ds_acc", "db_acc", "alpha") else v
+            out[k] = v * Kt if kt_free and k not in _ACC_ONLY_KEYS else v
         out["Kt"] = Kt
         return out
 
     # ------------------------------------------------------------------ protocol
     def recalibrate(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        """J, b, fc (and Kt when a known force makes it identifiable) on ``logs``.
+
+        The first recalibration whose logs identify Kt fixes the device's torque
+        constant for later recalibrations on logs that cannot (a held-out fold without
+        the force trial): Kt is a calibration constant of the device, and a fold fitted
+        with the nominal Kt would be judged on the held-out force trial by that Kt
+        error, not by the effect."""
         nom = self._nominal(logs[0])
         kt_free = self._kt_free(logs)
+        if not kt_free and self._kt_calibrated is not None:
+            nom["Kt"] = self._kt_calibrated
         coef, _, _ = self._solve(logs, nom, [], kt_free)
         phys = self._to_physical(coef, kt_free, nom["Kt"])
+        if kt_free and self._kt_calibrated is None:
+            self._kt_calibrated = phys["Kt"]
         if kt_free:
             self.recalibration_note = (
                 "J, b, fc and Kt recalibrated by least squares on the inverse model; Kt is "
@@ -636,41 +476,21 @@ class BallscrewDevice:
     def _split_effect(name: str, prm: Mapping[str, float]) -> tuple[dict[str, float], dict[str, float]]:
         """(nonlinear grid params, linear coefficients in regression form) of a reported effect."""
         prm = {k: float(v) for k, v in prm.items() if not k.startswith(NOMINAL_PREFIX)}
-        if name == "cogging_torque":
-            A, ph = prm.get("A_cog", 0.0), prm.get("phi_cog", 0.0)
-            return {"n_cog": prm["n_cog"]}, {"A_cog_sin": A * math.cos(ph), "A_cog_cos": A * math.sin(ph)}
-        if name == "position_dependent_friction":
-            A, ph = prm.get("dfp", 0.0), prm.get("php", 0.0)
-            return {"lp": prm["lp"]}, {"kfx": prm.get("kfx", 0.0), "dfp_sin": A * math.cos(ph),
-                                       "dfp_cos": A * math.sin(ph)}
-        lin_keys = {"stribeck_friction": ("dfs",), "asymmetric_friction": ("dfc", "db"),
-                    "accel_scale_error": ("ds_acc",),
-                    "accel_bias_drift": ("db_acc",), "gravity_load": ("alpha",)}.get(name, ())
-        nl = {k: v for k, v in prm.items() if k not in lin_keys}
-        lin = {k: prm[k] for k in lin_keys if k in prm}
-        return nl, lin
+        form = CATALOGUE[name].ballscrew
+        if form.from_report is not None:
+            return form.from_report(prm)
+        nl = {k: v for k, v in prm.items() if k not in form.linear}
+        return nl, {k: prm[k] for k in form.linear if k in prm}
 
     @staticmethod
     def _report_effect(name: str, nl: Mapping[str, float], phys: Mapping[str, float],
                        nom: Mapping[str, float]) -> dict[str, float]:
+        """Reported (FMU-named) parameters of an effect from its grid point and coefficients."""
+        form = CATALOGUE[name].ballscrew
+        if form.to_report is not None:
+            return form.to_report(nl, phys, nom)
         out = dict(nl)
-        if name == "cogging_torque":
-            a, c = phys.get("A_cog_sin", 0.0), phys.get("A_cog_cos", 0.0)
-            out["A_cog"] = math.hypot(a, c)
-            out["phi_cog"] = math.atan2(c, a)
-        elif name == "position_dependent_friction":
-            a, c = phys.get("dfp_sin", 0.0), phys.get("dfp_cos", 0.0)
-            out["kfx"] = phys.get("kfx", 0.0)
-            out["dfp"] = math.hypot(a, c)
-            out["php"] = math.atan2(c, a)
-        else:
-            for k in ("dfs", "dfc", "db", "ds_acc", "db_acc", "alpha"):
-                if k in phys:
-                    out[k] = phys[k]
-        if name == "gravity_load":
-            out["m_g"] = nom["m_n"]
-        if name == "transmission_compliance":
-            out["c_tr"] = 1.0 / (nom["m_n"] * (2 * math.pi * nl["fn"]) ** 2)
+        out.update({k: phys[k] for k in form.linear if k in phys})
         return out
 
     def _coefs_for(self, params: Mapping[str, float], kt_free: bool, lin: Mapping[str, float]) -> dict[str, float]:
@@ -678,7 +498,7 @@ class BallscrewDevice:
         c = {k: params[k] for k in ("J", "b", "fc")}
         c.update(lin)
         if kt_free:
-            c = {k: (v / Kt if k not in ("ds_acc", "db_acc", "alpha") else v) for k, v in c.items()}
+            c = {k: (v / Kt if k not in _ACC_ONLY_KEYS else v) for k, v in c.items()}
             c["invKt"] = 1.0 / Kt
         return c
 
@@ -689,8 +509,25 @@ class BallscrewDevice:
         """Per-signal nrmse behind :meth:`gap` and the weights that combine them."""
         _, parts = self._evaluate(logs, params, effects)
         w = self._weights_from(self.noise_floor(logs))
-        return {"i_cmd": parts["nrmse_i"], "acc_meas": parts["nrmse_a"],
-                "weight_i_cmd": w.get("i", 1.0), "weight_acc_meas": w.get("a", 0.0)}
+        return {"i_cmd": parts["nrmse_i"], "acc_meas": parts["nrmse_a"], "acc_dc": parts["nrmse_dc"],
+                "weight_i_cmd": w.get("i", 1.0), "weight_acc_meas": w.get("a", 0.0),
+                "weight_acc_dc": w.get("dc", 0.0)}
+
+    def signal_z(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects=None) -> dict[str, float]:
+        """Per comparison signal, its nrmse over its noise floor (:meth:`noise_floor`, with
+        the weights' lower bound): ~1 where the model explains the signal to its noise."""
+        _, parts = self._evaluate(logs, params, effects)
+        fl = self.noise_floor(logs)
+        out = {"i_cmd": parts["nrmse_i"] / max(fl["i"], 0.005)}
+        if parts.get("nrmse_a") is not None and "a" in fl:
+            out["acc_meas"] = parts["nrmse_a"] / max(fl["a"], 0.005)
+            out["acc_dc"] = parts["nrmse_dc"] / max(fl["dc"], 0.005)
+        return out
+
+    @staticmethod
+    def acts_on(effect: str) -> set[str]:
+        """The comparison signals an effect changes."""
+        return set(CATALOGUE[effect].ballscrew.acts_on)
 
     def _evaluate(self, logs, params, effects):
         nom_log = self._nominal(logs[0])
@@ -707,40 +544,98 @@ class BallscrewDevice:
 
     def fit_effect(self, logs: Sequence[TrialLog], params: Mapping[str, float], effect: str
                    ) -> tuple[dict[str, float], float]:
+        out, g = self.fit_effects(logs, params, [effect])
+        return out[effect], g
+
+    def fit_effects(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects: Sequence[str]
+                    ) -> tuple[dict[str, dict[str, float]], float]:
+        """Fit several effects jointly, with J, b, fc (and Kt when free), on ``logs``.
+
+        Each effect starts from its own best fit alone (grid, then Nelder-Mead on its
+        nonlinear parameters); with several effects, two passes of coordinate descent
+        search one effect's nonlinear parameters with the others held; the linear
+        coefficients of all of them (and the nominal ones) are always solved jointly.
+        Returns ``({effect: params with the common "nominal.*" re-fit}, fit gap)``.
+        """
         nom = self._nominal(logs[0])
         kt_free = self._kt_free(logs)
-        best = None
-        for nl in self._grid(logs, effect):
-            terms = [(effect, lambda p, _nl=nl: self._terms(p, effect, _nl, self._nominal(p.log)))]
-            coef, g, _ = self._solve(logs, params, terms, kt_free)
-            if best is None or g < best[0]:
-                best = (g, nl, coef)
-        g, nl, coef = best
-        if nl and effect in _REFINE:
-            g, nl, coef = self._refine(logs, params, effect, nl, kt_free, best)
+        cfg: dict[str, dict[str, float]] = {}
+        for e in effects:
+            cfg[e] = self._alone(logs, params, e, kt_free)[1][e]
+        g, coef = self._fit_cfg(logs, params, cfg, kt_free)
+        best = (g, cfg, coef)
+        if len(effects) > 1:
+            for _ in range(1):
+                for e in effects:
+                    if cfg[e]:
+                        best = self._search(logs, params, best, e, kt_free)
+                cfg = best[1]
+        g, cfg, coef = best
         phys = self._to_physical(coef, kt_free, params["Kt"])
-        out = self._report_effect(effect, nl, phys, nom)
-        for k in ("J", "b", "fc", "Kt"):
-            out[NOMINAL_PREFIX + k] = phys[k]
+        out = {}
+        for e in effects:
+            o = self._report_effect(e, cfg[e], phys, nom)
+            for k in ("J", "b", "fc", "Kt"):
+                o[NOMINAL_PREFIX + k] = phys[k]
+            out[e] = o
         return out, g
 
-    def _refine(self, logs, params, effect, nl0, kt_free, best):
-        """Nelder-Mead on the log of the positive nonlinear parameters, from the grid's best."""
+    def fit_effects_quick(self, logs: Sequence[TrialLog], params: Mapping[str, float],
+                          effects: Sequence[str]) -> float:
+        """Fit gap of several effects with each one's nonlinear parameters held at its fit
+        alone (linear coefficients joint): a cheap ranking of combinations."""
+        kt_free = self._kt_free(logs)
+        cfg = {e: self._alone(logs, params, e, kt_free)[1][e] for e in effects}
+        return self._fit_cfg(logs, params, cfg, kt_free)[0]
+
+    def _fit_cfg(self, logs, params, cfg: Mapping[str, Mapping[str, float]], kt_free: bool):
+        terms = [(e, lambda p, _e=e, _nl=dict(nl): self._terms(p, _e, _nl, self._nominal(p.log)))
+                 for e, nl in cfg.items()]
+        coef, g, _ = self._solve(logs, params, terms, kt_free)
+        return g, coef
+
+    def _alone(self, logs, params, effect: str, kt_free: bool):
+        """Best (gap, cfg, coef) of ``effect`` alone (cached per logs and parameters)."""
+        key = ("alone", tuple(id(lg) for lg in logs), tuple(sorted(params.items())), effect)
+        if key not in self._ktfree_cache:
+            self._ktfree_cache[key] = self._search(logs, params, (math.inf, {effect: {}}, None), effect, kt_free)
+        return self._ktfree_cache[key]
+
+    def _search(self, logs, params, best, effect: str, kt_free: bool):
+        """Grid over ``effect``'s nonlinear parameters with the rest of ``best``'s
+        configuration held, then Nelder-Mead from the grid's best."""
+        cfg0 = best[1]
+        for nl in self._grid(logs, effect):
+            trial = dict(cfg0)
+            trial[effect] = nl
+            g, coef = self._fit_cfg(logs, params, trial, kt_free)
+            if g < best[0]:
+                best = (g, trial, coef)
+        if best[1].get(effect) and CATALOGUE[effect].ballscrew.refine:
+            best = self._refine(logs, params, effect, best, kt_free)
+        return best
+
+    def _refine(self, logs, params, effect, best, kt_free):
+        """Nelder-Mead on the log of ``effect``'s positive nonlinear parameters, from ``best``."""
         from scipy.optimize import minimize
-        keys = list(_REFINE[effect])
+        keys = list(CATALOGUE[effect].ballscrew.refine)
+        bounds = CATALOGUE[effect].ballscrew.bounds
+        cfg0 = best[1]
         memo = {}
 
         def cost(z):
-            nl = dict(nl0)
-            nl.update({k: float(math.exp(v)) for k, v in zip(keys, z)})
             key = tuple(np.round(z, 6))
             if key not in memo:
-                terms = [(effect, lambda p, _nl=nl: self._terms(p, effect, _nl, self._nominal(p.log)))]
-                coef, g, _ = self._solve(logs, params, terms, kt_free)
-                memo[key] = (g, nl, coef)
+                nl = dict(cfg0[effect])
+                nl.update({k: float(np.clip(math.exp(v), *bounds.get(k, (0.0, math.inf))))
+                           for k, v in zip(keys, z)})
+                trial = dict(cfg0)
+                trial[effect] = nl
+                g, coef = self._fit_cfg(logs, params, trial, kt_free)
+                memo[key] = (g, trial, coef)
             return memo[key][0]
 
-        z0 = np.array([math.log(nl0[k]) for k in keys])
+        z0 = np.array([math.log(cfg0[effect][k]) for k in keys])
         minimize(cost, z0, method="Nelder-Mead",
                  options={"maxfev": 12 * len(keys) + 8, "xatol": 0.01, "fatol": 1e-6,
                           "initial_simplex": np.vstack([z0] + [z0 + 0.15 * np.eye(len(keys))[j]
@@ -763,13 +658,12 @@ class BallscrewDevice:
         c.update(lin)
         Kt = nomp["Kt"]
         y, ci, ff, m, _ = rows_i[0]
-        model = (sum(c.get(k, 0.0) * v for k, v in ci.items() if k != "alpha")
-                 + (c.get("alpha", 0.0) * ci["alpha"] if "alpha" in ci else 0.0) + ff) / Kt
+        model = (sum(c.get(k, 0.0) * v for k, v in ci.items()) + ff) / Kt
         meas_i = np.where(m, y, np.nan)
         out = {"i_cmd": (meas_i, np.where(m, model, np.nan))}
         if rows_a:
             p = self._prep(log)
-            ya, ca, ma = rows_a[0]
+            ya, ca, ma, _ = rows_a[0]
             acc_model_res = sum(c.get(k, 0.0) * v for k, v in ca.items())
             # ya = acc - F[a_nut]; model of acc = F[a_nut] + effect columns
             a_nut_f = p.acc - ya
@@ -785,7 +679,7 @@ class BallscrewDevice:
         return out
 
     def confirm(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects) -> float | None:
-        """Gap of the FMU replay (``cosim.gap.effects.replay``, windowed multiple shooting).
+        """Gap of the FMU replay (``cosim.gap.replay.replay``, windowed multiple shooting).
 
         The FMU is driven by ``i_cmd`` (and the external force), so the current is an
         input there; the comparison is on accelerations instead: the encoder's
@@ -796,15 +690,12 @@ class BallscrewDevice:
         the FMU does not have (e.g. ``fn``) are dropped. ``None`` when the replay module
         is not available.
         """
-        try:
-            from . import effects as fx
-        except ImportError:
-            return None
+        from .. import replay as fx
         nomp = dict(params)
         eff_fmu: dict[str, dict[str, float]] = {}
         for name, prm in (effects or {}).items():
             nomp, own = split_params(nomp, prm)
-            spec = fx.CATALOGUE.get(name)
+            spec = CATALOGUE.get(name)
             if spec is None:
                 return None
             eff_fmu[name] = {k: v for k, v in own.items() if k in spec.params}
@@ -831,12 +722,12 @@ class BallscrewDevice:
                 dd = np.empty(seg.size)
                 dd[1:-1] = (seg[2:] - 2 * seg[1:-1] + seg[:-2]) / p.ts ** 2
                 dd[0], dd[-1] = dd[1], dd[-2]
-                mod_a[idx[2:-2]] = signal.sosfiltfilt(_lp(min(100.0, 0.3 / p.ts), p.ts), p.S * dd)[2:-2]
+                mod_a[idx[2:-2]] = signal.sosfiltfilt(lowpass(min(100.0, 0.3 / p.ts), p.ts), p.S * dd)[2:-2]
             ok = m & np.isfinite(mod_a)
             sse["a"] += float(np.sum((meas_a - mod_a)[ok] ** 2))
             en["a"] += float(np.sum((meas_a[ok] - meas_a[ok].mean()) ** 2))
             if p.acc is not None and "acc_spec" in r:
-                mod = p.F(_shift(np.asarray(r["acc_spec"], float), -0.5 * p.ts, p.ts)) - nom["acc_bias"]
+                mod = p.F(shift(np.asarray(r["acc_spec"], float), -0.5 * p.ts, p.ts)) - nom["acc_bias"]
                 sse["acc"] += float(np.sum((p.acc - mod)[m] ** 2))
                 en["acc"] += float(np.sum((p.acc[m] - p.acc[m].mean()) ** 2))
         parts = [sse[k] / en[k] for k in sse if en[k] > 0]

@@ -1,4 +1,4 @@
-"""The gap-diagnosis effect catalogue as Modelica/FMU models, and a fast FMU replay.
+"""The catalogue effects as Modelica/FMU models (built on demand) and a fast FMU replay.
 
 ``spec/gap-diagnosis.md`` names twelve unmodelled effects of the ball-screw device.
 Each is a parameterised part of one Modelica model, ``RehabSim.Gap.BallScrewDevice``
@@ -64,7 +64,6 @@ from __future__ import annotations
 
 import ctypes
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -72,10 +71,12 @@ import numpy as np
 
 from ..trial_log import TrialLog, TrialLogError, require_columns
 
-__all__ = ["ParamSpec", "EffectSpec", "CATALOGUE", "NOMINAL_MODEL", "NOMINAL_PARAMS",
+__all__ = ["NOMINAL_MODEL", "NOMINAL_PARAMS",
            "OUTPUTS", "effect_fmu", "replay", "replay_many", "Replayer", "close_all"]
 
-REPO = Path(__file__).resolve().parents[2]
+from ..paths import REPO
+from .effects import CATALOGUE, Effect
+
 PACKAGE_DIR = REPO / "modelica" / "RehabSim"
 DEFAULT_FMUS_DIR = REPO / "fmus"
 DEVICE = "ballscrew-1dof"
@@ -87,93 +88,6 @@ NOMINAL_MODEL = "RehabSim.Gap.BallScrewDevice"
 OUTPUTS = ("theta", "x", "v", "a", "acc_spec", "tau_m", "w", "i_act", "tau_f", "f_tr",
            "f_g", "theta_enc")
 
-
-@dataclass(frozen=True)
-class ParamSpec:
-    """One effect parameter: SI unit, the default that switches the effect off (or is
-    irrelevant while it is off), a plausible fitting range, what it is."""
-    unit: str
-    default: float
-    low: float
-    high: float
-    description: str
-
-
-@dataclass(frozen=True)
-class EffectSpec:
-    """One catalogue effect: its parameters (FMU parameter names) and its model."""
-    name: str
-    description: str
-    params: dict[str, ParamSpec]
-    modelica: str
-    devices: tuple[str, ...]
-
-
-_BOTH = ("ballscrew-1dof", "emps-1dof")   # force-side effects (spec: they apply to EMPS too)
-_BS = ("ballscrew-1dof",)
-_PI = math.pi
-
-
-def _e(name, cls, description, devices, **params) -> EffectSpec:
-    return EffectSpec(name, description, {k: ParamSpec(*v) for k, v in params.items()},
-                      f"RehabSim.Gap.With{cls}", devices)
-
-
-_ZETA = ("1", 0.05, 0.0, 1.0, "damping ratio of the nut on the transmission (contact) "
-         "stiffness, d = 2 zeta sqrt(k m_n)")
-
-#: the twelve effects of spec/gap-diagnosis.md, in the contract's order
-CATALOGUE: dict[str, EffectSpec] = {e.name: e for e in (
-    _e("stribeck_friction", "StribeckFriction",
-       "static friction above Coulomb friction, decaying with speed (Stribeck curve)", _BOTH,
-       dfs=("N.m", 0.0, 0.0, 1e-2, "static (breakaway) minus Coulomb torque, fs - fc"),
-       ws=("rad/s", 1.0, 0.05, 20.0, "Stribeck speed at the motor (x lead/2pi at the nut); "
-           "irrelevant while dfs = 0")),
-    _e("asymmetric_friction", "AsymmetricFriction",
-       "Coulomb and viscous friction that differ with the direction of motion", _BOTH,
-       dfc=("N.m", 0.0, -2.5e-3, 2.5e-3, "Coulomb torque is fc + dfc towards +x, fc - dfc towards -x"),
-       db=("N.m.s/rad", 0.0, -1.5e-5, 1.5e-5, "viscous coefficient is b + db towards +x, b - db towards -x")),
-    _e("position_dependent_friction", "PositionDependentFriction",
-       "Coulomb friction that varies along the travel (preload gradient, periodic variation)", _BOTH,
-       kfx=("N.m/m", 0.0, -0.05, 0.05, "Coulomb torque gradient along the travel"),
-       dfp=("N.m", 0.0, 0.0, 3e-3, "amplitude of the periodic Coulomb variation along the travel"),
-       lp=("m", 0.04, 0.005, 0.2, "period of that variation (irrelevant while dfp = 0)"),
-       php=("rad", 0.0, -_PI, _PI, "phase of that variation at x = 0")),
-    _e("cogging_torque", "CoggingTorque", "motor torque ripple periodic in motor angle", _BS,
-       A_cog=("N.m", 0.0, 0.0, 5e-3, "ripple amplitude"),
-       n_cog=("1", 6.0, 1.0, 24.0, "ripple periods per motor revolution (irrelevant while A_cog = 0)"),
-       phi_cog=("rad", 0.0, -_PI, _PI, "ripple phase at theta = 0")),
-    _e("backlash", "Backlash",
-       "play between motor/screw and the nut that carries the handle and accelerometer", _BS,
-       backlash=("m", 0.0, 0.0, 1e-3, "total axial play at the nut"),
-       k_bl=("N/m", 1e7, 1e4, 1e8, "contact stiffness when in contact (used when c_tr = 0)"),
-       zeta_tr=_ZETA),
-    _e("transmission_compliance", "TransmissionCompliance",
-       "finite stiffness between motor and nut: a resonance the accelerometer sees", _BOTH,
-       c_tr=("m/N", 0.0, 0.0, 1e-3, "axial compliance 1/k between screw and nut (0: rigid)"),
-       zeta_tr=_ZETA),
-    _e("actuator_delay", "ActuatorDelay",
-       "pure time delay between the current command and the torque", _BOTH,
-       Td=("s", 0.0, 0.0, 0.02, "transport delay ((2,3) Pade approximant)")),
-    _e("current_loop_lag", "CurrentLoopLag",
-       "first-order lag of the current driver (finite bandwidth)", _BOTH,
-       Tcl=("s", 0.0, 0.0, 0.02, "time constant of the current loop, 1/(2 pi bandwidth)")),
-    _e("current_saturation", "CurrentSaturation", "the driver clips the current at a limit", _BS,
-       i_lim=("A", 1000.0, 0.01, 1000.0, "current limit (1000 A: never reached)")),
-    _e("accel_scale_error", "AccelScaleError",
-       "accelerometer scale factor different from nominal, or axis misalignment", _BS,
-       ds_acc=("1", 0.0, -0.5, 0.5, "relative scale-factor error"),
-       psi_acc=("rad", 0.0, -0.2, 0.2, "misalignment of the sensing axis in the vertical plane "
-                "(also adds g sin(psi) to the reading)")),
-    _e("accel_bias_drift", "AccelBiasDrift", "accelerometer bias drifting over the trial (temperature)", _BS,
-       db_acc=("m/s2", 0.0, -2.0, 2.0, "bias change of the first-order thermal drift"),
-       T_acc=("s", 60.0, 0.5, 600.0, "time constant of the drift (irrelevant while db_acc = 0)")),
-    _e("gravity_load", "GravityLoad",
-       "a constant or position-dependent gravity force on the nut (axis not level)", _BOTH,
-       alpha=("rad", 0.0, -0.5, 0.5, "tilt of the axis, +x raised"),
-       kappa=("rad/m", 0.0, -2.0, 2.0, "change of the local tilt along the travel"),
-       m_g=("kg", 0.2, 0.0, 5.0, "mass pulled by gravity along the axis (nut + handle)")),
-)}
 
 #: nominal-model parameters :func:`replay` accepts in ``nominal`` (FMU names; defaults
 #: are the model of record's). Aliases: ``acc_bias`` -> ``b0_acc``.
@@ -212,7 +126,7 @@ def effect_fmu(effect: str | Sequence[str] | None, fmus_dir: Path | None = None)
     return p
 
 
-def _check_effect(name: str) -> EffectSpec:
+def _check_effect(name: str) -> Effect:
     if name not in CATALOGUE:
         raise ValueError(f"unknown effect {name!r}; the catalogue has: {', '.join(CATALOGUE)}")
     return CATALOGUE[name]

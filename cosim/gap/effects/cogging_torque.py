@@ -1,0 +1,35 @@
+"""Motor torque ripple periodic in the motor angle."""
+import math
+
+import numpy as np
+
+from .base import BALLSCREW, BallscrewForm, Effect, Terms, params, uniform
+
+
+def _terms(p, nl, nom):
+    # the ripple tau_cog = A sin(n theta + phi) adds to the motor torque (sin/cos columns)
+    n = nl["n_cog"]
+    return Terms(cols_i={"A_cog_sin": -np.sin(n * p.th), "A_cog_cos": -np.cos(n * p.th)})
+
+
+def _to_report(nl, c, nom):
+    a, b = c.get("A_cog_sin", 0.0), c.get("A_cog_cos", 0.0)
+    return {"n_cog": nl["n_cog"], "A_cog": math.hypot(a, b), "phi_cog": math.atan2(b, a)}
+
+
+def _from_report(prm):
+    A, ph = prm.get("A_cog", 0.0), prm.get("phi_cog", 0.0)
+    return {"n_cog": prm["n_cog"]}, {"A_cog_sin": A * math.cos(ph), "A_cog_cos": A * math.sin(ph)}
+
+
+EFFECT = Effect(
+    "cogging_torque", "motor torque ripple periodic in motor angle", "CoggingTorque", (BALLSCREW,),
+    params(A_cog=("N.m", 0.0, 0.0, 5e-3, "ripple amplitude"),
+           n_cog=("1", 6.0, 1.0, 24.0, "ripple periods per motor revolution (irrelevant while A_cog = 0)"),
+           phi_cog=("rad", 0.0, -math.pi, math.pi, "ripple phase at theta = 0")),
+    BallscrewForm(_terms, grid=lambda preps: [{"n_cog": float(k)} for k in range(1, 25)],
+                  linear=("A_cog_sin", "A_cog_cos"), to_report=_to_report, from_report=_from_report),
+    # ripple amplitude 0.5-1 fc, 4-12 periods per revolution
+    lambda r: {"amp": uniform(r, 0.5, 1.0) * 3e-3, "n": float(r.choice([4, 6, 8, 12])),
+               "phase": uniform(r, 0, 2 * math.pi)},
+)

@@ -1,0 +1,39 @@
+"""Coulomb friction that varies along the travel (preload gradient, periodic wear)."""
+import math
+
+import numpy as np
+
+from .base import BOTH, BallscrewForm, Effect, Terms, params, uniform
+
+
+def _terms(p, nl, nom):
+    # Coulomb fc + kfx x + dfp sin(2 pi x/lp + php), sin/cos split into two linear columns
+    s = np.sign(p.w)
+    ph = 2 * math.pi * p.x / nl["lp"]
+    return Terms(cols_i={"kfx": s * p.x, "dfp_sin": s * np.sin(ph), "dfp_cos": s * np.cos(ph)})
+
+
+def _to_report(nl, c, nom):
+    a, b = c.get("dfp_sin", 0.0), c.get("dfp_cos", 0.0)
+    return {"lp": nl["lp"], "kfx": c.get("kfx", 0.0), "dfp": math.hypot(a, b), "php": math.atan2(b, a)}
+
+
+def _from_report(prm):
+    A, ph = prm.get("dfp", 0.0), prm.get("php", 0.0)
+    return {"lp": prm["lp"]}, {"kfx": prm.get("kfx", 0.0), "dfp_sin": A * math.cos(ph), "dfp_cos": A * math.sin(ph)}
+
+
+EFFECT = Effect(
+    "position_dependent_friction",
+    "Coulomb friction that varies along the travel (preload gradient, periodic variation)",
+    "PositionDependentFriction", BOTH,
+    params(kfx=("N.m/m", 0.0, -0.05, 0.05, "Coulomb torque gradient along the travel"),
+           dfp=("N.m", 0.0, 0.0, 3e-3, "amplitude of the periodic Coulomb variation along the travel"),
+           lp=("m", 0.04, 0.005, 0.2, "period of that variation (irrelevant while dfp = 0)"),
+           php=("rad", 0.0, -math.pi, math.pi, "phase of that variation at x = 0")),
+    BallscrewForm(_terms, grid=lambda preps: [{"lp": v} for v in np.geomspace(0.005, 0.2, 24)],
+                  refine=("lp",), bounds={"lp": (0.002, 0.5)}, linear=("kfx", "dfp_sin", "dfp_cos"),
+                  to_report=_to_report, from_report=_from_report),
+    # Coulomb friction +-(35-60) % along the travel, period 20-60 mm (preload / wear)
+    lambda r: {"amp": uniform(r, 0.35, 0.6), "period": uniform(r, 0.02, 0.06), "phase": uniform(r, 0, 2 * math.pi)},
+)

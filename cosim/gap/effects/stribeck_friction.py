@@ -1,0 +1,24 @@
+"""Stribeck friction: static friction above Coulomb, decaying with speed."""
+import numpy as np
+
+from .base import BOTH, BallscrewForm, Effect, Terms, params, uniform
+
+
+def _terms(p, nl, nom):
+    # tau_f = ... + dfs sign(w) exp(-(w/ws)^2)
+    return Terms(cols_i={"dfs": np.sign(p.w) * np.exp(-(p.w / nl["ws"]) ** 2)})
+
+
+EFFECT = Effect(
+    "stribeck_friction", "static friction above Coulomb friction, decaying with speed (Stribeck curve)",
+    "StribeckFriction", BOTH,
+    params(dfs=("N.m", 0.0, 0.0, 1e-2, "static (breakaway) minus Coulomb torque, fs - fc"),
+           ws=("rad/s", 1.0, 0.05, 20.0, "Stribeck speed at the motor (x lead/2pi at the nut); "
+               "irrelevant while dfs = 0")),
+    BallscrewForm(_terms, grid=lambda preps: [{"ws": v} for v in np.geomspace(0.1, 20.0, 14)],
+                  refine=("ws",), bounds={"ws": (0.02, 50.0)}, linear=("dfs",),
+                  # a Stribeck excess is static friction ABOVE Coulomb
+                  nonneg=("dfs",)),
+    # break-away 1.5-2.2 x Coulomb, Stribeck speed 2-6 rad/s (3-10 mm/s at the nut)
+    lambda r: {"fs_ratio": uniform(r, 1.5, 2.2), "ws": uniform(r, 2.0, 6.0)},
+)
