@@ -148,6 +148,24 @@ def test_stability_check_flags_inadmissible_pairs():
     assert tiny["admissible"] is True
 
 
+def test_stability_sim_changes_alter_the_simulated_loop_only():
+    """The negative control of CI-7/RE-10: the simulated 1-DOF loop without damping
+    (xi = 0, human b_h = 0), k = 1e5, tau = 1 s diverges (growth ratio inf), while the
+    same call without the changes stays bounded; eq. 90-91 still see the real pair."""
+    hp = SUBJECTS["S1"].human_parameters(0, 0)
+    p = compliance_params(500.0, 20.0)
+    ok = stability_check(p, hp, r_dot_max=0.018, v_max=0.04, sim_s=10.0)
+    bad = stability_check(p, hp, r_dot_max=0.018, v_max=0.04, sim_s=10.0,
+                          sim_changes={"xi": 0.0, "scale_b": 0.0, "k_N_per_m2s": 1.0e5,
+                                       "tau_s": 1.0})
+    assert ok["simulation_stable"] is True and bad["simulation_stable"] is False
+    assert all(s["growth_ratio"] > 2.0 for s in bad["simulation"])
+    assert bad["k"] == 500.0 and bad["tau_s"] == 20.0 and bad["k_max"] == ok["k_max"]
+    with pytest.raises(ValueError, match="unknown key"):
+        stability_check(p, hp, r_dot_max=0.018, v_max=0.04, simulate=False,
+                        sim_changes={"zeta": 0.0})
+
+
 def test_eq90_needs_match_the_bounds():
     """admissibility_needs (the eq. 90 quadratic in x_max, the a_min / r'_max / K_h
     needed) against stability_bounds itself: just inside each returned limit the pair
