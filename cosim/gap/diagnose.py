@@ -252,15 +252,17 @@ def _apply(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float
 
 
 def _folds(device: GapDevice, logs: Sequence[TrialLog], params: Mapping[str, float]) -> tuple[str, list]:
-    """Held-out folds inside the fit logs: leave one log out when there are several
-    and at least two such folds are informative (the remainder can be diagnosed and
-    the held-out trial lies mostly in its travel range, :func:`_inside_fit_range`),
-    else the two halves of each log.
+    """Held-out folds inside the fit logs, as ``(fit part, held-out part, coverage)``:
+    leave one log out when there are several and at least two remainders can be
+    diagnosed, else the two halves of each log (coverage 1).
 
     Leaving whole trials out is what the ``--test`` logs do: a per-trial nuisance (the
     accelerometer's offset, the start position, the trial's excitation) is then not
     shared between the fitted and the validated part, as it is between two halves of
-    one trial (an offset-like effect fitted on one half "predicts" the other half)."""
+    one trial (an offset-like effect fitted on one half "predicts" the other half).
+    ``coverage``: the fraction of the held-out trial's compared samples inside the fit
+    part's travel range (:func:`_coverage`), used for effects whose shape varies along
+    the travel (:func:`_folds_for`)."""
     if len(logs) >= 2:
         folds = []
         for k in range(len(logs)):
@@ -269,12 +271,43 @@ def _folds(device: GapDevice, logs: Sequence[TrialLog], params: Mapping[str, flo
                 device.check_logs(f, v)
             except CannotDiagnose:
                 continue
-            if _inside_fit_range(device, f, params, v):
-                folds.append((f, v))
+            folds.append((f, v, _coverage(device, f, params, v)))
         if len(folds) >= 2:
             return "leave-one-log-out", folds
     A, B = _halves(logs)
-    return "halves", [(A, B), (B, A)]
+    return "halves", [(A, B, 1.0), (B, A, 1.0)]
+
+
+#: fraction of a held-out trial's compared samples that must lie inside the fitted
+#: travel range for the fold to validate an effect whose shape varies along the travel
+MIN_HELDOUT_INSIDE = 0.5
+
+
+def _coverage(device: GapDevice, fit_part, params, val_part) -> float:
+    """Fraction of the held-out trial's compared samples inside the fit part's
+    nut-position range (1 for a device without ``compare_region``)."""
+    if not hasattr(device, "compare_region"):
+        return 1.0
+    pos = np.concatenate([device.operating_point(lg, params)["position"] for lg in fit_part])
+    total = device.compared_seconds(val_part)
+    device.compare_region = {"position": (float(np.min(pos)), float(np.max(pos)))}
+    try:
+        inside = device.compared_seconds(val_part)
+    finally:
+        device.compare_region = None
+    return inside / total if total > 0 else 0.0
+
+
+def _folds_for(device: GapDevice, folds, effects: Sequence[str]):
+    """The folds that validate ``effects``: a fold validates interpolation, not an
+    extrapolation of a shape that varies along the travel (position-dependent friction)
+    to a range it was never fitted on, so for such an effect only folds whose held-out
+    trial lies mostly inside the fit part's travel count (all of them when none does)."""
+    along = getattr(device, "varies_along_travel", None)
+    if along is None or not any(along(e) for e in effects):
+        return folds
+    inside = [fd for fd in folds if fd[2] >= MIN_HELDOUT_INSIDE]
+    return inside or folds
 
 
 def _passes(g_base: Sequence[float], g_eff: Sequence[float], margin: float) -> tuple[bool, float]:
@@ -289,10 +322,12 @@ def _passes(g_base: Sequence[float], g_eff: Sequence[float], margin: float) -> t
     return bool(pooled >= margin and min(red) >= 0.5 * margin), pooled
 
 
-def _cv(device: GapDevice, folds, effects: Sequence[str]) -> tuple[list[float], list[float]]:
-    """Held-out gap per fold with and without ``effects`` (recalibrated on the other half)."""
+def _cv(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None
+        ) -> tuple[list[float], list[float]]:
+    """Held-out gap per fold with and without ``effects`` (recalibrated on the fit part),
+    on the folds that validate ``basis`` (default ``effects``, :func:`_folds_for`)."""
     g_base, g_eff = [], []
-    for fit_part, val_part in folds:
+    for fit_part, val_part, _ in _folds_for(device, folds, effects if basis is None else basis):
         rec = device.recalibrate(fit_part)
         g_base.append(device.gap(val_part, rec))
         eff, _ = _fit_many(device, fit_part, rec, effects)
@@ -302,29 +337,6 @@ def _cv(device: GapDevice, folds, effects: Sequence[str]) -> tuple[list[float], 
         nom, own = _apply(rec, eff)
         g_eff.append(device.gap(val_part, nom, own))
     return g_base, g_eff
-
-
-#: fraction of a held-out trial's compared samples that must lie inside the fitted
-#: position range for the fold to count
-MIN_HELDOUT_INSIDE = 0.5
-
-
-def _inside_fit_range(device: GapDevice, fit_part, params, val_part) -> bool:
-    """Whether a fold is informative: a fold validates interpolation, not an
-    extrapolation of a position-dependent shape to a travel range it was never fitted
-    on (the ``--test`` logs are judged with a fit on all fit logs). False when less than
-    :data:`MIN_HELDOUT_INSIDE` of the held-out trial's compared samples lie in the fit
-    part's nut-position range. Devices without ``compare_region`` count every fold."""
-    if not hasattr(device, "compare_region"):
-        return True
-    pos = np.concatenate([device.operating_point(lg, params)["position"] for lg in fit_part])
-    total = device.compared_seconds(val_part)
-    device.compare_region = {"position": (float(np.min(pos)), float(np.max(pos)))}
-    try:
-        inside = device.compared_seconds(val_part)
-    finally:
-        device.compare_region = None
-    return total > 0 and inside / total >= MIN_HELDOUT_INSIDE
 
 
 def _reduction(g_base: Sequence[float], g_eff: Sequence[float]) -> list[float]:
@@ -405,9 +417,13 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
                 ranked.sort(key=lambda gc: gc[0])
                 best = None
                 for _, c in ranked[:n_validate]:
-                    _, ge_pair = _cv(device, folds, selected + [c["effect"]])
-                    ok, pooled = _passes(ge_sel, ge_pair, margin)
-                    c.setdefault("heldout", {})["added_to_selection"] = _reduction(ge_sel, ge_pair)
+                    pair = selected + [c["effect"]]
+                    _, ge_pair = _cv(device, folds, pair)
+                    same = [id(fd) for fd in _folds_for(device, folds, pair)] == \
+                        [id(fd) for fd in _folds_for(device, folds, selected)]
+                    base = ge_sel if same else _cv(device, folds, selected, basis=pair)[1]
+                    ok, pooled = _passes(base, ge_pair, margin)
+                    c.setdefault("heldout", {})["added_to_selection"] = _reduction(base, ge_pair)
                     c["heldout"]["added_pooled_reduction"] = pooled
                     if ok and (best is None or pooled > best[0]):
                         best = (pooled, c, ge_pair)
@@ -420,7 +436,7 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     floor = getattr(device, "gap_floor", None)
     nf = getattr(device, "noise_floor", None)
     if nf is not None:
-        fl = [float(nf(v)["gap"]) for _, v in folds]
+        fl = [float(nf(v)["gap"]) for _, v, _ in folds]
         out["noise_floor"] = float(np.sqrt(np.mean(np.square(fl))))
         out["unknown_factor"] = UNKNOWN_FACTOR
         floor = UNKNOWN_FACTOR * out["noise_floor"]
@@ -429,7 +445,7 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     elif selected:
         _, ge = _cv(device, folds, selected)
     else:
-        ge = [device.gap(v, device.recalibrate(f)) for f, v in folds]
+        ge = [device.gap(v, device.recalibrate(f)) for f, v, _ in folds]
     resid_heldout = float(np.sqrt(np.mean(np.square(ge))))
     out["heldout_residual_gap"] = resid_heldout
     out["gap_floor"] = floor
@@ -444,7 +460,7 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     sz = getattr(device, "signal_z", None)
     if sz is not None and selected and selected != ["unknown"]:
         zs: dict[str, list[float]] = {}
-        for f, v in folds:
+        for f, v, _ in _folds_for(device, folds, selected):
             r = device.recalibrate(f)
             eff, _ = _fit_many(device, f, r, selected)
             nom, own = _apply(r, eff) if eff is not None else (r, {})

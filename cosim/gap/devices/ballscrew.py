@@ -525,6 +525,11 @@ class BallscrewDevice:
         return out
 
     @staticmethod
+    def varies_along_travel(effect: str) -> bool:
+        """Whether the effect's shape varies along the travel (validated inside the fitted range)."""
+        return CATALOGUE[effect].ballscrew.along_travel
+
+    @staticmethod
     def acts_on(effect: str) -> set[str]:
         """The comparison signals an effect changes."""
         return set(CATALOGUE[effect].ballscrew.acts_on)

@@ -68,7 +68,9 @@ class BallscrewForm:
     coefficients the effect adds (``nonneg``: bounded below by 0 by physics;
     ``acc_only``: coefficients of, or shared with, the acceleration equation, which are
     not torques); ``acts_on``: the comparison signals it changes; ``driver_stage``: order
-    along the driver for current-path effects. ``to_report(nl, coefs, nom)`` and
+    along the driver for current-path effects; ``along_travel``: the shape varies along
+    the travel (held-out trials validate it only inside the fitted range).
+    ``to_report(nl, coefs, nom)`` and
     ``from_report(params)`` convert between the regression form and the reported
     (FMU-named) parameters, when they differ.
     """
@@ -81,6 +83,7 @@ class BallscrewForm:
     acc_only: tuple[str, ...] = ()
     acts_on: tuple[str, ...] = ("i_cmd",)
     driver_stage: int = 0
+    along_travel: bool = False
     to_report: Callable[[Mapping[str, float], Mapping[str, float], Mapping[str, float]],
                         dict[str, float]] | None = None
     from_report: Callable[[Mapping[str, float]], tuple[dict[str, float], dict[str, float]]] | None = None

@@ -33,6 +33,7 @@ EFFECT = Effect(
            php=("rad", 0.0, -math.pi, math.pi, "phase of that variation at x = 0")),
     BallscrewForm(_terms, grid=lambda preps: [{"lp": v} for v in np.geomspace(0.005, 0.2, 24)],
                   refine=("lp",), bounds={"lp": (0.002, 0.5)}, linear=("kfx", "dfp_sin", "dfp_cos"),
+                  along_travel=True,
                   to_report=_to_report, from_report=_from_report),
     # Coulomb friction +-(35-60) % along the travel, period 20-60 mm (preload / wear)
     lambda r: {"amp": uniform(r, 0.35, 0.6), "period": uniform(r, 0.02, 0.06), "phase": uniform(r, 0, 2 * math.pi)},
