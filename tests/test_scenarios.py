@@ -437,3 +437,11 @@ def test_negative_control_apply_to_keeps_the_other_runs(tmp_path):
     stored = sorted(p.name for p in (tmp_path / "out" / "runs").iterdir())
     assert stored == ["full", "half", "nc.R-pass_half", "nc.half_current_full",
                       "nc.half_current_half"]
+
+
+def test_unknown_named_control_on_a_thesis_inconsistent_requirement(tmp_path):
+    text = BASE.replace("    limit: 1.0\n    negative_control: half_current\n",
+                        "    limit: 1.0\n    negative_control: halff\n"
+                        "    thesis_inconsistent: {reason: \"eq. 90 as printed (test)\"}\n")
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'halff')}:" in msg and "did you mean 'half_current'" in msg

@@ -336,6 +336,11 @@ def _check_requirement_controls(c, d, r, p):
     named = d.get("negative_controls") or {}
     nc = r.get("negative_control")
     ti = r.get("thesis_inconsistent")
+    if isinstance(nc, str) and nc not in named:
+        close = reg.suggest(nc, named)
+        c.err(p + ("negative_control",), f"requirement {r['id']}: unknown negative control "
+              f"{nc!r}" + (f"; did you mean {close!r}?" if close else
+                           f" (negative_controls: {list(named)})"))
     if ti is not None:
         c.keys(ti, INCONS, p + ("thesis_inconsistent",), f"requirement {r['id']}: "
                f"thesis_inconsistent")
@@ -357,11 +362,6 @@ def _check_requirement_controls(c, d, r, p):
         c.err(p, f"requirement {r['id']}: no negative_control: name a case, an override or "
               f"an entry of negative_controls under which the claim must NOT hold (or "
               f"declare it thesis_inconsistent); see docs/scenario-format.md")
-    if isinstance(nc, str) and nc not in named:
-        close = reg.suggest(nc, named)
-        c.err(p + ("negative_control",), f"requirement {r['id']}: unknown negative control "
-              f"{nc!r}" + (f"; did you mean {close!r}?" if close else
-                           f" (negative_controls: {list(named)})"))
 
 
 def _check_negative_control(c, d, nc, p, runs, req=None):
