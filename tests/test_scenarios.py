@@ -441,7 +441,7 @@ def test_negative_control_apply_to_keeps_the_other_runs(tmp_path):
 
 def test_unknown_named_control_on_a_thesis_inconsistent_requirement(tmp_path):
     text = BASE.replace("    limit: 1.0\n    negative_control: half_current\n",
-                        "    limit: 1.0\n    negative_control: halff\n"
+                        "    limit: 1.0\n    negative_control: half_curent\n"
                         "    thesis_inconsistent: {reason: \"eq. 90 as printed (test)\"}\n")
     msg = error_of(tmp_path, text)
-    assert f":{line_of(text, 'halff')}:" in msg and "did you mean 'half_current'" in msg
+    assert f":{line_of(text, 'half_curent')}:" in msg and "did you mean 'half_current'" in msg
