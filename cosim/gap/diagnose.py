@@ -542,10 +542,26 @@ def _plot_data(device: GapDevice, fit, test, rec, nom_after, effects_after) -> d
                             "operating_point": device.operating_point(log, rec)}
     if effects_after and test:
         lt = test[0]
-        data["test"] = {"log": lt.csv_path.name, "time": lt.time,
-                        "before": device.signals(lt, rec),
-                        "after": device.signals(lt, nom_after, effects_after)}
+        before = device.signals(lt, rec)
+        data["test"] = {"log": lt.csv_path.name, "time": lt.time, "before": before,
+                        "after": device.signals(lt, nom_after, effects_after),
+                        "window": _worst_window(lt, before)}
     return data
+
+
+def _worst_window(log: TrialLog, sig: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> tuple[float, float]:
+    """(start, end) [s] of the :data:`WINDOW_S` window of ``log`` holding the most residual
+    energy of ``sig`` (each signal normalised by its measured variance): where the gap
+    of the held-out log lies."""
+    e = np.zeros(log.n_samples)
+    for m, s in sig.values():
+        r = np.where(np.isfinite(m - s), m - s, 0.0)
+        var = float(np.nanvar(m)) or 1.0
+        e += r * r / var
+    nw = max(1, min(log.n_samples, int(round(WINDOW_S / log.sample_time))))
+    c = np.convolve(e, np.ones(nw), "valid")
+    k = int(np.argmax(c)) if c.size else 0
+    return float(log.time[k]), float(log.time[min(k + nw - 1, log.n_samples - 1)])
 
 
 def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_paths: Sequence[str | os.PathLike],

@@ -106,6 +106,19 @@ def _figures(result: Mapping[str, Any], ex: Mapping[str, Any]) -> list[tuple[str
             axes[j, 0].legend(fontsize=7)
         axes[-1, 0].set_xlabel("time [s]")
         figs.append((f"Held-out log {held['log']}: residual before/after", _png(fig)))
+        if held.get("window"):
+            t0, t1 = held["window"]
+            m = (tt >= t0) & (tt <= t1)
+            fig, axes = plt.subplots(len(sb), 1, figsize=(12, 2.6 * len(sb)), squeeze=False)
+            for j, name in enumerate(sb):
+                axes[j, 0].plot(tt[m], sb[name][0][m], "k", lw=0.8, label="measured")
+                axes[j, 0].plot(tt[m], sb[name][1][m], lw=0.8, label="model before (recalibrated)")
+                axes[j, 0].plot(tt[m], sa[name][1][m], lw=0.8, label="model after (selected effects)")
+                axes[j, 0].set_ylabel(name)
+                axes[j, 0].legend(fontsize=7)
+            axes[-1, 0].set_xlabel("time [s]")
+            figs.append((f"Held-out log {held['log']}, {t0:.2f}-{t1:.2f} s (where its gap lies): "
+                         f"measured and model before/after", _png(fig)))
     return figs
 
 

@@ -1,7 +1,8 @@
 """Play between the motor/screw and the nut that carries the handle and the accelerometer."""
 import numpy as np
 
-from .base import BALLSCREW, BallscrewForm, Effect, Terms, params, play, uniform
+from .base import (NFINE, BALLSCREW, BallscrewForm, Effect, Terms, fine_to_samples, nut_backlash, params,
+                   uniform)
 
 #: damping ratio of the nut on the transmission (contact) stiffness (shared with compliance)
 ZETA_TR = ("1", 0.05, 0.0, 1.0, "damping ratio of the nut on the transmission (contact) "
@@ -9,11 +10,24 @@ ZETA_TR = ("1", 0.05, 0.0, 1.0, "damping ratio of the nut on the transmission (c
 
 
 def _terms(p, nl, nom):
-    # the nut follows the screw behind a play; the motor carries the nut's inertia only
-    # through the contact: torque S m_n (a_nut - S w')
-    xn = play(p.x, nl["backlash"])
-    an = np.gradient(np.gradient(xn, p.ts), p.ts)
-    return Terms(a_nut=an, fixed_i=p.S * nom["m_n"] * (an - p.S * p.wd))
+    # the nut (m_n, guide friction nut_fc, external force f) behind the play on the
+    # measured screw motion: in contact it follows the screw; it leaves the face when the
+    # force the screw must give it changes sign (a speed reversal with the nut held by its
+    # guide friction, a deceleration faster than the friction's, a push on the handle),
+    # crosses the play and lands with an impulse (see base.nut_backlash)
+    S, m_n = p.S, nom["m_n"]
+    a_s = S * p.wd
+    F_n = nl.get("nut_fc", 0.3)
+    imp, cont, free = nut_backlash(p.x, S * p.w, a_s, p.f, p.ts, nl["backlash"], m_n, F_n)
+    # the reading at t_k is a point sample; the comparison advances it by Ts/2 (made for
+    # the zero-order-held motion): the nut's own events are advanced alike
+    a_nut = a_s + fine_to_samples(cont + imp, p.ts, NFINE // 2)
+    # torque: the screw gives the nut m_n a_nut - f + friction in contact, nothing in
+    # flight, the impulse at the impact; minus what the rigid model charges
+    fr = free.copy()
+    fr[1:] = 0.5 * (free[1:] + free[:-1])
+    fixed = S * (m_n * fine_to_samples(imp, p.ts) - fr * (m_n * a_s - p.f + F_n * np.sign(p.w)))
+    return Terms(a_nut=a_nut, fixed_i=fixed)
 
 
 EFFECT = Effect(
@@ -22,8 +36,10 @@ EFFECT = Effect(
     params(backlash=("m", 0.0, 0.0, 1e-3, "total axial play at the nut"),
            k_bl=("N/m", 1e7, 1e4, 1e8, "contact stiffness when in contact (used when c_tr = 0)"),
            zeta_tr=ZETA_TR),
-    BallscrewForm(_terms, grid=lambda preps: [{"backlash": v} for v in np.geomspace(2e-5, 1e-3, 12)],
-                  refine=("backlash",), bounds={"backlash": (1e-7, 5e-3)},
+    # play 1 um .. 0.5 mm at the nut; guide friction light (0.2 N) or heavy (1 N)
+    BallscrewForm(_terms, grid=lambda preps: [{"backlash": v, "nut_fc": F} for v in np.geomspace(1e-6, 5e-4, 10)
+                                              for F in (0.2, 1.0)],
+                  refine=("backlash", "nut_fc"), bounds={"backlash": (1e-7, 5e-3), "nut_fc": (0.02, 5.0)},
                   acts_on=("i_cmd", "acc_meas")),
     # play 0.1-0.3 mm at the nut
     lambda r: {"width": uniform(r, 1e-4, 3e-4)},
