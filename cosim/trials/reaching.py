@@ -570,10 +570,17 @@ def _reaching_session(run, build, ctx):
     v_max = 0.0
     ctx.state.pop("a", None)
     hp0 = None
+    # parameters.human_overrides: HumanArm2D parameters set over the patient model's
+    # (e.g. a negative control removing the impairment); the metrics keep the patient's
+    # stated impairment centre and the stability check the patient's impedance
+    extra = dict(pr.get("human_overrides") or {})
     for i, on in enumerate(motors):
         hp = subj.human_parameters(week, i, motors)
         hp0 = hp0 or hp
-        hp_all = dict(hp, x_hand0=x0, y_hand0=y0, x_dev=x0, y_dev=y0)
+        unknown = sorted(set(extra) - set(hp))
+        if unknown:
+            raise ValueError(f"human_overrides: unknown HumanArm2D parameter(s) {unknown}")
+        hp_all = dict(hp, **extra, x_hand0=x0, y_hand0=y0, x_dev=x0, y_dev=y0)
         ctx.phase = f"t{i + 1}"
         system, record = build({"system": {"fmus": {"human": {"parameters": hp_all}}},
                                 "controllers": {"ac": {"params": {"motors_on": on}}}})
