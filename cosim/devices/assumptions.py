@@ -1,0 +1,280 @@
+"""Every value the models and trials use that the thesis does not give, in one place.
+
+Each :class:`Assumption` has a value with its unit, WHERE it is used (the Modelica
+parameter default, the Python constant or the scenario line that holds it) and its
+SOURCE: what chose it.
+
+``basis`` says what kind of source it is:
+
+``assumed``
+    an order of magnitude or an engineering choice, with the reason; nothing in the
+    thesis or a datasheet pins it (e.g. the X-Y table's friction: the thesis only says
+    "low friction losses and good back-drivability").
+``derived``
+    computed from other values by a stated rule (e.g. LuGre bristle damping = critical
+    damping of the presliding mode); it follows its inputs.
+``calibrated``
+    chosen so that a simulated figure matches a number the thesis gives (the figure,
+    the thesis's number and the simulated value are in ``source``).
+``datasheet``
+    a component's datasheet, not the thesis.
+
+``used_in`` locations (each is cross-checked against the source it names by
+``tests/test_devices_assumptions.py``, so this table cannot drift silently):
+
+* ``modelica/RehabSim/<Model>.mo:<parameter>``: the parameter's default;
+* ``<python.module>:<NAME>[key].attr...``: a Python constant (dict keys in ``[]``,
+  attributes and dataclass field defaults after ``.``);
+* ``scenarios/<file>.yaml:<dotted.path>``: a value set in a scenario file.
+
+This module is data only and imports nothing from the package (lowest floor).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+BASES = ("assumed", "derived", "calibrated", "datasheet")
+
+
+@dataclasses.dataclass(frozen=True)
+class Assumption:
+    """One value the thesis does not give: name, value [unit], where used, source."""
+
+    group: str
+    name: str
+    value: float
+    unit: str
+    used_in: tuple[str, ...]
+    basis: str
+    source: str
+
+    def __post_init__(self):
+        if self.basis not in BASES:
+            raise ValueError(f"{self.name}: basis must be one of {BASES}, got {self.basis!r}")
+        if not self.used_in:
+            raise ValueError(f"{self.name}: used_in must name at least one place")
+
+
+_A = Assumption
+_XY = "modelica/RehabSim/XYTable.mo"
+_BS = "modelica/RehabSim/BallScrewUnit.mo"
+_ACC = "modelica/RehabSim/Accelerometer.mo"
+_H2 = "modelica/RehabSim/HumanArm2D.mo"
+_H1 = "modelica/RehabSim/HumanArm1D.mo"
+_PAT = "cosim.trials.patients:SUBJECTS"
+_LIT = ("assumed: order of magnitude of the hand impedance in the literature the thesis "
+        "cites for eq. 75 ([114]-[117]: stiffness 1e2-1e3 N/m, viscosity 5-30 N s/m, "
+        "effective mass 0.5-2 kg); Fig. 42/44 plot the identified admittances but the "
+        "values are not readable from the thesis text")
+
+ASSUMPTIONS: tuple[Assumption, ...] = (
+    # ------------------------------------------------------------------ X-Y table
+    _A("X-Y table friction", "Coulomb friction, x axis", 1.0, "N",
+       (f"{_XY}:fc_x", f"{_XY}:fs_x"), "assumed",
+       "assumed: the thesis gives no friction for the X-Y table (Sec. 3.4: 'low friction "
+       "losses and good back-drivability'). NOT calibrated: in the reaching trials it is "
+       "the largest force (assistance peaks at 1.33 N, issue 10) and it makes the "
+       "modelled x errors larger than y (S1 motors OFF 9.9 / 5.3 mm vs Table 7's "
+       "5.45 / 5.19 mm)"),
+    _A("X-Y table friction", "Coulomb friction, y axis", 0.5, "N",
+       (f"{_XY}:fc_y", f"{_XY}:fs_y"), "assumed",
+       "assumed: half of x (the y carriage is a third of the x moving mass); no thesis source"),
+    _A("X-Y table friction", "viscous friction, x axis", 2.0, "N.s/m", (f"{_XY}:b_x",),
+       "assumed", "assumed: 0.04 N at the 1.8 cm/s target speed; no thesis source"),
+    _A("X-Y table friction", "viscous friction, y axis", 1.0, "N.s/m", (f"{_XY}:b_y",),
+       "assumed", "assumed: half of x; no thesis source"),
+    _A("X-Y table friction", "LuGre bristle stiffness, x", 1e6, "N/m", (f"{_XY}:sigma0_x",),
+       "derived", "presliding fs_x/sigma0_x = 1 um = 0.1 count of the 10 um encoder "
+       "(Table 4): the table holds under a sub-breakaway force without visible creep"),
+    _A("X-Y table friction", "LuGre bristle stiffness, y", 5e5, "N/m", (f"{_XY}:sigma0_y",),
+       "derived", "presliding fs_y/sigma0_y = 1 um = 0.1 encoder count (Table 4)"),
+    _A("X-Y table friction", "LuGre bristle damping, x", 2450.0, "N.s/m", (f"{_XY}:sigma1_x",),
+       "derived", "2 sqrt(sigma0_x (m_low + m_up)): critical damping of the presliding mode "
+       "with Table 4's 1.5 kg"),
+    _A("X-Y table friction", "LuGre bristle damping, y", 1000.0, "N.s/m", (f"{_XY}:sigma1_y",),
+       "derived", "2 sqrt(sigma0_y m_up) with Table 4's 0.5 kg"),
+    _A("X-Y table friction", "bristle damping fade speed", 1e-3, "m/s", (f"{_XY}:vd",),
+       "derived", "below the passivity limits 3.8 mm/s (x), 4.7 mm/s (y) "
+       "(modelica/RehabSim/README.md, LuGre)"),
+    _A("X-Y table end stops", "end-stop stiffness", 1e5, "N/m", (f"{_XY}:k_stop",), "assumed",
+       "assumed: a 10 N push penetrates 0.1 mm; 41 Hz on x (README)"),
+    _A("X-Y table end stops", "end-stop damping", 200.0, "N.s/m", (f"{_XY}:d_stop",), "assumed",
+       "assumed: damping ratio 0.26 on x; acts only while penetrating"),
+    # ------------------------------------------------------------------ ball screw
+    _A("ball-screw friction model", "LuGre bristle stiffness", 200.0, "N.m/rad",
+       (f"{_BS}:sigma0",), "derived",
+       "bristle deflection at breakaway fs/sigma0 = 1.5e-5 rad = 0.05 count of the 21600 "
+       "pulse/rev encoder (Table 1); the thesis gives no presliding data"),
+    _A("ball-screw friction model", "LuGre bristle damping", 0.117, "N.m.s/rad",
+       (f"{_BS}:sigma1",), "derived",
+       "2 sqrt(sigma0 J) with Table 1's J = 1.7e-5 kg m^2: critical damping of the "
+       "presliding mode (546 Hz)"),
+    _A("ball-screw friction model", "bristle damping fade speed", 0.1, "rad/s",
+       (f"{_BS}:wd",), "derived", "passivity of the LuGre model needs wd <= 0.24 rad/s "
+       "(README)"),
+    # ------------------------------------------------------------------ accelerometer
+    _A("accelerometer (ADXL335)", "initial bias b0", 0.1, "m/s2",
+       (f"{_ACC}:b0", "scenarios/free_motion.yaml:system.fmus.acc.parameters.b0"), "assumed",
+       "assumed: residual 0 g offset after calibration, about 10 mg; Table 2 gives only its "
+       "temperature drift (1 mg/degC). It is the truth FM-2/FM-3 ask the aaKF to find "
+       "(Fig. 25 shows an estimate of this order, not readable)"),
+    _A("accelerometer (ADXL335)", "bias random walk (1 s)", 1e-3, "m/s2",
+       (f"{_ACC}:sigma_rw",), "assumed",
+       "assumed: standard deviation of the bias change over 1 s (eq. 15 gives the form, "
+       "not the size)"),
+    _A("accelerometer (ADXL335)", "ADC quantum", 20.0 / 65536, "V",
+       (f"{_ACC}:adc_lsb",), "datasheet",
+       "Sensoray 626: 16 bit over +-10 V (the thesis names the board, not the resolution)"),
+    _A("accelerometer (ADXL335)", "noise generator hold period", 1e-4, "s",
+       (f"{_ACC}:T_noise",), "assumed",
+       "modelling choice: Nyquist 5 kHz above the 1600 Hz band of Table 2"),
+    # ------------------------------------------------------------------ load cell
+    _A("load cell", "stiffness of the load cell and mounting", 2e5, "N/m",
+       ("modelica/RehabSim/LoadCell.mo:k_lc", "modelica/RehabSim/ZeroForceRig.mo:k_cell"),
+       "assumed", "assumed: the thesis gives no load-cell stiffness (Sec. 2.5.3, Fig. 27)"),
+    _A("load cell", "stiffness in the zero-force scenario", 2e4, "N/m",
+       ("scenarios/zero_force.yaml:system.fmus.rig.parameters.k_cell",), "derived",
+       "lowered from 2e5 so that the DOB/RFOB loop is stable: Routh needs "
+       "g > k_cell/d_cell = 133 rad/s < g = 500 rad/s (scenarios/zero_force.yaml)"),
+    _A("load cell", "damping of the load cell and mounting", 150.0, "N.s/m",
+       ("modelica/RehabSim/LoadCell.mo:d_lc", "modelica/RehabSim/ZeroForceRig.mo:d_cell",
+        "scenarios/zero_force.yaml:system.fmus.rig.parameters.d_cell"), "assumed",
+       "assumed: no thesis source"),
+    _A("load cell", "reading noise (std)", 0.02, "N",
+       ("modelica/RehabSim/LoadCell.mo:sigma_lc", "modelica/RehabSim/ZeroForceRig.mo:sigma_cell"),
+       "assumed", "assumed: no thesis source"),
+    # ------------------------------------------------------------------ wall
+    _A("rigid wall (bilateral)", "wall stiffness", 2e5, "N/m",
+       ("modelica/RehabSim/RigidWall.mo:k_wall", "modelica/RehabSim/WallUnitRig.mo:k_w",
+        "scenarios/bilateral.yaml:system.fmus.slave.parameters.k_w"), "assumed",
+       "assumed: the thesis's wall (Sec. 2.5.4, Fig. 32) is 'rigid', no stiffness given"),
+    _A("rigid wall (bilateral)", "wall damping", 500.0, "N.s/m",
+       ("modelica/RehabSim/RigidWall.mo:d_wall", "modelica/RehabSim/WallUnitRig.mo:d_w",
+        "scenarios/bilateral.yaml:system.fmus.slave.parameters.d_w"), "assumed",
+       "assumed: acts only while penetrating; no thesis source"),
+    _A("rigid wall (bilateral)", "wall position", 0.02, "m",
+       ("modelica/RehabSim/RigidWall.mo:x_wall", "modelica/RehabSim/WallUnitRig.mo:x_w",
+        "scenarios/bilateral.yaml:system.fmus.slave.parameters.x_w"), "assumed",
+       "assumed: 2 cm from home, inside the handle's few-cm travel"),
+    # ------------------------------------------------------------------ human arm
+    _A("human arm (eq. 75)", "effective hand/arm mass M_h", 1.0, "kg",
+       (f"{_H2}:M_h", f"{_H1}:M_h", "cosim.profiles:_BASE[M_h]"), "assumed", _LIT),
+    _A("human arm (eq. 75)", "arm stiffness K_h (healthy)", 200.0, "N/m",
+       (f"{_H2}:K_hx", f"{_H2}:K_hy", f"{_H1}:K_h", "cosim.profiles:_BASE[K_hx]",
+        "cosim.profiles:_BASE[K_hy]"), "assumed",
+       _LIT + "; with M_h the tracking mode is 2.3 Hz"),
+    _A("human arm (eq. 75)", "arm viscosity b_h (healthy)", 20.0, "N.s/m",
+       (f"{_H2}:b_hx", f"{_H2}:b_hy", f"{_H1}:b_h", "cosim.profiles:_BASE[b_hx]",
+        "cosim.profiles:_BASE[b_hy]"), "assumed", _LIT + "; damping ratio 0.7 with M_h, K_h"),
+    _A("human arm (eq. 75)", "stiffness change across the workspace (y)", 0.5, "1/m",
+       ("cosim.profiles:_BASE[K_slope_y]",), "assumed",
+       "assumed: +-10 % across 0.4 m; Fig. 43-44 show that it changes, not by how much"),
+    _A("grasp (Fig. 41-42)", "hard grasp stiffness", 2500.0, "N/m",
+       (f"{_H2}:k_grasp", f"{_H1}:k_grasp", "cosim.profiles:GRASPS[hard][k_grasp]"), "assumed",
+       "assumed: grasp mode 8 Hz with M_h, inside the 20 Hz identification band of Sec. "
+       "3.3.1.1; Fig. 42 shows the hard grasp stiffer, values not readable"),
+    _A("grasp (Fig. 41-42)", "hard grasp damping", 25.0, "N.s/m",
+       (f"{_H2}:b_grasp", f"{_H1}:b_grasp", "cosim.profiles:GRASPS[hard][b_grasp]"), "assumed",
+       "assumed: no thesis value"),
+    _A("grasp (Fig. 41-42)", "soft grasp stiffness", 400.0, "N/m",
+       ("cosim.profiles:GRASPS[soft][k_grasp]",), "assumed",
+       "assumed: grasp mode 3.2 Hz; no thesis value"),
+    _A("grasp (Fig. 41-42)", "soft grasp damping", 4.0, "N.s/m",
+       ("cosim.profiles:GRASPS[soft][b_grasp]",), "assumed", "assumed: no thesis value"),
+    _A("human arm (eq. 75)", "operator factor on K_h and b_h (bilateral)", 3.0, "1",
+       ("scenarios/bilateral.yaml:system.fmus.human.parameters.scale_K",
+        "scenarios/bilateral.yaml:system.fmus.human.parameters.scale_b"), "assumed",
+       "assumed: an operator pushing firmly, 600 N/m and 60 N s/m (damping ratio about 0.4 "
+       "with the rendered unit mass); Fig. 32 gives no arm values"),
+    # ------------------------------------------------------------------ patients
+    _A("patient S1 (stroke, Table 5)", "pull stiffness factor scale_K", 0.8, "1",
+       (f"{_PAT}[S1].overrides[scale_K]",), "assumed",
+       "assumed: pull 0.8 x 200 = 160 N/m outside the impaired region. Not calibrated: "
+       "motors OFF trial 1 (week 1) gives 9.9 / 5.3 mm (x / y) vs Table 7's 5.45 / 5.19 mm"),
+    _A("patient S1 (stroke, Table 5)", "viscosity factor scale_b", 1.3, "1",
+       (f"{_PAT}[S1].overrides[scale_b]", f"{_PAT}[S2].overrides[scale_b]"), "assumed",
+       "assumed: a more viscous impaired arm (S1 and S2)"),
+    _A("patient S1 (stroke, Table 5)", "stiffness lost in the impaired region", 0.85, "1",
+       (f"{_PAT}[S1].overrides[imp_depth]",), "assumed",
+       "assumed: Sec. 3.3.1 says impairments are localised, not how deep"),
+    _A("patient S1 (stroke, Table 5)", "impaired region radius", 0.04, "m",
+       (f"{_PAT}[S1].overrides[imp_radius]",), "assumed",
+       "assumed: placed 10 cm along the left-diagonal reach (left side affected)"),
+    _A("patient S2 (stroke, Table 5)", "pull stiffness factor scale_K", 0.7, "1",
+       (f"{_PAT}[S2].overrides[scale_K]",), "assumed",
+       "assumed: pull 140 N/m; the thesis gives no table for S2"),
+    _A("patient S2 (stroke, Table 5)", "stiffness lost in the impaired region", 0.8, "1",
+       (f"{_PAT}[S2].overrides[imp_depth]",), "assumed", "assumed: no thesis value"),
+    _A("patient S2 (stroke, Table 5)", "impaired region radius", 0.035, "m",
+       (f"{_PAT}[S2].overrides[imp_radius]",), "assumed",
+       "assumed: at the far end of the straight-ahead reach (right side affected)"),
+    _A("patient S3 (dementia, Table 5)", "pull stiffness factor scale_K", 0.3, "1",
+       (f"{_PAT}[S3].overrides[scale_K]",), "calibrated",
+       "calibrated on Table 8 motors OFF, trial 1 (total MAE (28.94 + 28.39)/2 = 28.7 mm): "
+       "model 35.1 / 24.3 mm, total 29.7 mm (pull 0.3 x 200 = 60 N/m). The motors-ON "
+       "trainings are not calibrated"),
+    _A("patient S3 (dementia, Table 5)", "attention cycle (lapse period = duration)", 30.0, "s",
+       (f"{_PAT}[S3].overrides[lapse_period]", f"{_PAT}[S3].overrides[lapse_duration]"),
+       "calibrated", "calibrated with scale_K on the same Table 8 trial-1 total (28.7 mm): "
+       "attention follows a raised cosine between 1 and att_min over 30 s; the earlier "
+       "10 s lapses every 20 s gave 7.5 mm, a quarter of Table 8"),
+    _A("patient S3 (dementia, Table 5)", "attention at the middle of a lapse", 0.0, "1",
+       (f"{_PAT}[S3].overrides[att_min]",), "calibrated",
+       "calibrated with the two above (Table 8 trial 1)"),
+    _A("patient S4 (Parkinsonism, Table 5)", "lapses (duration / period)", 5.0, "s",
+       (f"{_PAT}[S4].overrides[lapse_duration]",), "assumed",
+       "assumed: 5 s every 30 s down to 20 %; no thesis table for S4"),
+    _A("patient S4 (Parkinsonism, Table 5)", "tremor force amplitude", 1.5, "N",
+       ("cosim.profiles:HUMAN_PROFILES[parkinsonism_tremor][A_tremor]",), "assumed",
+       "assumed: 5 Hz rest tremor (4-6 Hz); no thesis value"),
+    _A("patient progression (Fig. 51)", "S1 weekly recovery of the impairment", 0.12, "1/week",
+       (f"{_PAT}[S1].r_week",), "assumed",
+       "assumed: Fig. 51 is a plot whose values are not in the text; the post < pre and "
+       "weekly trends (RE-7, RE-8) follow from this model, they are not evidence"),
+    _A("patient progression (Fig. 51)", "gain per assisted training (S1, S2)", 0.04, "1",
+       (f"{_PAT}[S1].r_practice", f"{_PAT}[S2].r_practice"), "assumed",
+       "assumed: builds post-better-than-pre into the model (see RE-7)"),
+    # ------------------------------------------------------------------ reaching trial
+    _A("reaching task (Fig. 48)", "reach length", 0.15, "m",
+       ("cosim.trials.reaching:ReachingPath.length_m",
+        "cosim.trials.reaching:ReachingTargetParams.length_m"), "assumed",
+       "assumed: Fig. 48 is not readable; 18 segments x 15 cm / 1.8 cm/s = 150 s, the "
+       "thesis's 'about 150 s'"),
+    _A("reaching task (Fig. 48)", "start point y (x = 0)", -0.10, "m",
+       ("cosim.trials.reaching:ReachingTargetParams.start_y_m",), "assumed",
+       "assumed: 10 cm in front of the workspace centre towards the person"),
+    _A("compliance controller (eq. 58)", "damping factor xi", 0.7, "1",
+       ("cosim.trials.reaching:XYComplianceParams.xi",), "assumed",
+       "assumed: Kd = 2 xi sqrt(Kp m) (physical form of the digest), not given in Sec. 3.5-3.6"),
+    _A("compliance controller (eq. 78)", "lower clamp of the map heights a_min", 1.0, "N/m",
+       ("cosim.trials.reaching:XYComplianceParams.a_min_N_per_m",), "assumed",
+       "assumed: eq. 78 needs a_min > 0, the thesis gives no value (<= alpha0 = 10 N/m)"),
+    _A("compliance controller (Sec. 3.4)", "Gaussian width / cell size", 0.5, "1",
+       ("cosim.trials.reaching:XYComplianceParams.sigma_over_cell",), "assumed",
+       "assumed: the thesis gives the 6 x 6 centres, not the width"),
+)
+
+
+def by_group() -> dict[str, list[Assumption]]:
+    """The assumptions grouped (in order of first appearance)."""
+    out: dict[str, list[Assumption]] = {}
+    for a in ASSUMPTIONS:
+        out.setdefault(a.group, []).append(a)
+    return out
+
+
+def used_by_models(models) -> list[Assumption]:
+    """The assumptions whose value sits in one of these Modelica models (e.g. the FMU
+    names of a scenario: XYTable, HumanArm2D) or Python modules (e.g. cosim.trials.reaching)."""
+    keys = set(models)
+    out = []
+    for a in ASSUMPTIONS:
+        for loc in a.used_in:
+            if loc.startswith("modelica/"):
+                m = loc.split(":", 1)[0].rsplit("/", 1)[-1].removesuffix(".mo")
+            else:
+                m = loc.split(":", 1)[0]
+            if m in keys:
+                out.append(a)
+                break
+    return out
