@@ -5,6 +5,7 @@ import base64
 import html
 import io
 import json
+import math
 from pathlib import Path
 
 COLOURS = {"pass": ("#1b7f2a", "#e3f4e5"), "fail": ("#b3261e", "#fbe4e2"),
@@ -165,12 +166,108 @@ def _generic_figures(runs) -> list:
     return [("recorded signals", fig)]
 
 
+def assumptions_table(items=None) -> str:
+    """The values the thesis does not give (:mod:`cosim.devices.assumptions`): value,
+    unit, where used, basis and source or calibration."""
+    from cosim.devices.assumptions import ASSUMPTIONS
+    items = ASSUMPTIONS if items is None else items
+    rows = ["<table><tr><th>group</th><th>quantity</th><th>value</th><th>unit</th>"
+            "<th>used in</th><th>basis</th><th>source / calibration</th></tr>"]
+    for a in items:
+        used = "<br>".join(f"<code>{esc(u)}</code>" for u in a.used_in)
+        rows.append(f'<tr><td>{esc(a.group)}</td><td>{esc(a.name)}</td>'
+                    f'<td>{_fmt(float(a.value))}</td><td>{esc(a.unit)}</td><td>{used}</td>'
+                    f'<td><b>{esc(a.basis)}</b></td><td>{esc(a.source)}</td></tr>')
+    rows.append("</table>")
+    n = {b: sum(a.basis == b for a in items) for b in ("assumed", "derived", "calibrated",
+                                                         "datasheet")}
+    rows.append(f'<p class="muted">{len(items)} value(s): ' + ", ".join(
+        f"{v} {k}" for k, v in n.items() if v) + ". assumed: no thesis or datasheet "
+        "number, an order of magnitude or a choice; derived: follows from other values by "
+        "the stated rule; calibrated: chosen to match the thesis number named. Listed in "
+        "<code>cosim/devices/assumptions.py</code>; <code>tests/test_devices_assumptions.py"
+        "</code> checks each against the Modelica default, Python constant or scenario "
+        "line it names.</p>")
+    return "\n".join(rows)
+
+
+def _scenario_assumptions(sc) -> list:
+    """The assumptions a scenario's models, scenario file and trial modules hold."""
+    import re
+    from cosim.devices.assumptions import used_by_models
+    keys = {spec.get("fmu") for spec in (sc.data.get("system", {}).get("fmus") or {}).values()}
+    keys.add(f"cosim.trials.{sc.trial}")
+    keys.add(f"scenarios/{Path(str(sc.path)).name}")
+    if any(str(k).startswith("HumanArm") for k in keys):
+        keys.add("cosim.profiles")
+    trial_file = Path(__file__).resolve().parents[1] / "trials" / f"{sc.trial}.py"
+    if trial_file.is_file():           # modules the trial imports (e.g. its patient models)
+        for m in re.findall(r"from \.(\w+) import", trial_file.read_text()):
+            keys.add(f"cosim.trials.{m}")
+    return used_by_models(keys)
+
+
+def _v(x, d=2) -> str:
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{x:.{d}f}"
+
+
+def _signed(x, d=2) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x:+.{d}f}"
+
+
+def thesis_tables_html(infos) -> str:
+    """Tables 7-8 (thesis) beside the stored reaching sessions: per subject, per
+    training, per axis MAE and SDE, thesis / simulated / difference."""
+    from .thesis_tables import COLUMNS, comparison
+    comps = comparison(infos)
+    if not comps:
+        return ""
+    lab = {"MAE_x_mm": "MAE x", "SDE_x_mm": "SDE x", "MAE_y_mm": "MAE y",
+           "SDE_y_mm": "SDE y", "total_MAE_mm": "total MAE"}
+    out = ['<p>The thesis gives one weekly session for subject 1 (Table 7, stroke) and one '
+           'for subject 3 (Table 8, dementia); it does not say which week. Simulated: the '
+           'stored session of week 1 (the weeks 1-4 range is in the last row of each '
+           'training). diff = simulated - thesis [mm]. Subjects 2 and 4: no thesis table. '
+           'SDE: standard deviation of the signed error (the thesis does not define it).</p>']
+    for c in comps:
+        head = "".join(f'<th colspan="3">{lab[k]} [mm]</th>' for k in COLUMNS)
+        sub = "<th>thesis</th><th>sim</th><th>diff</th>" * len(COLUMNS)
+        rows = [f'<h3>{esc(c["subject"])} vs {esc(c["table"])} (week {c["week"] + 1})</h3>',
+                f'<table><tr><th rowspan="2">trial</th><th rowspan="2">motors</th>{head}</tr>'
+                f'<tr>{sub}</tr>']
+        for i, r in enumerate(c["rows"]):
+            cells = "".join(f'<td>{_v(r[k]["thesis"])}</td><td><b>{_v(r[k]["sim"])}</b></td>'
+                            f'<td>{_signed(r[k]["diff"])}</td>' for k in COLUMNS)
+            mot = esc(r["motors"]) + ("" if r.get("sim_motors") in (None, r["motors"]) else
+                                      f' (sim {esc(r["sim_motors"])})')
+            rng = "".join(f'<td colspan="3" class="muted">weeks {c["weeks"][0] + 1}-'
+                          f'{c["weeks"][-1] + 1}: {_v(c["week_range"][k][i][0])}-'
+                          f'{_v(c["week_range"][k][i][1])}</td>' for k in COLUMNS)
+            rows.append(f'<tr><td>{r["trial"]}</td><td>{mot}</td>{cells}</tr>'
+                        f'<tr><td></td><td></td>{rng}</tr>')
+        rows.append("</table>")
+        rows.append('<table><tr><th></th><th colspan="3">mean OFF (trials 1, 5)</th>'
+                    '<th colspan="3">mean ON (trials 2-4)</th><th colspan="3">ON/OFF</th></tr>'
+                    '<tr><th>[mm]</th>' + "<th>thesis</th><th>sim</th><th>diff</th>" * 3
+                    + "</tr>")
+        for k in COLUMNS + ("total_MAE_mm",):
+            s = c["summary"][k]
+            cells = ""
+            for q, d in (("OFF", 2), ("ON", 2), ("ON/OFF", 2)):
+                t, m = s["thesis"][q], s["sim"][q]
+                cells += f"<td>{_v(t, d)}</td><td><b>{_v(m, d)}</b></td><td>{_signed(m - t, d)}</td>"
+            rows.append(f"<tr><td>{lab[k]}</td>{cells}</tr>")
+        rows.append("</table>")
+        out.append("\n".join(rows))
+    return "\n".join(out)
+
+
 def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None) -> str:
     import matplotlib
     matplotlib.use("Agg")
     from cosim.scenarios import registry as reg
     from cosim.scenarios.store import read_runs
-    runs, _ = read_runs(sc, out_dir)
+    runs, infos = read_runs(sc, out_dir)
     ok = [v for v in runs if any(r.get("label") == v.label and r.get("status") == "ok"
                                  for r in verdict.get("runs", []))]
     figs_html = []
@@ -195,8 +292,18 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
         body.insert(0, f'<p><a href="{esc(back_link)}">&larr; suite overview</a></p>')
     if errs:
         body.append(f"<h2>Errors</h2><ul>{errs}</ul>")
-    body += ["<h2>Requirements</h2>", requirements_table(verdict),
-             "<h2>Figures</h2>", "\n".join(figs_html) or "<p>(no figures: no finished run)</p>",
+    body += ["<h2>Requirements</h2>", requirements_table(verdict)]
+    try:
+        t78 = thesis_tables_html(infos)
+    except Exception as exc:       # a broken comparison must not hide the verdict
+        t78 = f"<p class='error'>Tables 7-8 comparison failed: {esc(type(exc).__name__)}: {esc(exc)}</p>"
+    if t78:
+        body += ["<h2>Tables 7-8: thesis beside simulation</h2>", t78]
+    assumed = _scenario_assumptions(sc)
+    if assumed:
+        body += ["<h2>Assumed values this scenario uses (not in the thesis)</h2>",
+                 assumptions_table(assumed)]
+    body += ["<h2>Figures</h2>", "\n".join(figs_html) or "<p>(no figures: no finished run)</p>",
              "<h2>Runs</h2>", runs_table(verdict),
              "<h2>Provenance</h2>", provenance_html(verdict),
              "<h2>Configuration</h2><pre>" + esc(sc.text) + "</pre>"]
@@ -234,6 +341,8 @@ def suite_page(summary: dict, links: dict) -> str:
             f"{summary.get('wall_s', 0):.1f} s on {esc(summary.get('cluster'))}.</p>",
             "\n".join(rows),
             "<h2>Requirements</h2>", suite_requirements(summary),
+            "<h2>Assumed values (not in the thesis): source or calibration</h2>",
+            assumptions_table(),
             "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
             + "</pre>"]
     return page("cosim verification suite", "\n".join(body))

@@ -1,0 +1,55 @@
+"""Pages from a stored suite or scenario folder, without running anything."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def render_scenario(scenario_file, out_dir, back_link: str | None = None) -> Path:
+    """DIR/report.html of one scenario from DIR/verdict.json and DIR/runs/."""
+    from cosim.fileio import atomic_write_text
+    from cosim.scenarios.loader import load
+    from cosim.scenarios.store import read_verdict
+    from .html import scenario_page
+    out_dir = Path(out_dir)
+    verdict = read_verdict(out_dir)
+    if verdict is None:
+        raise FileNotFoundError(f"{out_dir}: no verdict.json (the scenario did not finish)")
+    sc = load(scenario_file)
+    page = scenario_page(sc, out_dir, verdict, back_link=back_link)
+    atomic_write_text(out_dir / "report.html", page)
+    return out_dir / "report.html"
+
+
+def render_suite(suite_dir) -> list[Path]:
+    """Every scenario page and the overview of a ``cosim suite`` folder."""
+    from cosim.fileio import atomic_write_text
+    from cosim.scenarios.store import safe_name
+    from .html import suite_page
+    suite_dir = Path(suite_dir)
+    summary = json.loads((suite_dir / "summary.json").read_text())
+    written, links = [], {}
+    for s in summary["scenarios"]:
+        sdir = suite_dir / safe_name(s["scenario"])
+        if (sdir / "verdict.json").is_file() and Path(s["file"]).is_file():
+            written.append(render_scenario(s["file"], sdir, back_link="../report.html"))
+        links[s["scenario"]] = f"{safe_name(s['scenario'])}/report.html"
+    atomic_write_text(suite_dir / "report.html", suite_page(summary, links))
+    written.append(suite_dir / "report.html")
+    return written
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m cosim.report",
+                                 description="re-render report pages from stored results")
+    ap.add_argument("dir", help="a `cosim suite` output folder (with summary.json), or a "
+                                "`cosim run` folder together with --scenario")
+    ap.add_argument("--scenario", help="scenario file of a `cosim run` folder")
+    a = ap.parse_args(argv)
+    if a.scenario:
+        print(render_scenario(a.scenario, a.dir))
+    else:
+        for p in render_suite(a.dir):
+            print(p)
+    return 0
