@@ -187,16 +187,72 @@ def _case_ratio(params, ctx):
 
 
 # =========================================================================== figures
+def observer_parameter_rows(runs) -> list[list[str]]:
+    """Rows (run, unit, parameter, identified, true, error %, in the observers) of the
+    start-up identification of each stored run (``cosim.trials.startup_identification``
+    artifacts); [] if the runs had none."""
+    rows = []
+    seen = set()
+    for r in runs:
+        art = (r.artifacts or {}).get("startup_identification")
+        if not art or r.label in seen:
+            continue
+        seen.add(r.label)
+        obs = art.get("observers", {})
+        for unit, row in art["units"].items():
+            for p in ("J", "b", "fc"):
+                used = sorted({f"{obs[f'obs_{c}_{p}']:.4g}" for c in _observers_of(art, unit)
+                               if f"obs_{c}_{p}" in obs})
+                rows.append([r.label, unit, p, f"{row[p]['identified']:.4g}",
+                             f"{row[p]['true']:.4g}", f"{row[p]['err_pct']:+.1f}",
+                             ", ".join(used)])
+            kt = row["Kt"]
+            used = sorted({f"{obs[f'obs_{c}_Kt']:.4g}" for c in _observers_of(art, unit)
+                           if f"obs_{c}_Kt" in obs})
+            rows.append([r.label, unit, "Kt", f"{kt['nominal']:.4g} (nominal)",
+                         f"{kt['true']:.4g}", f"{100 * (kt['nominal'] / kt['true'] - 1):+.1f}",
+                         ", ".join(used)])
+    return rows
+
+
+def _observers_of(art, unit) -> list[str]:
+    return list((art.get("observer_units") or {}).get(unit, []))
+
+
+def observer_parameter_figures(runs) -> list:
+    """A table figure: the J, b, fc the DOB/RFOB used (start-up RLS identification with
+    the aaKF speed) next to the FMU's true values."""
+    import matplotlib.pyplot as plt
+    rows = observer_parameter_rows(runs)
+    if not rows:
+        return []
+    src = {(r.artifacts or {}).get("startup_identification", {}).get("source") for r in runs}
+    src.discard(None)
+    fig, ax = plt.subplots(figsize=(10, 0.32 * len(rows) + 1.0))
+    ax.axis("off")
+    t = ax.table(cellText=rows, colLabels=["run", "unit", "param", "identified (RLS)",
+                                           "true (FMU)", "error [%]", "in the DOB/RFOB"],
+                 loc="center", cellLoc="left")
+    t.auto_set_font_size(False)
+    t.set_fontsize(8)
+    t.scale(1, 1.2)
+    ax.set_title("Observer parameters: start-up identification (Sec. 2.3) -> DOB/RFOB "
+                 f"(source: {', '.join(sorted(src))}; Kt: nominal, Table 1)", fontsize=9)
+    return [("Observer parameters used: identified vs true (the thesis chain)", fig)]
+
+
 def _series(r, name):
     return np.asarray(r.signals[name]) if name in r.signals else None
 
 
 @figures("zero-force")
 def _zero_force_figures(runs, info):
-    """Load-cell force per case (Fig. 29) and its mean absolute value (Fig. 30)."""
+    """Load-cell force per case (Fig. 29) and its mean absolute value (Fig. 30), and the
+    observer parameters the runs used (start-up identification vs true)."""
     import matplotlib.pyplot as plt
     settle = float((info.get("parameters") or {}).get("settle_s", 1.0))
-    out = []
+    out = observer_parameter_figures(runs)
+    runs = [r for r in runs if r.phase in ("main", "")]
     fig, ax = plt.subplots(figsize=(9, 3.6))
     bars = []
     for r in runs:
@@ -236,10 +292,11 @@ def _zero_force_figures(runs, info):
 
 @figures("bilateral")
 def _bilateral_figures(runs, info):
-    """Master/slave positions and forces per case (Fig. 32 form)."""
+    """Master/slave positions and forces per case (Fig. 32 form), and the observer
+    parameters the runs used (start-up identification vs true)."""
     import matplotlib.pyplot as plt
-    out = []
-    for r in runs:
+    out = observer_parameter_figures(runs)
+    for r in [r for r in runs if r.phase in ("main", "")]:
         t = np.asarray(r.signals["time"])
         fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
         a1.plot(t, 1e3 * np.asarray(r.signals["master.x"]), "r", lw=0.9, label="master x_m")
