@@ -1,10 +1,12 @@
 """The catalogue's effect modules (cosim.gap.effects) and their ball-screw forms, against
 independent calculations: the registry against the contract, the exact zero-order-hold
 lag against a fine integration, the backlash nut's free flight against its parabola,
-and the accelerometer's per-trial offset being a nuisance of the comparison."""
+and the accelerometer's per-trial offset being a nuisance of the comparison; every EMPS
+effect's form in its own module (the EMPS device names none)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,6 +35,33 @@ def test_registry_holds_the_contract_once_with_distinct_coefficients():
             assert k not in seen, f"{k} of {name} is also {seen[k]}'s"
             seen[k] = name
         assert set(e.ballscrew.refine) <= set(e.ballscrew.bounds)
+
+
+def test_every_emps_effect_has_its_form_and_the_device_names_none():
+    import cosim.gap.devices.emps as emps_device
+    from cosim.gap.effects.base import EmpsForm
+
+    emps = effects_for("emps-1dof")
+    assert emps and emps_device.EMPS_EFFECTS == emps
+    for name, e in EFFECTS.items():
+        if name in emps:
+            assert isinstance(e.emps, EmpsForm), f"{name} applies to emps-1dof but has no EmpsForm"
+            f = e.emps
+            assert (f.refine is None) or (f.grid and all(f.refine in g for g in f.grid)), name
+        else:
+            assert e.emps is None, f"{name} has an EmpsForm but does not apply to emps-1dof"
+    # one effect, one set of column names (the nominal columns may be shared)
+    own: dict[str, str] = {}
+    for name in emps:
+        f = EFFECTS[name].emps
+        for c in f.coefficients({}, {"M": 1.0, "Fv": 1.0, "Fc": 1.0, "offset": 1.0}):
+            if c not in ("qdd", "qd", "sgn", "one"):
+                assert c not in own, f"column {c} of {name} is also {own[c]}'s"
+                own[c] = name
+    # the device loops over the forms: its source names no effect
+    src = Path(emps_device.__file__).read_text()
+    named = [n for n in EFFECTS if n in src]
+    assert not named, f"cosim/gap/devices/emps.py names {named}"
 
 
 def test_zoh_lag_is_the_interval_mean_of_a_continuous_lag():

@@ -18,16 +18,14 @@ Nominal model (publication eq. 1): ``f = M qdd + Fv qd + Fc sign(qd) + offset``.
   ``nominal.*``). :meth:`EmpsDevice.confirm` re-simulates the ``RehabSim.Emps.EmpsAxis``
   FMU in closed loop with the PD controller and returns its force error.
 
-Timing. The force of tick k is held over [t_k, t_k + dt) (zero-order hold), so the
-motion it causes is centred at t_k + dt/2. The publication's inverse model (and our
-nominal one, to reproduce its figures) compares f[k] with the motion at t_k; the
-``actuator_delay`` effect fits the shift ``tau`` between the two, which therefore
-contains that half sample. The FMU replay has the hold built in, so its drive delay
-is ``Td = max(tau - dt/2, 0)``.
+Each effect's part (its columns, shape grid, parameter and FMU mapping) is its
+:class:`~cosim.gap.effects.base.EmpsForm`, in its module in ``cosim/gap/effects``
+(the timing of the inverse model, a half sample of zero-order hold, is explained with
+the delay effect's); this module loops over the forms of ``effects_for(EMPS)`` and
+names none of them.
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -41,11 +39,10 @@ from ...emps import (
     idim_edge,
     idim_kinematics,
     idim_lowpass,
-    zoh_align,
 )
 from ...trial_log import TrialLog
 from ..device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, nrmse, split_params
-from ..effects import EMPS, effects_for
+from ..effects import EFFECTS, EMPS, EmpsForm, effects_for
 
 __all__ = ["EmpsDevice", "EMPS_EFFECTS", "fmu_parameters", "select_effects"]
 
@@ -55,21 +52,34 @@ EMPS_EFFECTS = effects_for(EMPS)
 NOMINAL = ("M", "Fv", "Fc", "offset")
 REQUIRED_COLUMNS = ("x_enc", "f_cmd", "x_ref")
 
-# grids of the nonlinear shape parameters (fit logs only)
-_VS_GRID = (0.001, 0.002, 0.005, 0.01, 0.02, 0.04)               # Stribeck speed [m/s]
-_TAU_GRID = tuple(np.round(np.arange(0.0, 3.01e-3, 0.125e-3), 6))  # inverse-model shift [s]
-_TL_GRID = (0.25e-3, 0.5e-3, 1e-3, 2e-3, 4e-3)                    # drive lag [s]
-_FN_GRID = (8.0, 12.0, 16.0, 20.0, 30.0, 45.0, 70.0, 100.0)        # resonance [Hz]
-_ZETA_GRID = (0.1, 0.3, 0.7)
-_LP = 0.5       # position-dependent friction: period of the first harmonic [m] (2 x travel)
+#: the nominal regressor columns, their coefficients and their rank among the columns
+#: (see :class:`~cosim.gap.effects.base.EmpsForm`): M qdd at 0, Fv qd + Fc sign(qd) + offset at 10
+_NOMINAL_COLUMNS = {"qdd": "M", "qd": "Fv", "sgn": "Fc", "one": "offset"}
+_MASS_RANK, _FRICTION_RANK = 0, 10
+
+#: each applicable effect's form in this device, in the registry's order
+_FORMS: dict[str, EmpsForm] = {n: EFFECTS[n].emps for n in EMPS_EFFECTS}
+_missing = [n for n, f in _FORMS.items() if f is None]
+if _missing:                                   # pragma: no cover - a registry error
+    raise ImportError(f"effects {_missing} apply to {EMPS} but have no EmpsForm")
 
 
-def _sgn(x: np.ndarray) -> np.ndarray:
-    return np.sign(x)
+def _forms(cfg: Mapping[str, Any]) -> list[tuple[str, EmpsForm]]:
+    """The forms of the effects in ``cfg``, in the registry's order (the order of the
+    regressor transforms, and of the effects' additions to shared columns)."""
+    return [(n, f) for n, f in _FORMS.items() if n in cfg]
+
+
+def _check_effects(effects) -> None:
+    for name in effects:
+        if name not in EMPS_EFFECTS:
+            raise GapInputError(f"effect {name!r} does not apply to {EMPS_DEVICE} "
+                                f"(its effects: {', '.join(EMPS_EFFECTS)})")
 
 
 class _Kin:
-    """Band-passed kinematics of one log (computed once)."""
+    """Band-passed kinematics of one log (computed once); ``memo``: the effects' cache of
+    what they derive from it."""
 
     def __init__(self, log: TrialLog):
         self.dt = float(log.sample_time)
@@ -78,64 +88,28 @@ class _Kin:
         self.f = np.asarray(log["f_cmd"], dtype=float)
         self.n = self.f.size
         self.y_dec = decimate_columns(self.f)
-        self._h: dict[tuple, np.ndarray] = {}
-
-    def load_acc(self, fn: float, zeta: float) -> np.ndarray:
-        """Load-side acceleration H(s) qdd, H = (2 zeta w s + w^2)/(s^2 + 2 zeta w s + w^2):
-        the motion of a load of mass m_l behind a spring-damper, driven by the motor side
-        (causal, bilinear discretisation at the sample rate)."""
-        key = (fn, zeta)
-        if key not in self._h:
-            from scipy import signal
-            w = 2 * math.pi * fn
-            num, den = signal.bilinear([2 * zeta * w, w * w], [1, 2 * zeta * w, w * w], fs=1 / self.dt)
-            zi = signal.lfilter_zi(num, den) * self.qdd[0]
-            self._h[key] = signal.lfilter(num, den, self.qdd, zi=zi)[0]
-        return self._h[key]
+        self.memo: dict[tuple, np.ndarray] = {}
 
 
 # ------------------------------------------------------------------ regressors
 
 def _columns(kin: _Kin, cfg: Mapping[str, Any]) -> tuple[list[str], np.ndarray]:
     """Full-rate regressor columns of the inverse model with the effects in ``cfg``
-    (effect name -> its shape parameters). Column names map to parameters in
-    :func:`_theta_to_params`."""
-    qd, qdd, q = kin.qd, kin.qdd, kin.q
-    s = _sgn(qd)
-    names: list[str] = []
-    cols: list[np.ndarray] = []
-
-    def add(n, c):
-        names.append(n); cols.append(c)
-
-    if "transmission_compliance" in cfg:
-        c = cfg["transmission_compliance"]
-        add("qdd", qdd)                                   # motor-side mass
-        add("qdd_load", kin.load_acc(c["fn"], c["zeta"]))  # load mass behind the spring
-    else:
-        add("qdd", qdd)
-    add("qd", qd)
-    add("sgn", s)
-    add("one", np.ones_like(qd))
-    if "asymmetric_friction" in cfg:
-        add("absqd", np.abs(qd))      # dFv: Fv + dFv for qd > 0, Fv - dFv for qd < 0
-        # dFc s^2 = dFc: not separable from offset, so the "one" column carries offset + dFc
-    if "stribeck_friction" in cfg:
-        add("strib", s * np.exp(-(qd / cfg["stribeck_friction"]["vs"]) ** 2))
-    if "position_dependent_friction" in cfg:
-        w = 2 * math.pi / cfg["position_dependent_friction"].get("Lp", _LP)
-        add("pa1", s * np.cos(w * q)); add("pb1", s * np.sin(w * q))
-        add("pa2", s * np.cos(2 * w * q)); add("pb2", s * np.sin(2 * w * q))
-    if "gravity_load" in cfg:
-        add("q1", q); add("q2", q * q)
-    W = np.column_stack(cols)
-    tau = cfg.get("actuator_delay", {}).get("tau", 0.0)
-    if tau:
-        W = zoh_align(W, tau / kin.dt)
-    Tl = cfg.get("current_loop_lag", {}).get("Tl", 0.0)
-    if Tl:
-        # f_cmd = (1 + Tl s) f_axis: the drive lags the command by Tl
-        W = W + Tl * np.gradient(W, kin.dt, axis=0)
+    (effect name -> its shape parameters): the nominal ones and each effect's, ordered
+    by rank, then each effect's transform of the whole matrix. Column names map to
+    parameters in :func:`_theta_to_params`."""
+    qd = kin.qd
+    blocks = [(_MASS_RANK, {"qdd": kin.qdd}),
+              (_FRICTION_RANK, {"qd": qd, "sgn": np.sign(qd), "one": np.ones_like(qd)})]
+    for name, form in _forms(cfg):
+        if form.columns is not None:
+            blocks.append((form.rank, form.columns(kin, cfg[name])))
+    blocks.sort(key=lambda b: b[0])               # stable: nominal first within a rank
+    names = [n for _, cols in blocks for n in cols]
+    W = np.column_stack([c for _, cols in blocks for c in cols.values()])
+    for name, form in _forms(cfg):
+        if form.transform is not None:
+            W = form.transform(W, cfg[name], kin.dt)
     return names, W
 
 
@@ -143,79 +117,29 @@ def _theta_to_params(names: Sequence[str], th: np.ndarray, cfg: Mapping[str, Any
                      offset_nominal: float) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
     """(nominal params, per-effect params) from the LS coefficients."""
     t = dict(zip(names, (float(v) for v in th)))
-    nom = {"M": t["qdd"] + t.get("qdd_load", 0.0), "Fv": t["qd"], "Fc": t["sgn"], "offset": t["one"]}
+    nom = {p: t[c] for c, p in _NOMINAL_COLUMNS.items()}
     eff: dict[str, dict[str, float]] = {}
-    if "asymmetric_friction" in cfg:
-        # offset and dFc share the constant column: keep offset at its recalibrated value
-        nom["offset"] = offset_nominal
-        dfc = t["one"] - offset_nominal
-        dfv = t["absqd"]
-        eff["asymmetric_friction"] = {
-            "dFv": dfv, "dFc": dfc,
-            "Fv+": t["qd"] + dfv, "Fv-": t["qd"] - dfv,
-            # the publication's Fc+/Fc- (no offset): Fc+ = Fc + dFc + offset, Fc- = Fc - dFc - offset
-            "Fc+": t["sgn"] + t["one"], "Fc-": t["sgn"] - t["one"]}
-    if "stribeck_friction" in cfg:
-        eff["stribeck_friction"] = {"Fs": t["strib"], "vs": float(cfg["stribeck_friction"]["vs"])}
-    if "position_dependent_friction" in cfg:
-        fc = t["sgn"] if t["sgn"] != 0 else 1.0
-        eff["position_dependent_friction"] = {
-            "Lp": float(cfg["position_dependent_friction"].get("Lp", _LP)),
-            "pa1": t["pa1"] / fc, "pb1": t["pb1"] / fc, "pa2": t["pa2"] / fc, "pb2": t["pb2"] / fc}
-    if "gravity_load" in cfg:
-        eff["gravity_load"] = {"Fg0": 0.0, "Fg1": t["q1"], "Fg2": t["q2"]}
-    if "transmission_compliance" in cfg:
-        c = cfg["transmission_compliance"]
-        ml = t["qdd_load"]
-        w = 2 * math.pi * c["fn"]
-        eff["transmission_compliance"] = {"m_load": ml, "k_tc": ml * w * w, "d_tc": 2 * c["zeta"] * w * ml,
-                                          "fn": float(c["fn"]), "zeta": float(c["zeta"])}
-    if "actuator_delay" in cfg:
-        tau = float(cfg["actuator_delay"]["tau"])
-        eff["actuator_delay"] = {"tau": tau}
-    if "current_loop_lag" in cfg:
-        eff["current_loop_lag"] = {"Tl": float(cfg["current_loop_lag"]["Tl"])}
+    for name, form in _forms(cfg):
+        eff[name], over = form.to_params(t, cfg[name], offset_nominal)
+        nom.update(over)
     return nom, eff
 
 
 def _cfg_from_effects(effects: Mapping[str, Mapping[str, float]] | None) -> dict[str, dict[str, float]]:
     """Shape parameters of each effect (what the regressor columns depend on)."""
-    cfg: dict[str, dict[str, float]] = {}
-    for name, p in (effects or {}).items():
-        if name not in EMPS_EFFECTS:
-            raise GapInputError(f"effect {name!r} does not apply to {EMPS_DEVICE} "
-                                f"(its effects: {', '.join(EMPS_EFFECTS)})")
-        if name == "stribeck_friction":
-            cfg[name] = {"vs": float(p["vs"])}
-        elif name == "position_dependent_friction":
-            cfg[name] = {"Lp": float(p.get("Lp", _LP))}
-        elif name == "transmission_compliance":
-            cfg[name] = {"fn": float(p["fn"]), "zeta": float(p["zeta"])}
-        elif name == "actuator_delay":
-            cfg[name] = {"tau": float(p["tau"])}
-        elif name == "current_loop_lag":
-            cfg[name] = {"Tl": float(p["Tl"])}
-        else:
-            cfg[name] = {}
-    return cfg
+    effects = effects or {}
+    _check_effects(effects)
+    return {name: _FORMS[name].shape(p) for name, p in effects.items()}
 
 
 def _params_to_theta(names: Sequence[str], nom: Mapping[str, float],
                      effects: Mapping[str, Mapping[str, float]]) -> np.ndarray:
-    """Inverse of :func:`_theta_to_params` (coefficients of the columns)."""
-    own = {k: dict(v) for k, v in effects.items()}
-    ml = own.get("transmission_compliance", {}).get("m_load", 0.0)
-    asym = own.get("asymmetric_friction", {})
-    strib = own.get("stribeck_friction", {})
-    pdf = own.get("position_dependent_friction", {})
-    grav = own.get("gravity_load", {})
-    fc = nom["Fc"]
-    val = {"qdd": nom["M"] - ml, "qdd_load": ml, "qd": nom["Fv"], "sgn": fc,
-           "one": nom["offset"] + asym.get("dFc", 0.0) + grav.get("Fg0", 0.0),
-           "absqd": asym.get("dFv", 0.0), "strib": strib.get("Fs", 0.0),
-           "pa1": fc * pdf.get("pa1", 0.0), "pb1": fc * pdf.get("pb1", 0.0),
-           "pa2": fc * pdf.get("pa2", 0.0), "pb2": fc * pdf.get("pb2", 0.0),
-           "q1": grav.get("Fg1", 0.0), "q2": grav.get("Fg2", 0.0)}
+    """Inverse of :func:`_theta_to_params` (coefficients of the columns): the nominal
+    columns' plus what the effects add to them, and the effects' own columns."""
+    val = {c: nom[p] for c, p in _NOMINAL_COLUMNS.items()}
+    for name, form in _forms(effects):
+        for c, v in form.coefficients(effects[name], nom).items():
+            val[c] = val[c] + v if c in _NOMINAL_COLUMNS else v
     return np.array([val[n] for n in names], dtype=float)
 
 
@@ -232,28 +156,9 @@ def fmu_parameters(params: Mapping[str, float],
         nom.update({k: n2[k] for k in NOMINAL})
         own[name] = o
     out = dict(nom)
-    a = own.get("asymmetric_friction")
-    if a:
-        out.update(dFv=a["dFv"], dFc=a["dFc"])
-    s = own.get("stribeck_friction")
-    if s:
-        out.update(Fs=s["Fs"], vs=s["vs"])
-    p = own.get("position_dependent_friction")
-    if p:
-        out.update(Lp=p.get("Lp", _LP), pa1=p["pa1"], pb1=p["pb1"], pa2=p["pa2"], pb2=p["pb2"])
-    g = own.get("gravity_load")
-    if g:
-        out.update(Fg0=g.get("Fg0", 0.0), Fg1=g["Fg1"], Fg2=g["Fg2"])
-    c = own.get("transmission_compliance")
-    if c and c["m_load"] > 0:
-        out.update(m_load=c["m_load"], k_tc=c["k_tc"], d_tc=c["d_tc"])
-    d = own.get("actuator_delay")
-    if d:
-        # the master's zero-order hold already supplies dt/2 of the fitted shift
-        out["Td"] = max(d["tau"] - dt / 2, 0.0)
-    lag = own.get("current_loop_lag")
-    if lag:
-        out["Tl"] = lag["Tl"]
+    for name, form in _forms(own):
+        if own[name]:
+            out.update(form.fmu(own[name], dt))
     return out
 
 
@@ -298,11 +203,11 @@ class EmpsDevice:
     def _fit_cfg(self, logs, cfg, offset_nominal):
         names, W, y = self._design(logs, cfg)
         th, *_ = np.linalg.lstsq(W, y, rcond=None)
-        # physical signs: a Stribeck bump is static friction ABOVE Coulomb (Fs >= 0) and
-        # the load behind a compliance has a positive mass below M; a fit that wants the
-        # opposite sign is not that effect, so its column is fixed at 0 (effect absent)
-        bad = [i for i, n in enumerate(names)
-               if (n == "strib" and th[i] < 0) or (n == "qdd_load" and not 0 < th[i] < th[0] + th[i])]
+        # physical signs: a column whose coefficient has a sign its effect cannot have
+        # is not that effect, so it is fixed at 0 (effect absent)
+        t = dict(zip(names, th))
+        rejected = {c for name, form in _forms(cfg) if form.rejects is not None for c in form.rejects(t)}
+        bad = [i for i, n in enumerate(names) if n in rejected]
         if bad:
             keep = [i for i in range(len(names)) if i not in bad]
             th = np.zeros(len(names))
@@ -405,17 +310,9 @@ class EmpsDevice:
         re-fit in each) and the fit gap. (An addition to the protocol: the engine's
         ``fit_effect`` fits one; the joint fit is what a combination should use.)
         """
-        for e in effects:
-            if e not in EMPS_EFFECTS:
-                raise GapInputError(f"effect {e!r} does not apply to {EMPS_DEVICE} "
-                                    f"(its effects: {', '.join(EMPS_EFFECTS)})")
+        _check_effects(effects)
         off0 = float(params["offset"])
-        grids = {
-            "stribeck_friction": [{"vs": v} for v in _VS_GRID],
-            "actuator_delay": [{"tau": t} for t in _TAU_GRID],
-            "current_loop_lag": [{"Tl": t} for t in _TL_GRID],
-            "transmission_compliance": [{"fn": f, "zeta": z} for f in _FN_GRID for z in _ZETA_GRID],
-        }
+        grids = {e: [dict(c) for c in _FORMS[e].grid] for e in effects if _FORMS[e].grid}
         cfg: dict[str, dict[str, float]] = {e: (grids[e][0] if e in grids else {}) for e in effects}
         best = self._fit_cfg(logs, cfg, off0)
         for _ in range(2 if sum(e in grids for e in effects) > 1 else 1):
@@ -427,13 +324,13 @@ class EmpsDevice:
                     r = self._fit_cfg(logs, trial, off0)
                     if r[0] < best[0] - 1e-12:
                         best, cfg = r, trial
-        # the grids are coarse (a factor of 2 for the lag): refine each one-parameter
-        # shape (delay, lag, Stribeck speed) continuously between its grid neighbours
+        # the grids are coarse: refine each effect's ``refine`` shape parameter
+        # continuously between its grid neighbours
         from scipy.optimize import minimize_scalar
         for e in effects:
-            if e not in grids or len(grids[e][0]) != 1:
+            key = _FORMS[e].refine
+            if e not in grids or key is None:
                 continue
-            key = next(iter(grids[e][0]))
             vals = sorted({float(c[key]) for c in grids[e]})
             i = vals.index(float(cfg[e][key]))
             lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]

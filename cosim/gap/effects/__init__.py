@@ -2,19 +2,21 @@
 
 Each module holds one :class:`~.base.Effect`: its name and description, its Modelica
 model (``RehabSim.Gap.With<Class>``) and FMU parameters, its form in the ball-screw
-diagnosis (regression terms, search grid, refinement, bounds, the signals it acts on)
-and the sampler of its truth parameters. They are registered here, once, in the
-contract's order; the devices, the FMU replay and the truth generator read
-:data:`EFFECTS`. Adding an effect: one module here plus its Modelica model.
+diagnosis (regression terms, search grid, refinement, bounds, the signals it acts on),
+its form in the EMPS diagnosis where it applies there (regressor columns, shape grid,
+parameter and FMU mapping) and the sampler of its truth parameters. They are
+registered here, once, in the contract's order; the devices, the FMU replay and the
+truth generator read :data:`EFFECTS`. Adding an effect: one module here plus its
+Modelica model.
 """
 from __future__ import annotations
 
 from . import (accel_bias_drift, accel_scale_error, actuator_delay, asymmetric_friction, backlash,
                cogging_torque, current_loop_lag, current_saturation, gravity_load,
                position_dependent_friction, stribeck_friction, transmission_compliance)
-from .base import BALLSCREW, BOTH, EMPS, BallscrewForm, Effect, ParamSpec, Terms
+from .base import BALLSCREW, BOTH, EMPS, BallscrewForm, Effect, EmpsForm, ParamSpec, Terms
 
-__all__ = ["EFFECTS", "CATALOGUE", "Effect", "ParamSpec", "BallscrewForm", "Terms", "effects_for",
+__all__ = ["EFFECTS", "CATALOGUE", "Effect", "ParamSpec", "BallscrewForm", "EmpsForm", "Terms", "effects_for",
            "BALLSCREW", "EMPS", "BOTH"]
 
 #: the twelve effects, in the contract's order

@@ -1,13 +1,33 @@
 """Coulomb and viscous friction that differ with the direction of motion."""
 import numpy as np
 
-from .base import BOTH, BallscrewForm, Effect, Terms, params, signed
+from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, signed
 
 
 def _terms(p, nl, nom):
     # fc sign(w) + dfc and b w + db |w|: (fc +- dfc), (b +- db) towards +-x
     return Terms(cols_i={"dfc": np.ones_like(p.w), "db": np.abs(p.w)})
 
+
+# ---- emps-1dof: + dFv |qd| (Fv + dFv for qd > 0, Fv - dFv for qd < 0); dFc sign(qd)^2
+# = dFc is not separable from the offset, so the nominal "one" column carries offset + dFc
+def _emps_to_params(t, sh, off0):
+    # offset and dFc share the constant column: keep offset at its recalibrated value
+    dfc = t["one"] - off0
+    dfv = t["absqd"]
+    return ({"dFv": dfv, "dFc": dfc,
+             "Fv+": t["qd"] + dfv, "Fv-": t["qd"] - dfv,
+             # the publication's Fc+/Fc- (no offset): Fc+ = Fc + dFc + offset, Fc- = Fc - dFc - offset
+             "Fc+": t["sgn"] + t["one"], "Fc-": t["sgn"] - t["one"]},
+            {"offset": off0})
+
+
+EMPS_FORM = EmpsForm(
+    to_params=_emps_to_params,
+    coefficients=lambda prm, nom: {"one": prm.get("dFc", 0.0), "absqd": prm.get("dFv", 0.0)},
+    fmu=lambda prm, dt: {"dFv": prm["dFv"], "dFc": prm["dFc"]},
+    columns=lambda kin, sh: {"absqd": np.abs(kin.qd)}, rank=20,
+)
 
 EFFECT = Effect(
     "asymmetric_friction", "Coulomb and viscous friction that differ with the direction of motion",
@@ -17,4 +37,5 @@ EFFECT = Effect(
     BallscrewForm(_terms, linear=("dfc", "db")),
     # Coulomb and viscous +-(25-45) % between directions
     lambda r: {"dfc": signed(r, 0.25, 0.45), "db": signed(r, 0.25, 0.45)},
+    emps=EMPS_FORM,
 )

@@ -3,7 +3,8 @@
 An effect (``spec/gap-diagnosis.md``) is one module in this package holding one
 :class:`Effect`: its catalogue name and description, its Modelica model and FMU
 parameters (:class:`ParamSpec`), its form for each diagnosis device that has one
-(:class:`BallscrewForm`: regression terms, search grid, refinement, bounds), and the
+(:class:`BallscrewForm`: regression terms, search grid, refinement, bounds;
+:class:`EmpsForm`: regressor columns, shape grid, parameter and FMU mapping), and the
 sampler of its truth parameters for the project's own truth generator. The package's
 ``__init__`` registers the modules once, in the contract's order.
 """
@@ -16,7 +17,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from scipy import signal
 
-__all__ = ["ParamSpec", "Effect", "BallscrewForm", "Terms", "BALLSCREW", "EMPS", "BOTH",
+__all__ = ["ParamSpec", "Effect", "BallscrewForm", "EmpsForm", "Terms", "BALLSCREW", "EMPS", "BOTH",
            "shift", "lag", "base_excited", "nut_force_response", "nut_backlash", "fine_to_samples"]
 
 BALLSCREW = "ballscrew-1dof"
@@ -89,6 +90,49 @@ class BallscrewForm:
     from_report: Callable[[Mapping[str, float]], tuple[dict[str, float], dict[str, float]]] | None = None
 
 
+def _no_shape(prm: Mapping[str, float]) -> dict[str, float]:
+    return {}
+
+
+@dataclass(frozen=True)
+class EmpsForm:
+    """An effect's form in the ``emps-1dof`` diagnosis (``gap/devices/emps.py``): extra or
+    modified regressors of the inverse model ``f = M qdd + Fv qd + Fc sign(qd) + offset``.
+
+    The effect's *shape* (``shape``, a dict) holds its nonlinear parameters, which the
+    columns depend on; the device fits the linear coefficients by least squares.
+
+    * ``columns(kin, shape)``: its regressor columns {name: full-rate column} from the
+      band-passed kinematics ``kin`` (position ``kin.q`` [m], speed ``kin.qd``,
+      acceleration ``kin.qdd``, sample time ``kin.dt``, a per-log cache ``kin.memo``);
+    * ``rank``: where they go in the regressor: columns are ordered by rank, the nominal
+      mass column ``qdd`` has rank 0 and ``qd``, ``sgn``, ``one`` rank 10;
+    * ``transform(W, shape, dt)``: a map of the whole regressor matrix (drive dynamics
+      between the command and the force), applied in the registry's order;
+    * ``shape(params)``: the shape from reported parameters;
+    * ``grid``: the shapes searched on the fit logs (empty: no shape); ``refine``: the
+      one shape parameter then refined continuously between its grid neighbours;
+    * ``rejects(t)``: its column names to fix at 0 because the coefficients ``t``
+      ({column: value}, all columns) have an unphysical sign;
+    * ``to_params(t, shape, offset_nominal)``: (the effect's reported parameters,
+      overrides of the nominal ``M``/``Fv``/``Fc``/``offset``) from the coefficients;
+    * ``coefficients(params, nom)``: the inverse: {column: value} for its own columns,
+      and amounts added to the nominal columns ``qdd``, ``qd``, ``sgn``, ``one``;
+    * ``fmu(params, dt)``: its parameters of the ``RehabSim.Emps.EmpsAxis`` FMU.
+    """
+    to_params: Callable[[Mapping[str, float], Mapping[str, float], float],
+                        tuple[dict[str, float], dict[str, float]]]
+    coefficients: Callable[[Mapping[str, float], Mapping[str, float]], dict[str, float]]
+    fmu: Callable[[Mapping[str, float], float], dict[str, float]]
+    columns: Callable[[Any, Mapping[str, float]], dict[str, np.ndarray]] | None = None
+    rank: int = 20
+    transform: Callable[[np.ndarray, Mapping[str, float], float], np.ndarray] | None = None
+    shape: Callable[[Mapping[str, float]], dict[str, float]] = _no_shape
+    grid: tuple[dict[str, float], ...] = ()
+    refine: str | None = None
+    rejects: Callable[[Mapping[str, float]], tuple[str, ...]] | None = None
+
+
 @dataclass(frozen=True)
 class Effect:
     """One catalogue effect (see the module docstring)."""
@@ -99,6 +143,7 @@ class Effect:
     params: dict[str, ParamSpec]
     ballscrew: BallscrewForm | None = None
     sample_truth: Callable[[np.random.Generator], dict[str, float]] | None = None
+    emps: EmpsForm | None = None
 
     @property
     def modelica(self) -> str:

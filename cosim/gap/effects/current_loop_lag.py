@@ -1,12 +1,33 @@
 """First-order lag of the current driver (finite bandwidth)."""
 import numpy as np
 
-from .base import BOTH, BallscrewForm, Effect, Terms, lag, params, uniform
+from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, lag, params, uniform
 
 
 def _terms(p, nl, nom):
     return Terms(y_map=lambda y, _t=nl["Tcl"]: lag(y, _t, p.ts))
 
+
+# ---- emps-1dof: f_cmd = (1 + Tl s) f_axis: the drive lags the command by Tl
+_TL_GRID = (0.25e-3, 0.5e-3, 1e-3, 2e-3, 4e-3)                    # drive lag [s]
+
+
+def _emps_transform(W, sh, dt):
+    Tl = sh.get("Tl", 0.0)
+    if Tl:
+        W = W + Tl * np.gradient(W, dt, axis=0)
+    return W
+
+
+EMPS_FORM = EmpsForm(
+    to_params=lambda t, sh, off0: ({"Tl": float(sh["Tl"])}, {}),
+    coefficients=lambda prm, nom: {},
+    fmu=lambda prm, dt: {"Tl": prm["Tl"]},
+    transform=_emps_transform,
+    shape=lambda prm: {"Tl": float(prm["Tl"])},
+    # the grid is coarse (a factor of 2): refined continuously between its neighbours
+    grid=tuple({"Tl": t} for t in _TL_GRID), refine="Tl",
+)
 
 EFFECT = Effect(
     "current_loop_lag", "first-order lag of the current driver (finite bandwidth)", "CurrentLoopLag", BOTH,
@@ -14,4 +35,5 @@ EFFECT = Effect(
     BallscrewForm(_terms, grid=lambda preps: [{"Tcl": v} for v in np.geomspace(2e-4, 2e-2, 16)],
                   refine=("Tcl",), bounds={"Tcl": (5e-5, 0.1)}, driver_stage=3),
     lambda r: {"tau": uniform(r, 2e-3, 6e-3)},
+    emps=EMPS_FORM,
 )

@@ -3,7 +3,7 @@ import math
 
 import numpy as np
 
-from .base import BOTH, BallscrewForm, Effect, Terms, params, signed
+from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, signed
 
 G0 = 9.80665
 
@@ -25,6 +25,16 @@ def _from_report(prm):
     return {"m_g": prm.get("m_g", 0.2)}, {"sin_alpha": math.sin(prm.get("alpha", 0.0))}
 
 
+# ---- emps-1dof: a force Fg0 + Fg1 q + Fg2 q^2 along the travel; the constant Fg0 is not
+# separable from the offset (fitted as 0, the nominal "one" column carries it)
+EMPS_FORM = EmpsForm(
+    to_params=lambda t, sh, off0: ({"Fg0": 0.0, "Fg1": t["q1"], "Fg2": t["q2"]}, {}),
+    coefficients=lambda prm, nom: {"one": prm.get("Fg0", 0.0), "q1": prm.get("Fg1", 0.0),
+                                   "q2": prm.get("Fg2", 0.0)},
+    fmu=lambda prm, dt: {"Fg0": prm.get("Fg0", 0.0), "Fg1": prm["Fg1"], "Fg2": prm["Fg2"]},
+    columns=lambda kin, sh: {"q1": kin.q, "q2": kin.q * kin.q}, rank=50,
+)
+
 EFFECT = Effect(
     "gravity_load", "a constant or position-dependent gravity force on the nut (axis not level)",
     "GravityLoad", BOTH,
@@ -37,4 +47,5 @@ EFFECT = Effect(
                   to_report=_to_report, from_report=_from_report),
     # tilt 4-12 deg
     lambda r: {"tilt": signed(r, math.radians(4), math.radians(12))},
+    emps=EMPS_FORM,
 )

@@ -3,7 +3,7 @@ import math
 
 import numpy as np
 
-from .base import BOTH, BallscrewForm, Effect, Terms, params, uniform
+from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, uniform
 
 
 def _terms(p, nl, nom):
@@ -23,6 +23,36 @@ def _from_report(prm):
     return {"lp": prm["lp"]}, {"kfx": prm.get("kfx", 0.0), "dfp_sin": A * math.cos(ph), "dfp_cos": A * math.sin(ph)}
 
 
+# ---- emps-1dof: Coulomb Fc (1 + pa1 cos(w q) + pb1 sin(w q) + pa2 cos(2 w q) + pb2 sin(2 w q)),
+# w = 2 pi/Lp, with the period of the first harmonic fixed (Lp, not searched)
+_LP = 0.5       # period of the first harmonic [m] (2 x travel)
+_HARMONICS = ("pa1", "pb1", "pa2", "pb2")
+
+
+def _emps_columns(kin, sh):
+    s, q = np.sign(kin.qd), kin.q
+    w = 2 * math.pi / sh.get("Lp", _LP)
+    return {"pa1": s * np.cos(w * q), "pb1": s * np.sin(w * q),
+            "pa2": s * np.cos(2 * w * q), "pb2": s * np.sin(2 * w * q)}
+
+
+def _emps_to_params(t, sh, off0):
+    # relative to Coulomb: the columns' coefficients are Fc pa1, ...
+    fc = t["sgn"] if t["sgn"] != 0 else 1.0
+    out = {"Lp": float(sh.get("Lp", _LP))}
+    out.update({k: t[k] / fc for k in _HARMONICS})
+    return out, {}
+
+
+EMPS_FORM = EmpsForm(
+    to_params=_emps_to_params,
+    coefficients=lambda prm, nom: {k: nom["Fc"] * prm.get(k, 0.0) for k in _HARMONICS},
+    fmu=lambda prm, dt: {"Lp": prm.get("Lp", _LP), "pa1": prm["pa1"], "pb1": prm["pb1"],
+                         "pa2": prm["pa2"], "pb2": prm["pb2"]},
+    columns=_emps_columns, rank=40,
+    shape=lambda prm: {"Lp": float(prm.get("Lp", _LP))},
+)
+
 EFFECT = Effect(
     "position_dependent_friction",
     "Coulomb friction that varies along the travel (preload gradient, periodic variation)",
@@ -37,4 +67,5 @@ EFFECT = Effect(
                   to_report=_to_report, from_report=_from_report),
     # Coulomb friction +-(35-60) % along the travel, period 20-60 mm (preload / wear)
     lambda r: {"amp": uniform(r, 0.35, 0.6), "period": uniform(r, 0.02, 0.06), "phase": uniform(r, 0, 2 * math.pi)},
+    emps=EMPS_FORM,
 )

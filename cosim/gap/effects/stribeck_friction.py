@@ -1,13 +1,33 @@
 """Stribeck friction: static friction above Coulomb, decaying with speed."""
 import numpy as np
 
-from .base import BOTH, BallscrewForm, Effect, Terms, params, uniform
+from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, uniform
 
 
 def _terms(p, nl, nom):
     # tau_f = ... + dfs sign(w) exp(-(w/ws)^2)
     return Terms(cols_i={"dfs": np.sign(p.w) * np.exp(-(p.w / nl["ws"]) ** 2)})
 
+
+# ---- emps-1dof: + Fs sign(qd) exp(-(qd/vs)^2), vs [m/s] on a grid (fit logs only)
+_VS_GRID = (0.001, 0.002, 0.005, 0.01, 0.02, 0.04)               # Stribeck speed [m/s]
+
+
+def _emps_columns(kin, sh):
+    return {"strib": np.sign(kin.qd) * np.exp(-(kin.qd / sh["vs"]) ** 2)}
+
+
+EMPS_FORM = EmpsForm(
+    to_params=lambda t, sh, off0: ({"Fs": t["strib"], "vs": float(sh["vs"])}, {}),
+    coefficients=lambda prm, nom: {"strib": prm.get("Fs", 0.0)},
+    fmu=lambda prm, dt: {"Fs": prm["Fs"], "vs": prm["vs"]},
+    columns=_emps_columns, rank=30,
+    shape=lambda prm: {"vs": float(prm["vs"])},
+    grid=tuple({"vs": v} for v in _VS_GRID), refine="vs",
+    # a Stribeck bump is static friction ABOVE Coulomb (Fs >= 0): a fit that wants the
+    # opposite sign is not this effect, so its column is fixed at 0 (effect absent)
+    rejects=lambda t: ("strib",) if t["strib"] < 0 else (),
+)
 
 EFFECT = Effect(
     "stribeck_friction", "static friction above Coulomb friction, decaying with speed (Stribeck curve)",
@@ -21,4 +41,5 @@ EFFECT = Effect(
                   nonneg=("dfs",)),
     # break-away 1.5-2.2 x Coulomb, Stribeck speed 2-6 rad/s (3-10 mm/s at the nut)
     lambda r: {"fs_ratio": uniform(r, 1.5, 2.2), "ws": uniform(r, 2.0, 6.0)},
+    emps=EMPS_FORM,
 )

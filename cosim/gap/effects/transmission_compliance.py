@@ -2,9 +2,11 @@
 import math
 
 import numpy as np
+from scipy import signal
 
 from .backlash import ZETA_TR
-from .base import BOTH, BallscrewForm, Effect, Terms, base_excited, nut_force_response, params, uniform
+from .base import (BOTH, BallscrewForm, EmpsForm, Effect, Terms, base_excited, nut_force_response, params,
+                   uniform)
 
 
 def _terms(p, nl, nom):
@@ -26,6 +28,55 @@ def _to_report(nl, c, nom):
             "F_nut": c.get("F_nut", 0.0)}
 
 
+# ---- emps-1dof: the mass M splits into a motor-side mass (column qdd) and a load m_load
+# behind a spring-damper (fn, zeta), whose acceleration is the column qdd_load
+_FN_GRID = (8.0, 12.0, 16.0, 20.0, 30.0, 45.0, 70.0, 100.0)        # resonance [Hz]
+_ZETA_GRID = (0.1, 0.3, 0.7)
+
+
+def _load_acc(kin, fn, zeta):
+    """Load-side acceleration H(s) qdd, H = (2 zeta w s + w^2)/(s^2 + 2 zeta w s + w^2):
+    the motion of a load of mass m_l behind a spring-damper, driven by the motor side
+    (causal, bilinear discretisation at the sample rate); computed once per log."""
+    key = ("load_acc", fn, zeta)
+    if key not in kin.memo:
+        w = 2 * math.pi * fn
+        num, den = signal.bilinear([2 * zeta * w, w * w], [1, 2 * zeta * w, w * w], fs=1 / kin.dt)
+        zi = signal.lfilter_zi(num, den) * kin.qdd[0]
+        kin.memo[key] = signal.lfilter(num, den, kin.qdd, zi=zi)[0]
+    return kin.memo[key]
+
+
+def _emps_to_params(t, sh, off0):
+    ml = t["qdd_load"]
+    w = 2 * math.pi * sh["fn"]
+    return ({"m_load": ml, "k_tc": ml * w * w, "d_tc": 2 * sh["zeta"] * w * ml,
+             "fn": float(sh["fn"]), "zeta": float(sh["zeta"])},
+            {"M": t["qdd"] + t["qdd_load"]})
+
+
+def _emps_coefficients(prm, nom):
+    ml = prm.get("m_load", 0.0)
+    return {"qdd": -ml, "qdd_load": ml}          # M = motor side + load
+
+
+def _emps_fmu(prm, dt):
+    if prm["m_load"] > 0:
+        return {"m_load": prm["m_load"], "k_tc": prm["k_tc"], "d_tc": prm["d_tc"]}
+    return {}
+
+
+EMPS_FORM = EmpsForm(
+    to_params=_emps_to_params, coefficients=_emps_coefficients, fmu=_emps_fmu,
+    columns=lambda kin, sh: {"qdd_load": _load_acc(kin, sh["fn"], sh["zeta"])},
+    rank=5,                                      # next to the motor-side mass column
+    shape=lambda prm: {"fn": float(prm["fn"]), "zeta": float(prm["zeta"])},
+    grid=tuple({"fn": f, "zeta": z} for f in _FN_GRID for z in _ZETA_GRID),
+    # the load behind a compliance has a positive mass below M: a fit that wants
+    # otherwise is not this effect, so its column is fixed at 0 (effect absent)
+    rejects=lambda t: () if 0 < t["qdd_load"] < t["qdd"] + t["qdd_load"] else ("qdd_load",),
+)
+
 EFFECT = Effect(
     "transmission_compliance", "finite stiffness between motor and nut: a resonance the accelerometer sees",
     "TransmissionCompliance", BOTH,
@@ -38,4 +89,5 @@ EFFECT = Effect(
                   acts_on=("i_cmd", "acc_meas"), to_report=_to_report),
     # motor|nut resonance 25-70 Hz, damping ratio 0.03-0.1
     lambda r: {"fn": uniform(r, 25, 70), "zeta": uniform(r, 0.03, 0.1)},
+    emps=EMPS_FORM,
 )
