@@ -75,7 +75,9 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
        "losses and good back-drivability'). NOT calibrated: in the reaching trials it is "
        "the largest force (assistance peaks at 1.33 N, issue 10) and it makes the "
        "modelled x errors larger than y (S1 motors OFF 9.9 / 5.3 mm vs Table 7's "
-       "5.45 / 5.19 mm)"),
+       "5.45 / 5.19 mm). Measured: with 0.5 N and 1 N s/m on x (= y) S1's motors-OFF "
+       "mean lands on Table 7 (x 4.71 vs 5.01, y 4.94 vs 4.57 mm; docs/decisions.md, "
+       "'The effective gain question'): a calibration candidate, not applied"),
     _A("X-Y table friction", "Coulomb friction, y axis", 0.5, "N",
        (f"{_XY}:fc_y", f"{_XY}:fs_y"), "assumed",
        "assumed: half of x (the y carriage is a third of the x moving mass); no thesis source"),
