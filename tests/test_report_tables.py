@@ -91,3 +91,26 @@ def test_pages_show_the_tables():
     assert {"X-Y table friction", "patient S3 (dementia, Table 5)", "grasp (Fig. 41-42)",
             "reaching task (Fig. 48)"} <= groups
     assert "load cell" not in groups and "rigid wall (bilateral)" not in groups
+
+
+def test_reaching_page_rerendered_from_the_store_alone(tmp_path):
+    """python -m cosim.report: a reaching folder holding only run.json files (no
+    recorded signals, no FMU run possible) renders the Tables 7-8 section and the
+    scenario's assumed values; nothing is run."""
+    import json
+    from cosim.report.render import render_scenario
+    repo = Path(__file__).resolve().parents[1]
+    t8 = [[v + 3.0 for v in r[1:]] for r in THESIS_TABLES["S3"]["rows"]]
+    for label, subj, rows in (("S3_week=0", "S3", t8),):
+        d = tmp_path / "runs" / label
+        d.mkdir(parents=True)
+        info = _info(subj, 0, rows, label=f"{subj}/week=0")
+        info["phases"] = []
+        (d / "run.json").write_text(json.dumps(info))
+    (tmp_path / "verdict.json").write_text(json.dumps(
+        {"scenario": "reaching", "status": "fail", "requirements": [], "runs": [],
+         "errors": []}))
+    page = render_scenario(repo / "scenarios" / "reaching.yaml", tmp_path).read_text()
+    assert "S3 vs Table 8 (week 1)" in page and "Table 7 (week" not in page
+    assert "31.94" in page and "+3.00" in page           # 28.94 + 3 and its difference
+    assert "Assumed values this scenario uses" in page and "XYTable.mo:fc_x" in page
