@@ -67,3 +67,23 @@ def test_thesis_whiteness_tuning_of_the_single_filter_on_seed0(tuning_run):
     ce_lit, _ = innovation_whiteness(replace(literal, sigma_a=r.sigma_a, sigma_b=r.sigma_b),
                                      enc, acc)
     assert ce_lit.normalised_statistic > 2.0 * r.enc.normalised_statistic
+
+
+def test_rms_error_ratio_on_a_record_with_a_known_answer():
+    """The metric of FM-1 and FM-6 (Fig. 24): RMS(estimate - truth)/RMS(reference - truth)
+    after from_s; a reference equal to the estimate (the negative control of FM-6) gives
+    exactly 1, an estimate with a tenth of the reference's error gives 0.1, and samples
+    before from_s are ignored."""
+    from types import SimpleNamespace
+    from cosim.trials.free_motion import rms_error_ratio
+    t = np.arange(0.0, 2.0, 1e-3)
+    truth = np.sin(2 * np.pi * t)
+    noise = np.random.default_rng(3).standard_normal(t.size)
+    est = truth + 0.1 * noise
+    est[t < 0.5] = 1e6                       # garbage before from_s must not count
+    sig = {"time": t, "plant.a": truth, "aakf.a_m_s2": est, "encdiff.a_m_s2": truth + noise}
+    p = {"estimate": "aakf.a_m_s2", "reference": "encdiff.a_m_s2", "truth": "plant.a",
+         "from_s": 0.5}
+    assert rms_error_ratio(p, SimpleNamespace(signals=sig)) == pytest.approx(0.1, rel=1e-12)
+    same = dict(p, reference="aakf.a_m_s2")
+    assert rms_error_ratio(same, SimpleNamespace(signals=sig)) == 1.0
