@@ -87,3 +87,26 @@ def test_rms_error_ratio_on_a_record_with_a_known_answer():
     assert rms_error_ratio(p, SimpleNamespace(signals=sig)) == pytest.approx(0.1, rel=1e-12)
     same = dict(p, reference="aakf.a_m_s2")
     assert rms_error_ratio(same, SimpleNamespace(signals=sig)) == 1.0
+
+
+def test_literal_eq31_speed_bound_excludes_the_true_speed_under_acceleration():
+    """Why FM-7 (Fig. 21, the reset improves the estimate) fails with the thesis's reset:
+    eq. 31 bounds the MEAN speed over the last sample, alpha*Ts/2 away from the speed at
+    t_k; with |alpha| > 2 Delta/Ts^2 (582 rad/s^2, 0.93 m/s^2 at the nut) the true speed
+    lies outside the bound and the clamp moves a correct estimate away from the truth.
+    The acceleration-shifted bound (eq31_accel) contains it at every sample."""
+    from cosim.algorithms.aakf import AakfParams, _clamp
+    alpha = 1000.0                                   # rad/s^2 (1.6 m/s^2 at the nut)
+    lit = AakfParams(sigma_a=300.0, reset_speed_bound="eq31")
+    acc = replace(lit, reset_speed_bound="eq31_accel")
+    d, ts = lit.delta_rad, lit.Ts
+    t = np.arange(1, 400) * ts
+    theta = 0.5 * alpha * t ** 2 + 0.3 * d
+    enc = np.round(theta / d) * d
+    moved = {"eq31": 0, "eq31_accel": 0}
+    for k in range(1, t.size):
+        for p in (lit, acc):
+            _, om, _, spd = _clamp(p, theta[k], alpha * t[k], alpha, enc[k], enc[k - 1])
+            moved[p.reset_speed_bound] += bool(spd)
+    assert moved["eq31_accel"] == 0
+    assert moved["eq31"] > 0.5 * (t.size - 1)
