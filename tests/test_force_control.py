@@ -204,3 +204,31 @@ def test_bilateral_scenario_requirements(fmus, tmp_path):
     print({k: round(r["value"], 4) for k, r in req.items()})
     assert v["status"] == "pass", req
     assert req["BL-5"]["value"] < 0.7             # aaKF current clearly smoother
+
+
+def test_bandwidth_limit_and_g_limit_metrics_on_known_sweeps():
+    """BL-6 (Sec. 2.5.4): the highest swept g whose score, and every lower g's, stays at
+    or below the threshold (0 when the lowest already exceeds it; a dip after an
+    exceedance does not count); the scenario metric is aaKF limit - encoder limit, 0
+    when both cases are the same (BL-6's negative control)."""
+    from types import SimpleNamespace
+    from cosim.scenarios.registry import get
+    from cosim.trials.force_control import bandwidth_limit
+    enc = {100.0: 0.010, 500.0: 0.022, 1500.0: 0.055, 3000.0: 0.030, 6000.0: 0.6}
+    aak = {100.0: 0.005, 500.0: 0.010, 1500.0: 0.015, 3000.0: 0.018, 6000.0: 0.019}
+    assert bandwidth_limit(enc, 0.05) == 500.0          # 3000's 0.030 after 1500's 0.055
+    assert bandwidth_limit(aak, 0.05) == 6000.0
+    assert bandwidth_limit(enc, 0.001) == 0.0
+    assert bandwidth_limit({100.0: float("nan")}, 1.0) == 0.0
+
+    def view(case, sweep):
+        return SimpleNamespace(case=case, phase="main",
+                               values={f"vib_g{g:g}": v for g, v in sweep.items()})
+    diff = get("metric", "g_limit_difference").obj
+    p = {"threshold": 0.05, "numerator": "aakf", "denominator": "encoder"}
+    assert diff(p, SimpleNamespace(runs=[view("aakf", aak), view("encoder", enc)])) == 5500.0
+    assert diff(p, SimpleNamespace(runs=[view("aakf", enc), view("encoder", enc)])) == 0.0
+    with pytest.raises(ValueError, match="no g sweep"):
+        diff(p, SimpleNamespace(runs=[view("aakf", {}), view("encoder", enc)]))
+    one = get("metric", "g_limit").obj
+    assert one({"threshold": 0.05}, SimpleNamespace(values=view("x", enc).values)) == 500.0

@@ -26,7 +26,7 @@ from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams
 from cosim.algorithms.zero_force import (PositionController, PositionControllerParams,
                                          SineReference, SineReferenceParams,
                                          ZeroForceController, ZeroForceParams)
-from cosim.scenarios.registry import figures, metric, register_controller, stimulus
+from cosim.scenarios.registry import figures, metric, procedure, register_controller, stimulus
 
 register_controller("sine_reference", SineReference, params=SineReferenceParams)
 register_controller("position_controller", PositionController, params=PositionControllerParams)
@@ -345,3 +345,121 @@ def _transparency(params, ctx):
     if level < 1e-6:
         raise ValueError(f"no contact force in [{p.from_s}, {p.to_s}] s ({p.environment} is 0)")
     return abs(float(np.mean(fo)) + float(np.mean(fe))) / level
+
+
+# ================================================ observer-bandwidth sweep (Sec. 2.5.4)
+#: score recorded for a sweep point whose simulation did not complete (the loop
+#: diverged): counted as vibrating
+DIVERGED_SCORE = 1.0e6
+
+
+def bandwidth_limit(vibration: dict, threshold: float) -> float:
+    """Highest observer bandwidth g [rad/s] of a sweep (g -> vibration score) whose
+    vibration, and that of every lower g of the sweep, is <= ``threshold``; 0 when the
+    lowest g already vibrates (Sec. 2.5.4: the bandwidth a speed source allows)."""
+    lim = 0.0
+    for g in sorted(vibration):
+        if not vibration[g] <= threshold:
+            break
+        lim = float(g)
+    return lim
+
+
+def _sweep_values(values: dict) -> dict:
+    """g -> vibration from a run's values ``vib_g<g>``."""
+    return {float(k[len("vib_g"):]): float(v) for k, v in (values or {}).items()
+            if k.startswith("vib_g")}
+
+
+@procedure("bilateral_g_sweep")
+def _bilateral_g_sweep(run, build, ctx):
+    """The ``startup_identification`` procedure (unchanged main phase at the file's g),
+    then the main phase again, with the same identified observers, at every g of
+    ``parameters.g_sweep.g_rad_s`` (all DOB/RFOB of the units), each scored by the
+    ``hf_rms`` metric with ``parameters.g_sweep.vibration`` (values ``vib_g<g>``; a run
+    that does not complete scores ``DIVERGED_SCORE``), and reported (not judged) by
+    the ``hf_rms`` of each entry of ``parameters.g_sweep.also`` (values
+    ``<name>_g<g>``). An empty list (negative controls that need no sweep) runs
+    nothing more."""
+    from types import SimpleNamespace
+    from cosim.master import Master
+    from cosim.scenarios.loader import deep_merge
+    from cosim.trials import startup_identification as si
+    calls = []
+
+    def build_rec(overrides=None):
+        calls.append(overrides)
+        return build(overrides)
+    out = si.startup_identification(run, build_rec, ctx)
+    sw = dict((ctx.parameters or {}).get("g_sweep") or {})
+    gs = [float(g) for g in sw.get("g_rad_s") or []]
+    if not gs:
+        return out
+    vib_p = dict(sw.get("vibration") or {})
+    cfg = si.config(ctx.parameters)
+    main_over = calls[-1] or {}
+    for g in gs:
+        over = {"controllers": {}}
+        for u in cfg["units"].values():
+            for c in u["dob"]:
+                over["controllers"][c] = {"params": {"g_dob_rad_s": g}}
+            for c in u["rfob"]:
+                over["controllers"][c] = {"params": {"g_rfob_rad_s": g}}
+        ctx.phase = "main"
+        system, record = build(deep_merge(main_over, over))
+        try:
+            res = Master(system, record).run(run.duration)
+            err = None if res.completed else (res.error or "run not completed")
+        except Exception as exc:          # a diverged loop: the FMU or a block fails
+            res, err = None, f"{type(exc).__name__}: {exc}"
+        v = DIVERGED_SCORE
+        if err is None:                   # metric errors (e.g. a short window) raise
+            sig = {k: np.asarray(x) for k, x in res.signals.items()}
+            v = _hf_rms(vib_p, SimpleNamespace(signals=sig))
+            v = v if math.isfinite(v) else DIVERGED_SCORE
+            for name, hp in (sw.get("also") or {}).items():     # reported, not judged
+                out.values[f"{name}_g{g:g}"] = float(_hf_rms(dict(hp), SimpleNamespace(signals=sig)))
+        else:
+            out.artifacts.setdefault("g_sweep_errors", {})[f"{g:g}"] = str(err)
+        out.values[f"vib_g{g:g}"] = float(v)
+    return out
+
+
+@dataclass(frozen=True)
+class GLimitParams:
+    """Highest observer bandwidth without vibration of case ``numerator`` minus that of
+    case ``denominator`` [rad/s] (scenario scope; per case the lowest limit of its
+    runs), from the ``vib_g<g>`` values of ``bilateral_g_sweep``; vibration means a
+    score above ``threshold`` (units of the score)."""
+    threshold: float = 0.05
+    numerator: str = "aakf"
+    denominator: str = "encoder"
+
+
+@metric("g_limit_difference", params=GLimitParams, scope="scenario")
+def _g_limit_difference(params, ctx):
+    """limit(numerator) - limit(denominator) [rad/s] (Sec. 2.5.4: > 0 when the aaKF
+    allows higher observer bandwidths than encoder differencing)."""
+    p = GLimitParams(**params)
+
+    def lim(case):
+        runs = [r for r in ctx.runs if r.case == case and r.phase in ("main", "")]
+        sweeps = [_sweep_values(r.values) for r in runs]
+        if not runs or not all(sweeps):
+            raise ValueError(f"g_limit_difference: no g sweep in the runs of case {case!r}")
+        return min(bandwidth_limit(s, p.threshold) for s in sweeps)
+    return lim(p.numerator) - lim(p.denominator)
+
+
+@dataclass(frozen=True)
+class GLimitRunParams:
+    threshold: float = 0.05
+
+
+@metric("g_limit", params=GLimitRunParams)
+def _g_limit(params, ctx):
+    """Highest swept observer bandwidth without vibration of one run [rad/s]."""
+    s = _sweep_values(ctx.values)
+    if not s:
+        raise ValueError("g_limit: the run has no g sweep (procedure bilateral_g_sweep)")
+    return bandwidth_limit(s, GLimitRunParams(**params).threshold)
