@@ -15,17 +15,21 @@
 4. **attribution**: every applicable catalogue effect is fitted on all fit logs
    (``explained`` = 1 - gap_with^2 / gap_without^2, the fraction of the recalibrated
    gap energy it removes) and, for the best ``n_validate`` ones, validated on held-out
-   data INSIDE the fit logs: each fit log is split into two halves; recalibration and
-   effect are fitted on one half and the gap is measured on the other, both ways
-   (2-fold). An effect is selected only if it lowers the held-out gap energy by at
-   least ``margin`` in BOTH folds. Then further effects are added greedily by the
-   same rule, if the device can fit several at once (``fit_effects``).
-   ``selected = []`` when no effect passes and the held-out residual is at the
-   noise floor; ``["unknown"]`` when none passes but the residual is above it. The
-   floor is the device's ``noise_floor(logs)["gap"]`` (the gap that sensor noise
-   alone gives, estimated from the held-out halves themselves) times
+   data INSIDE the fit logs (:func:`_folds`): one fit log left out at a time
+   (recalibration and effect fitted on the others, the gap measured on it), or the two
+   halves of a single fit log. An effect is selected only if it lowers the held-out
+   gap energy by at least ``margin`` pooled over the folds and ``margin / 2`` in every
+   fold (:func:`_passes`). Then further effects are added greedily by the same rule,
+   fitted jointly with the selection, if the device can fit several at once
+   (``fit_effects``). ``selected = []`` when no effect passes and the held-out
+   residual is at the noise floor; ``["unknown"]`` when none passes but the residual
+   is above it. The floor is the device's ``noise_floor(logs)["gap"]`` (the gap that
+   sensor noise alone gives, estimated from the held-out parts themselves) times
    :data:`UNKNOWN_FACTOR`, or, for a device without that method, its constant
-   ``gap_floor`` (none: never ``unknown``);
+   ``gap_floor`` (none: never ``unknown``). With a selection, each comparison signal's
+   held-out residual is checked against its own floor (``signal_z``,
+   :data:`SIGNAL_Z_LIMIT`): ``unknown`` replaces the selection when the unexplained
+   signal is one no selected effect acts on, and is added to it otherwise;
 5. **confirmation** of the top candidates with the device's FMU replay
    (``confirm``), when the device has one;
 6. **shrinkage** on the ``--test`` logs: ``gap.test_before`` with the recalibrated
@@ -327,16 +331,20 @@ def _cv(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] |
     """Held-out gap per fold with and without ``effects`` (recalibrated on the fit part),
     on the folds that validate ``basis`` (default ``effects``, :func:`_folds_for`)."""
     g_base, g_eff = [], []
+    for val_part, rec, fitted in _fold_fits(device, folds, effects, basis):
+        g_base.append(device.gap(val_part, rec))
+        g_eff.append(math.nan if fitted is None else device.gap(val_part, *fitted))
+    return g_base, g_eff
+
+
+def _fold_fits(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None):
+    """Per fold that validates ``basis`` (default ``effects``): (held-out part, the fit
+    part's recalibration, (nominal, effect params) of ``effects`` fitted on the fit part,
+    or None when the device cannot fit them together)."""
     for fit_part, val_part, _ in _folds_for(device, folds, effects if basis is None else basis):
         rec = device.recalibrate(fit_part)
-        g_base.append(device.gap(val_part, rec))
         eff, _ = _fit_many(device, fit_part, rec, effects)
-        if eff is None:
-            g_eff.append(math.nan)
-            continue
-        nom, own = _apply(rec, eff)
-        g_eff.append(device.gap(val_part, nom, own))
-    return g_base, g_eff
+        yield val_part, rec, (None if eff is None else _apply(rec, eff))
 
 
 def _reduction(g_base: Sequence[float], g_eff: Sequence[float]) -> list[float]:
@@ -378,7 +386,7 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
                       "screen_s": time.perf_counter() - ts0})
     cands.sort(key=lambda c: -c["explained"])
 
-    # ---- held-out selection inside the fit logs (2-fold on halves)
+    # ---- held-out selection inside the fit logs (leave one log out, or halves)
     fold_kind, folds = _folds(device, fit, rec)
     out["heldout_folds"] = fold_kind
     try:
@@ -460,11 +468,8 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     sz = getattr(device, "signal_z", None)
     if sz is not None and selected and selected != ["unknown"]:
         zs: dict[str, list[float]] = {}
-        for f, v, _ in _folds_for(device, folds, selected):
-            r = device.recalibrate(f)
-            eff, _ = _fit_many(device, f, r, selected)
-            nom, own = _apply(r, eff) if eff is not None else (r, {})
-            for k, z in sz(v, nom, own).items():
+        for v, r, fitted in _fold_fits(device, folds, selected):
+            for k, z in sz(v, *(fitted or (r, {}))).items():
                 zs.setdefault(k, []).append(z)
         z_sel = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in zs.items()}
         out["heldout_signal_z"] = z_sel
@@ -484,7 +489,7 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
                              f"by >= {margin / 2:.0%} in every fold; 'unknown' when "
                              f"none does and the held-out gap exceeds "
                              + (f"{UNKNOWN_FACTOR:g} x the sensor-noise floor estimated from the held-out "
-                                f"halves ({floor:.4f})" if nf is not None else
+                                f"parts ({floor:.4f})" if nf is not None else
                                 f"the device's noise floor ({floor if floor is not None else 'none declared'})"))
 
     # ---- FMU confirmation of the top candidates (same replay without the effect as reference)

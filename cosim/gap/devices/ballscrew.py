@@ -41,9 +41,13 @@ Recalibration: J, b, fc (and Kt) by linear least squares on the same equations
 (weighted by 1/std of each signal). Kt is identifiable only when a known force
 acts (``f_ext``/``f_lc`` with more than 0.5 N rms); without it only J/Kt, b/Kt,
 fc/Kt are, and Kt is kept at its nominal value (J, b, fc are then "torque per
-nominal Kt"). The accelerometer bias is a sensor calibration constant
-(``nominal["acc_bias"]``), not recalibrated: a wrong offset is what a tilt
-(``gravity_load``) or a drift (``accel_bias_drift``) produces.
+nominal Kt"); the first recalibration that identifies Kt fixes it for later ones on
+logs that cannot (held-out folds without the force trial). The accelerometer's
+zero-g offset is a per-trial nuisance: it is projected out of each log's acceleration
+rows (relative to the sidecar's ``acc_bias``), and its size is a comparison signal of
+its own, ``acc_dc`` (one row per log, floor :data:`ACC_OFFSET_SD` over the reading's
+spread): that row is what tells a tilt (``gravity_load``, g sin(alpha) in every
+trial) from a Coulomb offset, and a thermal drift from a constant offset.
 
 Effect screening: each catalogue effect is a small set of nonlinear parameters
 (searched on a grid) and linear coefficients (least squares jointly with the
@@ -104,7 +108,7 @@ class BallscrewDevice:
         self._preps: dict[int, Prep] = {}
         self._ktfree_cache: dict[tuple, bool] = {}
         self._kt_calibrated: float | None = None
-        #: ``{"position": (low, high)}``: compare only samples inside (held-out folds)
+        #: ``{"position": (low, high)}``: the travel range :meth:`compared_seconds` counts in
         self.compare_region: dict[str, tuple[float, float]] | None = None
 
     # ------------------------------------------------------------------ input checks
@@ -158,15 +162,12 @@ class BallscrewDevice:
         return CATALOGUE[effect].ballscrew.grid([self._prep(lg) for lg in logs])
 
     # ------------------------------------------------------------------ regression core
-    def _system(self, logs: Sequence[TrialLog], nom_params: Mapping[str, float], kt_free: bool,
-                eff_terms: Sequence[tuple[str, Callable[[Prep], Terms]]],
-                fixed_coefs: Mapping[str, float] | None):
-        """Weighted rows of both equations.
-
-        Returns (A, y, names, sd) where columns are [J, b, fc, (invKt), effect coefs...]
-        in torque units divided by Kt (or times 1/Kt when ``kt_free``), or, when
-        ``fixed_coefs`` is given, the residual vectors per signal for those coefficients.
-        """
+    def _system(self, logs: Sequence[TrialLog], eff_terms: Sequence[tuple[str, Callable[[Prep], Terms]]]):
+        """Per log, the filtered rows of both equations before weighting: torque rows
+        ``(y_i, columns, fixed force column, compared mask, has force)`` (columns [J, b,
+        fc, effect coefficients...] in torque units) and acceleration rows ``(y_a,
+        columns, compared mask, (mean of y_a, means of the columns))``, each log's
+        acceleration rows with its offset projected out (the means go to ``acc_dc``)."""
         rows_i: list[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]] = []
         rows_a: list[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray]] = []
         for lg in logs:
@@ -203,7 +204,7 @@ class BallscrewDevice:
             # ZOH centre: the command acts half a sample after its stamp
             y_i = base["y_i"] if y_i_raw is p.i else p.F(shift(y_i_raw, 0.5 * p.ts, p.ts))
             Ff = base["f"] if fixed_t is None else base["f"] + p.F(fixed_t)
-            rows_i.append((y_i, Fc_i, Ff, self._in_region(p, p.comp_i), p.has_force))
+            rows_i.append((y_i, Fc_i, Ff, p.comp_i, p.has_force))
             F_anut = base["a_nut"] if a_nut is None else p.F(a_nut)
             if p.acc is not None:
                 ya = p.acc - F_anut
@@ -214,7 +215,7 @@ class BallscrewDevice:
                 # per log), the same way with and without effects
                 # offsets' size is compared on its own, as the ``acc_dc`` signal (one row
                 # per log: the mean residual against the sensor's offset tolerance)
-                ma = self._in_region(p, p.comp_a)
+                ma = p.comp_a
                 dc = (0.0, {})
                 if ma.any():
                     dc = (float(np.mean(ya[ma])), {k: float(np.mean(v[ma])) for k, v in Fc_a.items()})
@@ -224,10 +225,9 @@ class BallscrewDevice:
         return rows_i, rows_a
 
     def _solve(self, logs: Sequence[TrialLog], nom_params: Mapping[str, float],
-               eff_terms, kt_free: bool, fixed_coefs: Mapping[str, float] | None = None,
-               fit_nominal: bool = True):
+               eff_terms, kt_free: bool, fixed_coefs: Mapping[str, float] | None = None):
         """LS fit (or evaluation with ``fixed_coefs``). Returns (coefs, gap, residuals)."""
-        rows_i, rows_a = self._system(logs, nom_params, kt_free, eff_terms, fixed_coefs)
+        rows_i, rows_a = self._system(logs, eff_terms)
         Kt = nom_params["Kt"]
         names: list[str] = []
         for _, ci, _, _, _ in rows_i:
@@ -296,18 +296,8 @@ class BallscrewDevice:
         bvec = np.concatenate([bi * wi, ya * wa, yd * wd])
         if fixed_coefs is None:
             free = list(range(len(names)))
-            if not fit_nominal:
-                free = [j for j, k in enumerate(names) if k not in ("J", "b", "fc", "invKt")]
             coef = np.zeros(len(names))
-            if not fit_nominal:
-                for j, k in enumerate(names):
-                    if k in ("J", "b", "fc"):
-                        coef[j] = nom_params[k] / (nom_params["Kt"] if kt_free else 1.0)
-                    elif k == "invKt":
-                        coef[j] = 1.0 / nom_params["Kt"]
-            rhs = bvec - A @ coef
-            sol = _lstsq(A[:, free], rhs)
-            coef[free] = sol
+            coef[free] = _lstsq(A, bvec)
             # sign constraints of the physics (one active-set step): a Stribeck excess is
             # static friction ABOVE Coulomb (dfs >= 0). A negative one only fits the
             # low-speed rows where the encoder's speed (and so sign(w)) is unreliable
@@ -322,7 +312,7 @@ class BallscrewDevice:
             # it is the fitted Kt, not the one the fit started from (a gravity fit would put
             # the ratio of the two into the mass)
             joint = [j for j, k in enumerate(names) if k in _ACC_ONLY_KEYS and np.any(Ai[:, j])]
-            if kt_free and joint and fit_nominal and "invKt" in names:
+            if kt_free and joint and "invKt" in names:
                 kt_used = Kt
                 for _ in range(6):
                     ikt = coef[names.index("invKt")]
@@ -417,10 +407,6 @@ class BallscrewDevice:
         tot = sum(inv.values())
         return {s: v / tot for s, v in inv.items()}
 
-    def _signal_weights(self, logs: Sequence[TrialLog]) -> tuple[float, float]:
-        w = self._weights_from(self.noise_floor(logs))
-        return w.get("i", 1.0), w.get("a", 0.0)
-
     @staticmethod
     def _to_physical(coef: Mapping[str, float], kt_free: bool, Kt_fixed: float) -> dict[str, float]:
         """Regression coefficients -> physical values (torque units, Kt)."""
@@ -463,7 +449,7 @@ class BallscrewDevice:
                 "control the load-cell force is a function of the motion and does not help).")
         return {"J": phys["J"], "b": phys["b"], "fc": phys["fc"], "Kt": phys["Kt"]}
 
-    def _eff_terms(self, effects: Mapping[str, Mapping[str, float]] | None, nom_log: Mapping[str, float]):
+    def _eff_terms(self, effects: Mapping[str, Mapping[str, float]] | None):
         out = []
         coefs: dict[str, float] = {}
         for name, prm in (effects or {}).items():
@@ -534,15 +520,18 @@ class BallscrewDevice:
         """The comparison signals an effect changes."""
         return set(CATALOGUE[effect].ballscrew.acts_on)
 
-    def _evaluate(self, logs, params, effects):
-        nom_log = self._nominal(logs[0])
-        own = {}
+    @staticmethod
+    def _split_all(params: Mapping[str, float], effects) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
+        """(nominal parameters with the effects' ``nominal.*`` re-fits applied, each effect's own parameters)."""
         nomp = dict(params)
-        eff_clean = {}
+        own_all = {}
         for name, prm in (effects or {}).items():
-            nomp, own = split_params(nomp, prm)
-            eff_clean[name] = own
-        terms, lin = self._eff_terms(eff_clean, nom_log)
+            nomp, own_all[name] = split_params(nomp, prm)
+        return nomp, own_all
+
+    def _evaluate(self, logs, params, effects):
+        nomp, eff_clean = self._split_all(params, effects)
+        terms, lin = self._eff_terms(eff_clean)
         kt_free = self._kt_free(logs)
         _, g, parts = self._solve(logs, nomp, terms, kt_free, fixed_coefs=self._coefs_for(nomp, kt_free, lin))
         return g, parts
@@ -651,14 +640,9 @@ class BallscrewDevice:
     def signals(self, log: TrialLog, params: Mapping[str, float], effects=None
                 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """(measured, model) of ``i_cmd`` [A] and ``acc_meas`` [m/s^2] (bias removed), NaN where not compared."""
-        nomp = dict(params)
-        eff_clean = {}
-        for name, prm in (effects or {}).items():
-            nomp, own = split_params(nomp, prm)
-            eff_clean[name] = own
-        terms, lin = self._eff_terms(eff_clean, self._nominal(log))
-        kt_free = self._kt_free([log])
-        rows_i, rows_a = self._system([log], nomp, kt_free, terms, None)
+        nomp, eff_clean = self._split_all(params, effects)
+        terms, lin = self._eff_terms(eff_clean)
+        rows_i, rows_a = self._system([log], terms)
         c = dict(nomp)
         c.update(lin)
         Kt = nomp["Kt"]
@@ -696,14 +680,12 @@ class BallscrewDevice:
         is not available.
         """
         from .. import replay as fx
-        nomp = dict(params)
-        eff_fmu: dict[str, dict[str, float]] = {}
-        for name, prm in (effects or {}).items():
-            nomp, own = split_params(nomp, prm)
-            spec = CATALOGUE.get(name)
-            if spec is None:
-                return None
-            eff_fmu[name] = {k: v for k, v in own.items() if k in spec.params}
+        nomp, own_all = self._split_all(params, effects)
+        if any(name not in CATALOGUE for name in own_all):
+            return None
+        # effect parameters the FMU does not have (e.g. the nut's guide friction) are dropped
+        eff_fmu = {name: {k: v for k, v in own.items() if k in CATALOGUE[name].params}
+                   for name, own in own_all.items()}
         sse = {"a": 0.0, "acc": 0.0}
         en = {"a": 0.0, "acc": 0.0}
         for lg in logs:
