@@ -72,7 +72,7 @@ import numpy as np
 
 from .algorithms.aakf import AakfParams, AaKF, EncoderDifferentiator
 from .algorithms.aakf import EncoderDifferentiatorParams
-from .algorithms.rls import RLSIdentifier, RLSParams
+from .algorithms.rls import RLSIdentifier, RLSParams, speed_timing_for
 from .algorithms.whiteness import cumulative_periodogram
 from .fileio import atomic_write_text, jsonable
 from .trial_log import TrialLog, TrialLogError, format_csv, read_trial_log, require_columns
@@ -302,8 +302,7 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
         kt_source = "default (Table 1)" if Kt == DEFAULT_KT else "parameters"
     # the speed's timing is a property of the signal: the aaKF estimates the speed at
     # t_k, the backward difference is the mean speed over [t_k-1, t_k]
-    rp = replace(rp, Ts_s=Ts, Kt_Nm_per_A=Kt,
-                 speed_timing="interval_mean" if speed == "encoder" else "sample")
+    rp = replace(rp, Ts_s=Ts, Kt_Nm_per_A=Kt, speed_timing=speed_timing_for(speed))
     enc = log["theta_enc"]
     if speed == "aakf":
         kp = _aakf_params_for(log, aakf_params)

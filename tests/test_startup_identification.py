@@ -8,7 +8,6 @@ does not see the unit the trial runs (a coupling left on, another unit); a negat
 control's scale does not reach the blocks; a bad configuration passes silently."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest

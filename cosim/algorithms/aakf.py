@@ -343,6 +343,16 @@ def _clamp(p: AakfParams, theta: float, omega: float, alpha: float, enc: float,
     return theta, omega, pos, spd
 
 
+def _outputs(s: float, theta: float, omega: float, alpha: float, bias: float, e_enc: float,
+             e_acc: float, fired: float, pos_fired: float, speed_fired: float) -> dict[str, float]:
+    """The estimator's output dict (motor side, nut side with the lead ratio ``s`` [m/rad],
+    innovations, reset flags)."""
+    return {"theta_rad": theta, "omega_rad_s": omega, "alpha_rad_s2": alpha,
+            "x_m": s * theta, "v_m_s": s * omega, "a_m_s2": s * alpha, "bias_m_s2": bias,
+            "innov_enc_rad": e_enc, "innov_acc_m_s2": e_acc, "reset_fired": fired,
+            "reset_pos_fired": pos_fired, "reset_speed_fired": speed_fired}
+
+
 def _check_params(p: AakfParams) -> None:
     if p.encoder_quantiser not in ("round", "floor"):
         raise ValueError("encoder_quantiser must be 'round' or 'floor'")
@@ -513,10 +523,6 @@ class AaKF:
         self._half_delta = 0.5 * p.delta_rad
         self._delta = p.delta_rad
         self._floor = p.encoder_quantiser == "floor"
-        self._accel_bound = p.reset_speed_bound == "eq31_accel"
-        self._half_Ts = 0.5 * p.Ts
-        self._Ts = p.Ts
-        self._dv = p.delta_rad / p.Ts
         self._reset_pred = p.reset_enabled and p.reset_stage == "prediction"
         self._reset_post = p.reset_enabled and p.reset_stage == "posterior"
         self._reset_out = p.reset_enabled and p.reset_stage == "output"
@@ -650,24 +656,8 @@ class AaKF:
         self.reset_lo, self.reset_hi = lo, hi
         enc_prev = self._enc_prev
         pos_fired = speed_fired = False
-        if self._reset_pred:
-            if x0 > hi:                                                   # eq. 29, upper
-                x0 = hi
-                pos_fired = True
-            elif x0 < lo:                                                 # eq. 29, lower
-                x0 = lo
-                pos_fired = True
-            if enc_prev is not None:
-                v = (enc - enc_prev) / self._Ts                           # eq. 30
-                if self._accel_bound:
-                    v += self._half_Ts * x2
-                dv = self._dv
-                if x1 > v + dv:                                           # eq. 31, upper
-                    x1 = v + dv
-                    speed_fired = True
-                elif x1 < v - dv:                                         # eq. 31, lower
-                    x1 = v - dv
-                    speed_fired = True
+        if self._reset_pred:                                              # eq. 29-31
+            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
 
         # --- update (eq. 101-102) ---
         if self._C_std:
@@ -699,21 +689,8 @@ class AaKF:
 
         if self._reset_out:                                    # variant: the output only
             x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
-        s = self._s
-        return {
-            "theta_rad": x0,
-            "omega_rad_s": x1,
-            "alpha_rad_s2": x2,
-            "x_m": s * x0,
-            "v_m_s": s * x1,
-            "a_m_s2": s * x2,
-            "bias_m_s2": x3,
-            "innov_enc_rad": e0,
-            "innov_acc_m_s2": e1,
-            "reset_fired": 1.0 if (pos_fired or speed_fired) else 0.0,
-            "reset_pos_fired": 1.0 if pos_fired else 0.0,
-            "reset_speed_fired": 1.0 if speed_fired else 0.0,
-        }
+        return _outputs(self._s, x0, x1, x2, x3, e0, e1, float(pos_fired or speed_fired),
+                        float(pos_fired), float(speed_fired))
 
 
 class AaKFBank(AaKF):
@@ -840,21 +817,7 @@ class AaKFBank(AaKF):
             th, om, pos, spd = _clamp(self.params, th, om, al, enc, self._enc_prev)
             flags = float(pos or spd), float(pos), float(spd)
         self._enc_prev = enc
-        s = self._s
-        return {
-            "theta_rad": th,
-            "omega_rad_s": om,
-            "alpha_rad_s2": al,
-            "x_m": s * th,
-            "v_m_s": s * om,
-            "a_m_s2": s * al,
-            "bias_m_s2": bi,
-            "innov_enc_rad": e0,
-            "innov_acc_m_s2": e1,
-            "reset_fired": flags[0],
-            "reset_pos_fired": flags[1],
-            "reset_speed_fired": flags[2],
-        }
+        return _outputs(self._s, th, om, al, bi, e0, e1, *flags)
 
     recordable: tuple[str, ...] = AaKF.recordable + ("weights", "sigma_a_eff")
 

@@ -96,6 +96,13 @@ import numpy as np
 from scipy import signal
 
 
+def speed_timing_for(speed: str) -> str:
+    """``speed_timing`` of a speed source: the backward encoder difference (``"encoder"``)
+    is the mean speed over the last interval; an estimator's (``"aakf"``) or the exact
+    speed is the speed at t_k."""
+    return "interval_mean" if speed == "encoder" else "sample"
+
+
 @dataclass(frozen=True)
 class RLSParams:
     """Parameters of :class:`RLSIdentifier`.

@@ -257,13 +257,6 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
 )
 
 
-def by_group() -> dict[str, list[Assumption]]:
-    """The assumptions grouped (in order of first appearance)."""
-    out: dict[str, list[Assumption]] = {}
-    for a in ASSUMPTIONS:
-        out.setdefault(a.group, []).append(a)
-    return out
-
 
 def used_by_models(models) -> list[Assumption]:
     """The assumptions whose value sits in one of these Modelica models (e.g. the FMU

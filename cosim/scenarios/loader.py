@@ -115,8 +115,6 @@ REQ = {"id": (str, True), "description": (str, True), "metric": (str, True),
        "rule": (str, True), "limit": ((int, float, list), True), "case": (str, False),
        "aggregate": (str, False), "negative_control": ((dict, str), False),
        "thesis_inconsistent": (dict, False)}
-#: every requirement must name a negative control (or be declared thesis-inconsistent)
-REQUIRE_NEGATIVE_CONTROL = True
 #: a negative control: the scenario again, under which the requirement must NOT hold
 NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
        "runs": (list, False), "apply_to": (list, False)}
@@ -358,7 +356,7 @@ def _check_requirement_controls(c, d, r, p):
             except ValueError as exc:
                 c.err(p + ("thesis_inconsistent", "derivation"), str(exc))
         return
-    if nc is None and REQUIRE_NEGATIVE_CONTROL:
+    if nc is None:   # every requirement names one (or is declared thesis-inconsistent)
         c.err(p, f"requirement {r['id']}: no negative_control: name a case, an override or "
               f"an entry of negative_controls under which the claim must NOT hold (or "
               f"declare it thesis_inconsistent); see docs/scenario-format.md")

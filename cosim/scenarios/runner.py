@@ -27,7 +27,7 @@ from pathlib import Path
 from ..fileio import atomic_write_text as atomic_write, jsonable
 from . import registry as reg
 from .loader import Scenario, ScenarioError, deep_merge, expand, load, make_builder
-from .store import read_runs, run_done, run_key, safe_name, source_hash  # noqa: F401
+from .store import run_done, run_key, safe_name, source_hash  # noqa: F401
 from .verdict import all_runs, evaluate
 
 

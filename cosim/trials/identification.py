@@ -39,8 +39,11 @@ comparisons of Fig. 26 ``rms_rel_err_ratio_aakf_encoder`` and
 """
 from __future__ import annotations
 
+from typing import Mapping
+
 import numpy as np
 
+from cosim.algorithms.rls import speed_timing_for
 from cosim.scenarios.registry import ProcedureResult, figures, procedure
 
 PARAMS = ("J", "b", "fc")
@@ -50,11 +53,16 @@ SPEEDS = {"aakf": "aakf.omega_rad_s", "encoder": "encdiff.omega_rad_s", "exact":
 BAND = 0.10
 
 
+def fmu_values(system, role: str, variables: Mapping[str, str]) -> dict[str, float]:
+    """``{name: value}`` of FMU ``role``'s ``variables`` (name -> FMU variable) as the FMU
+    is run: the values set on it, else its start values."""
+    starts = {v.name: v.start for v in system.roles[role].md.modelVariables}
+    return {k: float(system.params[role].get(var, starts[var])) for k, var in variables.items()}
+
+
 def _true_parameters(system, role="plant") -> dict:
-    """The plant's J, b, fc as the FMU is run (set values, else its start values)."""
-    slave = system.roles[role]
-    starts = {v.name: v.start for v in slave.md.modelVariables}
-    return {k: float(system.params[role].get(k, starts[k])) for k in PARAMS + ("Kt",)}
+    """The plant's J, b, fc, Kt as the FMU is run (set values, else its start values)."""
+    return fmu_values(system, role, {k: k for k in PARAMS + ("Kt",)})
 
 
 def rls_history(i_held_A: np.ndarray, w_rad_s: np.ndarray, Ts_s: float, Kt_Nm_per_A: float,
@@ -120,7 +128,7 @@ def identification(run, build, ctx):
         # encoder); the exact-speed control keeps eq. 44, exact for this record
         # the encoder difference is the mean speed over the last interval
         theta = None if name == "exact" else s["plant.theta_enc"]
-        timing = {"speed_timing": "interval_mean"} if name == "encoder" else {}
+        timing = {} if theta is None else {"speed_timing": speed_timing_for(name)}
         hist = rls_history(s["plant.i"], s[sig_name], Ts, truth["Kt"], theta, **timing)
         err = hist / tv - 1.0
         sig = {"time": t[idx]}
@@ -145,8 +153,7 @@ def identification(run, build, ctx):
     # and inertial terms, so its quality decides; the default integral regression takes
     # the viscous term from the encoder angle and needs the speed only at window ends
     for name in ("aakf", "encoder"):
-        timing = {"speed_timing": "interval_mean"} if name == "encoder" else {}
-        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, truth["Kt"], None, **timing)
+        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, truth["Kt"], None)
         err = hist / tv - 1.0
         v[f"rms_rel_err_{name}_eq44"] = float(np.sqrt(np.mean(err[-1] ** 2)))
         v[f"settle_s_{name}_eq44"] = settling_time_s(t, err)

@@ -79,6 +79,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cosim.scenarios.registry import ProcedureResult, controller, procedure
+from cosim.trials.identification import fmu_values
 
 PARAMS = ("J", "b", "fc")
 DEFAULTS = {"duration_s": 10.0, "excitation": {"rms": 0.15, "cutoff_hz": 50.0},
@@ -197,12 +198,7 @@ def identification_overrides(names: dict, cfg: dict) -> dict:
 
 def true_values(system, unit: dict) -> dict:
     """The unit's J, b, fc, Kt as its FMU runs them (set values, else start values)."""
-    slave = system.roles[unit["role"]]
-    starts = {v.name: v.start for v in slave.md.modelVariables}
-    vals = {}
-    for p, var in unit["true_parameters"].items():
-        vals[p] = float(system.params[unit["role"]].get(var, starts[var]))
-    return vals
+    return fmu_values(system, unit["role"], unit["true_parameters"])
 
 
 def observer_overrides(cfg: dict, used: dict) -> dict:
