@@ -89,7 +89,8 @@ def compile_fmu(out_dir, model_identifier: str, c_source: str, model_description
     c_source : str
         The FMU's C code; it includes the headers it needs (``fmi2Functions.h``,
         ``fmi3Functions.h``, ``fmi1Functions.h`` from :func:`fmi_headers_dir`, on the
-        include path) and :data:`TRACE_C` if it traces.
+        include path; FMPy's ``fmi1Functions.h`` needs ``#include <stddef.h>`` before
+        it) and :data:`TRACE_C` if it traces.
     model_description : str
         The ``modelDescription.xml`` text, written as given.
     fmi_version : {"1.0", "2.0", "3.0"}
