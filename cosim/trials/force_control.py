@@ -383,21 +383,15 @@ def _bilateral_g_sweep(run, build, ctx):
     nothing more."""
     from types import SimpleNamespace
     from cosim.master import Master
-    from cosim.scenarios.loader import deep_merge
+    from cosim.scenarios.expand import deep_merge
     from cosim.trials import startup_identification as si
-    calls = []
-
-    def build_rec(overrides=None):
-        calls.append(overrides)
-        return build(overrides)
-    out = si.startup_identification(run, build_rec, ctx)
+    out, main_over = si.identify_then_run(run, build, ctx)
     sw = dict((ctx.parameters or {}).get("g_sweep") or {})
     gs = [float(g) for g in sw.get("g_rad_s") or []]
     if not gs:
         return out
     vib_p = dict(sw.get("vibration") or {})
     cfg = si.config(ctx.parameters)
-    main_over = calls[-1] or {}
     for g in gs:
         over = {"controllers": {}}
         for u in cfg["units"].values():
