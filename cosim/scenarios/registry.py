@@ -320,7 +320,7 @@ def load_trials() -> list[str]:
         return []
     _loaded = True
     if "aakf" not in _REG["controller"]:
-        _register_estimators()           # the framework's estimators (below)
+        _register_algorithms()           # the blocks of cosim.algorithms (below)
     import cosim.trials as pkg
     names = []
     for info in pkgutil.iter_modules(pkg.__path__):
@@ -587,12 +587,25 @@ def _single(run, build, ctx):
     return ProcedureResult(runs={"main": Master(system, record).run(run.duration)})
 
 
-# =========================================================================== estimators
-# The estimators of Sec. 2.2 are generic (every trial with a ball-screw unit uses them),
-# so the framework registers them; the AakfParams / EncoderDifferentiatorParams fields
-# validate the YAML ``params``.
-def _register_estimators():
+# =========================================================================== algorithms
+# The estimators and controllers of :mod:`cosim.algorithms` (Sec. 2.1-2.5) are generic
+# (any trial may use them), so they are registered here, each once; their params
+# dataclasses validate the YAML ``params``. A trial registers only the blocks it
+# defines itself.
+def _register_algorithms():
     from cosim.algorithms.aakf import (AaKF, AakfParams, EncoderDifferentiator,
                                        EncoderDifferentiatorParams)
+    from cosim.algorithms.bilateral import BilateralController, BilateralParams
+    from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams
+    from cosim.algorithms.zero_force import (PositionController, PositionControllerParams,
+                                             SineReference, SineReferenceParams,
+                                             ZeroForceController, ZeroForceParams)
     register_controller("aakf", AaKF, params=AakfParams)
     register_controller("encoder_diff", EncoderDifferentiator, params=EncoderDifferentiatorParams)
+    register_controller("sine_reference", SineReference, params=SineReferenceParams)
+    register_controller("position_controller", PositionController,
+                        params=PositionControllerParams)
+    register_controller("zero_force", ZeroForceController, params=ZeroForceParams, static=True)
+    register_controller("dob", DOB, params=DOBParams)
+    register_controller("rfob", RFOB, params=RFOBParams)
+    register_controller("bilateral", BilateralController, params=BilateralParams, static=True)
