@@ -21,7 +21,7 @@ DEFAULT_FMUS = REPO / "fmus"
 # and report bad input themselves (exit 2), naming the file/field at fault.
 COMMAND_MODULES = (
     ".offline",          # cosim estimate / cosim identify (trial logs)
-    ".scenarios.cli",    # cosim run / cosim suite (scenario files, Dask, reports)
+    ".scenario_cli",     # cosim run / cosim suite (scenario files, Dask, reports)
     ".data_cli",
     ".gap.cli",
 )

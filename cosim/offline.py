@@ -130,12 +130,6 @@ def _aakf_params_for(log: TrialLog, params: AakfParams | None) -> AakfParams:
     return replace(p, **kw)
 
 
-def _lead_for(log: TrialLog, params: AakfParams | None) -> float:
-    if "lead" in log.nominal:
-        return float(log.nominal["lead"])
-    return (params if params is not None else AakfParams()).lead_m
-
-
 def _run_aakf(p: AakfParams, enc: np.ndarray, acc: np.ndarray) -> dict[str, np.ndarray]:
     """Step the aaKF block sample by sample; return its outputs as arrays."""
     kf = AaKF(p)
@@ -304,12 +298,11 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
     # t_k, the backward difference is the mean speed over [t_k-1, t_k]
     rp = replace(rp, Ts_s=Ts, Kt_Nm_per_A=Kt, speed_timing=speed_timing_for(speed))
     enc = log["theta_enc"]
+    kp = _aakf_params_for(log, aakf_params)       # Ts and the lead of the log
     if speed == "aakf":
-        kp = _aakf_params_for(log, aakf_params)
         w = _run_aakf(kp, enc, log["acc_meas"])["omega_rad_s"]
     else:
-        kp = None
-        w = _run_encdiff(Ts, _lead_for(log, aakf_params), enc)["omega_rad_s"]
+        w = _run_encdiff(Ts, kp.lead_m, enc)["omega_rad_s"]
     rls = RLSIdentifier(rp)
     n = log.n_samples
     hist = np.empty((n, 3))
@@ -336,7 +329,7 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
         "Kt": Kt,
         "Kt_source": kt_source,
         "rls_params": asdict(rp),
-        "aakf_params": asdict(kp) if kp is not None else None,
+        "aakf_params": asdict(kp) if speed == "aakf" else None,
         "final": final,
         "updates": used,
         "settling_band": SETTLING_BAND,
@@ -363,15 +356,19 @@ def _print_err(exc: BaseException) -> None:
     print(f"cosim: error: {exc}", file=sys.stderr)
 
 
-def _cmd_estimate(a: argparse.Namespace) -> int:
+def _aakf_params_arg(a: argparse.Namespace) -> AakfParams | None:
+    """The aaKF parameters ``--sigma-a`` / ``--sigma-b`` give (None: the defaults)."""
     kw: dict[str, Any] = {}
     if a.sigma_a is not None:
         kw["sigma_a"] = a.sigma_a                    # one filter with this sigma_a
     if a.sigma_b is not None:
         kw["sigma_b"] = a.sigma_b
+    return AakfParams(**kw) if kw else None
+
+
+def _cmd_estimate(a: argparse.Namespace) -> int:
     try:
-        params = AakfParams(**kw) if kw else None
-        s = estimate(a.log, a.out, params)
+        s = estimate(a.log, a.out, _aakf_params_arg(a))
     except (TrialLogError, OSError, ValueError, FloatingPointError) as exc:
         _print_err(exc)
         return 2
@@ -385,15 +382,7 @@ def _cmd_estimate(a: argparse.Namespace) -> int:
 
 def _cmd_identify(a: argparse.Namespace) -> int:
     try:
-        kp = None
-        if a.sigma_a is not None or a.sigma_b is not None:
-            kw: dict[str, Any] = {}
-            if a.sigma_a is not None:
-                kw["sigma_a"] = a.sigma_a            # one filter with this sigma_a
-            if a.sigma_b is not None:
-                kw["sigma_b"] = a.sigma_b
-            kp = AakfParams(**kw)
-        r = identify(a.log, a.out, speed=a.speed, aakf_params=kp)
+        r = identify(a.log, a.out, speed=a.speed, aakf_params=_aakf_params_arg(a))
     except (TrialLogError, OSError, ValueError, FloatingPointError) as exc:
         _print_err(exc)
         return 2

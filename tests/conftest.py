@@ -20,8 +20,7 @@ def run_scenario_seed(scenario: str, seeds_line: str, seed: int, tmp_dir: Path):
     run's info dict and its recorded signals (pandas, phase 'main')."""
     import pandas as pd
 
-    from cosim.scenarios.loader import expand, load
-    from cosim.scenarios.runner import execute_run, safe_name
+    from cosim.scenarios import execute_run, expand, load, safe_name
     text = (REPO / "scenarios" / scenario).read_text()
     assert seeds_line in text
     f = tmp_dir / scenario

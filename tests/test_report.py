@@ -23,8 +23,11 @@ def render(html_path, png_path, width=1200, height=1600):
 
 
 def test_report_is_self_contained(tmp_path):
+    from cosim.report.render import render_scenario
     from cosim.scenarios.runner import run_scenario
-    v = run_scenario(write(tmp_path, BASE), tmp_path / "out")
+    v = run_scenario(p := write(tmp_path, BASE), tmp_path / "out")
+    assert not (tmp_path / "out" / "report.html").exists()     # the runner draws no page
+    render_scenario(p, tmp_path / "out")
     html = (tmp_path / "out" / "report.html").read_text()
     assert "http://" not in html and "https://" not in html and "<script" not in html
     assert "R-pass" in html and "R-fail" in html and "sha256" in html
@@ -36,8 +39,10 @@ def test_report_is_self_contained(tmp_path):
                     "Debian chromium; apt not available here)")
 def test_report_renders_to_png(tmp_path):
     from PIL import Image
+    from cosim.report.render import render_scenario
     from cosim.scenarios.runner import run_scenario
-    run_scenario(write(tmp_path, BASE), tmp_path / "out")
+    run_scenario(p := write(tmp_path, BASE), tmp_path / "out")
+    render_scenario(p, tmp_path / "out")
     png = tmp_path / "report.png"
     render(tmp_path / "out" / "report.html", png)
     img = np.asarray(Image.open(png).convert("RGB"))

@@ -78,7 +78,7 @@ def test_table8_on_off_ratio_is_the_issue_figure():
 
 def test_pages_show_the_tables():
     from cosim.report.html import _scenario_assumptions, suite_page, thesis_tables_html
-    from cosim.scenarios.loader import load
+    from cosim.scenarios import load
     rows = [list(r[1:]) for r in THESIS_TABLES["S3"]["rows"]]
     html = thesis_tables_html([_info("S3", 0, [[v * 2 for v in r] for r in rows])])
     assert "Table 8" in html and "28.94" in html and "57.88" in html and "+28.94" in html

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cosim.scenarios.loader import ScenarioError, check_build, expand, load
+from cosim.scenarios import ScenarioError, check_build, expand, load
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -109,6 +109,36 @@ def test_unknown_role_and_signal(tmp_path):
     assert f":{line_of(text, 'plant.omega')}:" in msg and "omega" in msg
 
 
+def test_human_profile_takes_the_arm_model_from_the_contract(tmp_path):
+    """The contract (human_1d / human_2d), not the FMU's name, says which arm model's
+    parameters a human_profile gives; without one it is an error at that line."""
+    from cosim.profiles import human_parameters
+    from cosim.scenarios import RunSpec, BuildContext
+    role = "    human: {fmu: HumanArm1D, contract: human_1d, human_profile: healthy}\n"
+    text = BASE.replace("  connections:\n", role + "  connections:\n")
+    sc = load(write(tmp_path, text))
+    calls = []
+    import cosim.master.system as msys
+    orig = msys.System.add_fmu
+
+    def spy(self, role, path, **kw):
+        calls.append((role, kw["parameters"]))
+        return orig(self, role, path, **kw)
+    msys.System.add_fmu = spy
+    try:
+        from cosim.scenarios import make_builder
+        system, _ = make_builder(sc, RunSpec("r", "default", 1, 0.5, 1e-3),
+                                 BuildContext(step_s=1e-3))()
+        for s in system.roles.values():
+            s.terminate()
+    finally:
+        msys.System.add_fmu = orig
+    got = dict(calls)["human"]
+    assert got == human_parameters("healthy", "hard", "HumanArm1D") and "K_h" in got
+    msg = error_of(tmp_path, text.replace("contract: human_1d, ", ""))
+    assert f":{line_of(text, 'human_profile')}:" in msg and "human_1d" in msg
+
+
 def test_out_of_range_and_bad_rule(tmp_path):
     msg = error_of(tmp_path, BASE.replace("step: 0.001", "step: -0.001"))
     assert f":{line_of(BASE, 'step: 0.001')}:" in msg and "> 0" in msg
@@ -163,7 +193,7 @@ def test_sweep_monte_carlo_cases_seeds_expansion(tmp_path):
 
 
 def test_run_verdict_pass_and_fail(tmp_path):
-    from cosim.scenarios.cli import add_commands  # noqa: F401  (the CLI module imports)
+    from cosim.scenario_cli import add_commands  # noqa: F401  (the CLI module imports)
     from cosim.cli import main
     p = write(tmp_path, BASE)
     out = tmp_path / "out"
@@ -176,7 +206,8 @@ def test_run_verdict_pass_and_fail(tmp_path):
     # so tau = J/b = 17 ms and 0.5 s is ~30 time constants
     w_ss = 0.0603 * 0.1 / 1e-3
     assert math.isclose(req["R-pass"]["value"], w_ss, rel_tol=1e-3)
-    assert req["R-pass"]["status"] == "pass" and req["R-fail"]["status"] == "fail"
+    assert req["R-pass"]["verdict"] == "pass" and req["R-fail"]["verdict"] == "fail"
+    assert "status" not in req["R-pass"]                 # the verdict is stored once
     assert req["R-fail"]["limit"] == 1.0 and "eq. 32" in req["R-fail"]["description"]
     assert (out / "report.html").read_text().count("data:image/png;base64,") >= 1
     assert list((out / "runs").glob("*/main.parquet"))
@@ -218,7 +249,7 @@ def test_step_reaches_the_controllers(tmp_path):
                      "  w_enc_over_true: {type: final, signal: enc.omega_rad_s}"))
     sc = load(write(tmp_path, text))
     from cosim.scenarios import registry as reg
-    from cosim.scenarios.loader import make_builder
+    from cosim.scenarios import make_builder
     run = expand(sc)[0]
     ctx = reg.BuildContext(scenario=sc.name, step_s=run.step, duration_s=run.duration)
     system, _ = make_builder(sc, run, ctx)()
@@ -268,13 +299,31 @@ def test_controller_without_a_step_field_must_be_declared_static():
     assert reg.get("controller", "dob").step_field == "Ts_s"
 
 
+def test_procedure_declares_the_modules_it_uses():
+    """The registry knows which modules a procedure runs with (the report's assumed
+    values follow from it, no source scanning): reaching's patient models."""
+    from cosim.scenarios import registry as reg
+    from cosim.scenarios.build import modules_used
+    assert reg.get("procedure", "reaching-session").uses == ("cosim.trials.patients",)
+    with pytest.raises(reg.RegistryError, match="uses must be a list"):
+        reg.procedure("test-uses", uses="cosim.trials.patients")(lambda run, build, ctx: None)
+    reaching = modules_used(load(REPO / "scenarios" / "reaching.yaml"))
+    assert {"cosim.trials.reaching", "cosim.trials.patients", "cosim.profiles"} <= reaching
+    circular = modules_used(load(REPO / "scenarios" / "circular.yaml"))
+    assert "cosim.trials.reaching" in circular and "cosim.trials.patients" not in circular
+    assert "cosim.profiles" not in modules_used(load(REPO / "scenarios" /
+                                                     "identification.yaml"))
+
+
 # ---------------------------------------------------------------- negative controls
 def test_negative_control_pass_cannot_fail_and_shared_runs(tmp_path):
     """R-pass holds (6 rad/s) and fails on its control (3 rad/s): pass. A control that
     changes nothing (the same current) lets the check hold twice: cannot-fail, which
     fails the scenario. Two requirements naming one control share its run."""
+    from cosim.report.render import render_scenario
     from cosim.scenarios.runner import run_scenario
-    v = run_scenario(write(tmp_path, BASE), tmp_path / "out")
+    v = run_scenario(p := write(tmp_path, BASE), tmp_path / "out")
+    render_scenario(p, tmp_path / "out")
     req = {r["id"]: r for r in v["requirements"]}
     assert req["R-pass"]["verdict"] == "pass" and req["R-fail"]["verdict"] == "fail"
     nc = req["R-pass"]["negative_control"]
@@ -347,7 +396,9 @@ def test_thesis_inconsistent_verdict_derivation_and_junit_skip(tmp_path):
             "      derivation: \"cosim.algorithms.stability#Re-derivation of eq. 90-91\"\n")
     text = BASE.replace("    limit: 1.0\n    negative_control: half_current\n",
                         "    limit: 1.0\n" + decl)
-    v = run_scenario(write(tmp_path, text), tmp_path / "out")
+    from cosim.report.render import render_scenario
+    v = run_scenario(p := write(tmp_path, text), tmp_path / "out")
+    render_scenario(p, tmp_path / "out")
     r = {x["id"]: x for x in v["requirements"]}["R-fail"]
     assert r["verdict"] == "thesis-inconsistent" and v["status"] == "pass"
     assert "Signs. Eq. 80" in r["thesis_inconsistent"]["derivation"]
@@ -399,6 +450,11 @@ def test_no_import_circles_in_the_scenario_pipeline():
     assert "cosim.scenarios.runner" not in graph["cosim.report.html"]
     assert "cosim.scenarios.store" in graph["cosim.report.html"]
     assert not (root / "scenarios" / "builtins.py").exists()
+    # the scenario package never imports the report (a lower floor, issue 10 item 6):
+    # the pages are drawn from the store by the report, `cosim run/suite` does both
+    up = {m: sorted(d for d in deps if d.startswith("cosim.report"))
+          for m, deps in mods.items() if m.startswith("cosim.scenarios")}
+    assert not any(up.values()), up
 
     def cycle_from(m, path):
         for d in graph[m]:

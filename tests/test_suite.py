@@ -18,6 +18,7 @@ CRASH = (BASE.replace("scenario: spin", "scenario: crash")
 
 @pytest.fixture(scope="module")
 def suite_dir(tmp_path_factory):
+    from cosim.report.render import render_suite
     from cosim.scenarios.suite import run_suite
     d = tmp_path_factory.mktemp("suite")
     src = d / "scen"
@@ -27,6 +28,7 @@ def suite_dir(tmp_path_factory):
     out = d / "out"
     t0 = time.perf_counter()
     summary = run_suite([src], out, workers=2, progress=False)
+    render_suite(out)                  # the pages, from the store (as `cosim suite`)
     return src, out, summary, time.perf_counter() - t0
 
 
@@ -35,10 +37,10 @@ def test_suite_on_dask_continues_after_a_crash(suite_dir):
     assert s["cluster"].startswith("local Dask cluster, 2 worker")
     by = {x["scenario"]: x for x in s["scenarios"]}
     assert by["spin"]["status"] == "fail"                 # R-pass pass, R-fail fail
-    assert [r["status"] for r in by["spin"]["requirements"]] == ["pass", "fail"]
+    assert [r["verdict"] for r in by["spin"]["requirements"]] == ["pass", "fail"]
     assert by["crash"]["status"] == "error"
     assert "stimulus 'i' returned nan" in by["crash"]["errors"][0]
-    assert all(r["status"] == "error" for r in by["crash"]["requirements"])
+    assert all(r["verdict"] == "error" for r in by["crash"]["requirements"])
     assert s["counts"] == {"scenarios": 2, "pass": 0, "fail": 1, "error": 1, "requirements": 4}
     # 2 + 1 runs and their negative controls (the crash scenario's control, 0.05 A, runs)
     assert s["runs_executed"] == 6 and s["runs_cached"] == 0
@@ -94,7 +96,7 @@ def test_cache_hit_and_resume(suite_dir, tmp_path):
     finally:
         (src / "spin2.yaml").unlink()
     assert s["runs_executed"] == 4
-    assert s["scenarios"][0]["requirements"][0]["status"] == "fail"     # w = 3 rad/s
+    assert s["scenarios"][0]["requirements"][0]["verdict"] == "fail"     # w = 3 rad/s
 
 
 def test_unreachable_scheduler_is_a_quick_clear_error(suite_dir, tmp_path):

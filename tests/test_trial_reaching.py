@@ -295,7 +295,7 @@ def test_reaching_procedure_five_trainings(fmus, tmp_path):
         assert 0 < v[f"t{i}_MAE_x_mm"] < 50 and v[f"t{i}_SDE_y_mm"] >= 0
     assert np.asarray(info["artifacts"]["maps"]).shape == (5, 2, 36)
     verdict = json.loads((out / "verdict.json").read_text())
-    st = {r["id"]: r["status"] for r in verdict["requirements"]}
+    st = {r["id"]: r["verdict"] for r in verdict["requirements"]}
     assert st == {"RE-1": "pass", "RE-9": "thesis-inconsistent"}
     # RE-1 measures the force at the table (Kf |i|): 0 with the drivers off, > 0 when
     # the control leaves them on in trainings 1 and 5

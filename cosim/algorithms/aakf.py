@@ -515,8 +515,6 @@ class AaKF:
     def __init__(self, params: AakfParams | None = None) -> None:
         self.params = p = params if params is not None else AakfParams()
         _check_params(p)
-        if p.sigma_a is None:
-            raise ValueError("a single AaKF needs a sigma_a (AaKF(p) builds the bank for None)")
         self.model = m = discretise(p)
         self._seq = _gain_sequence(p, m)
         # constants of the hot path, computed as the original expressions compute them

@@ -67,7 +67,7 @@ def requirements_table(verdict: dict) -> str:
             "<th>rule</th><th>limit</th><th>value</th><th>negative control</th>"
             "<th>control value</th><th>verdict</th></tr>"]
     for r in verdict["requirements"]:
-        v = r.get("verdict", r.get("status"))
+        v = r["verdict"]
         msg = f'<br><span class="muted">{esc(r["message"])}</span>' if r.get("message") else ""
         nc = r.get("negative_control")
         if nc:
@@ -192,18 +192,13 @@ def assumptions_table(items=None) -> str:
 
 
 def _scenario_assumptions(sc) -> list:
-    """The assumptions a scenario's models, scenario file and trial modules hold."""
-    import re
+    """The assumptions a scenario's models, scenario file and Python modules hold (the
+    modules: :func:`cosim.scenarios.build.modules_used`, from the registry)."""
     from cosim.devices.assumptions import used_by_models
+    from cosim.scenarios.build import modules_used
     keys = {spec.get("fmu") for spec in (sc.data.get("system", {}).get("fmus") or {}).values()}
-    keys.add(f"cosim.trials.{sc.trial}")
     keys.add(f"scenarios/{Path(str(sc.path)).name}")
-    if any(str(k).startswith("HumanArm") for k in keys):
-        keys.add("cosim.profiles")
-    trial_file = Path(__file__).resolve().parents[1] / "trials" / f"{sc.trial}.py"
-    if trial_file.is_file():           # modules the trial imports (e.g. its patient models)
-        for m in re.findall(r"from \.(\w+) import", trial_file.read_text()):
-            keys.add(f"cosim.trials.{m}")
+    keys |= modules_used(sc)
     return used_by_models(keys)
 
 
@@ -323,7 +318,7 @@ def suite_page(summary: dict, links: dict) -> str:
             "</th><th>message</th></tr>"]
     for s in summary["scenarios"]:
         reqs = s.get("requirements", [])
-        n = {k: sum(r.get("verdict", r.get("status")) == k for r in reqs)
+        n = {k: sum(r["verdict"] == k for r in reqs)
              for k in ("pass", "fail", "cannot-fail", "thesis-inconsistent", "error")}
         link = links.get(s["scenario"])
         name = f'<a href="{esc(link)}">{esc(s["scenario"])}</a>' if link else esc(s["scenario"])
@@ -354,7 +349,7 @@ def suite_requirements(summary: dict) -> str:
             "<th>negative control</th><th>control value</th><th>verdict</th></tr>"]
     for s in summary["scenarios"]:
         for r in s.get("requirements", []):
-            v = r.get("verdict", r.get("status"))
+            v = r["verdict"]
             nc = r.get("negative_control") or {}
             rows.append(f'<tr class="{esc(v)}"><td>{esc(s["scenario"])}</td>'
                         f'<td><b>{esc(r["id"])}</b></td><td>{esc(r.get("rule"))}</td>'

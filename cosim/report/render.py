@@ -9,16 +9,20 @@ from pathlib import Path
 def render_scenario(scenario_file, out_dir, back_link: str | None = None) -> Path:
     """DIR/report.html of one scenario from DIR/verdict.json and DIR/runs/."""
     from cosim.fileio import atomic_write_text
-    from cosim.scenarios.loader import load
+    from cosim.scenarios.schema import load
     from cosim.scenarios.store import read_verdict
-    from .html import scenario_page
+    from .html import esc, page, scenario_page
     out_dir = Path(out_dir)
     verdict = read_verdict(out_dir)
     if verdict is None:
         raise FileNotFoundError(f"{out_dir}: no verdict.json (the scenario did not finish)")
     sc = load(scenario_file)
-    page = scenario_page(sc, out_dir, verdict, back_link=back_link)
-    atomic_write_text(out_dir / "report.html", page)
+    try:
+        html = scenario_page(sc, out_dir, verdict, back_link=back_link)
+    except Exception as exc:       # a broken figure must not hide the stored verdict
+        html = page(f"{sc.name}: report failed", f"<h1>{esc(sc.name)}: report failed</h1>"
+                    f"<pre>{esc(type(exc).__name__)}: {esc(exc)}</pre>")
+    atomic_write_text(out_dir / "report.html", html)
     return out_dir / "report.html"
 
 

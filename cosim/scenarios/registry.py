@@ -27,13 +27,16 @@ Signatures (stable; later additions are keyword-only and optional)
     each run's recorded signals (``ctx.signals``, time first; ``ctx.values``: the
     scalars the procedure returned for that run); ``scope="scenario"``: computed once
     over all runs (``ctx.runs``), e.g. a ratio between cases.
-``@procedure(name)``
+``@procedure(name, uses=())``
     on ``f(run: RunSpec, build: Callable, ctx: BuildContext) -> ProcedureResult``:
     how one run of a scenario is executed. ``build(overrides=None)`` returns
     ``(System, record)`` built from the file's declarative system/controllers/stimuli
     with ``run.overrides`` (case, sweep point, Monte-Carlo draw) and then ``overrides``
     (a nested dict in the file's own structure, e.g. for a phase) applied.
     The default ``"single"`` procedure builds once and runs ``run.duration`` seconds.
+    ``uses``: the other modules whose values the procedure runs with (e.g. a trial's
+    patient models), so the report can list the assumed values they hold (a
+    registered entry's own module is known without it).
     ``ctx.state`` is a dict that lives for the whole run (all phases), so a factory
     can take e.g. a stiffness map that an earlier phase left there.
 ``@figures(name)``
@@ -191,6 +194,8 @@ class Entry:
     #: controllers: the params field that holds the sampling time [s] (set from the
     #: scenario's ``step``), or None for a memoryless block (registered ``static=True``)
     step_field: str | None = None
+    #: other modules whose values this entry runs with (``@procedure(name, uses=...)``)
+    uses: tuple[str, ...] = ()
 
     def step_mismatch(self, params: Mapping, step_s: float) -> str | None:
         """The message if ``params`` fix a sampling time other than the scenario's step."""
@@ -249,7 +254,7 @@ def _step_field(kind, name, obj, params, static):
     return found[0]
 
 
-def _register(kind: str, name: str, obj, params=None, scope="run", static=False):
+def _register(kind: str, name: str, obj, params=None, scope="run", static=False, uses=()):
     if not isinstance(name, str) or not name:
         raise RegistryError(f"{kind} name must be a non-empty string, got {name!r}")
     if params is not None and not dataclasses.is_dataclass(params):
@@ -262,7 +267,10 @@ def _register(kind: str, name: str, obj, params=None, scope="run", static=False)
     if old is not None and (old.module, getattr(old.obj, "__qualname__", "")) != \
             (mod, getattr(obj, "__qualname__", "")):
         raise RegistryError(f"{kind} {name!r} registered twice ({old.module} and {mod})")
-    _REG[kind][name] = Entry(kind, name, obj, params, scope, mod, step_field)
+    if isinstance(uses, str) or not all(isinstance(u, str) and u for u in uses):
+        raise RegistryError(f"{kind} {name!r}: uses must be a list of module names, "
+                            f"got {uses!r}")
+    _REG[kind][name] = Entry(kind, name, obj, params, scope, mod, step_field, tuple(uses))
     return obj
 
 
@@ -288,9 +296,11 @@ def metric(name: str, params: type | None = None, scope: str = "run"):
     return lambda obj: _register("metric", name, obj, params, scope)
 
 
-def procedure(name: str):
-    """Register ``f(run: RunSpec, build, ctx: BuildContext) -> ProcedureResult``."""
-    return lambda obj: _register("procedure", name, obj)
+def procedure(name: str, uses=()):
+    """Register ``f(run: RunSpec, build, ctx: BuildContext) -> ProcedureResult``;
+    ``uses``: names of other modules whose values it runs with (the report lists the
+    assumed values they hold)."""
+    return lambda obj: _register("procedure", name, obj, uses=uses)
 
 
 def figures(name: str):
@@ -310,7 +320,7 @@ def load_trials() -> list[str]:
         return []
     _loaded = True
     if "aakf" not in _REG["controller"]:
-        _register_estimators()           # the framework's estimators (below)
+        _register_algorithms()           # the blocks of cosim.algorithms (below)
     import cosim.trials as pkg
     names = []
     for info in pkgutil.iter_modules(pkg.__path__):
@@ -577,12 +587,25 @@ def _single(run, build, ctx):
     return ProcedureResult(runs={"main": Master(system, record).run(run.duration)})
 
 
-# =========================================================================== estimators
-# The estimators of Sec. 2.2 are generic (every trial with a ball-screw unit uses them),
-# so the framework registers them; the AakfParams / EncoderDifferentiatorParams fields
-# validate the YAML ``params``.
-def _register_estimators():
+# =========================================================================== algorithms
+# The estimators and controllers of :mod:`cosim.algorithms` (Sec. 2.1-2.5) are generic
+# (any trial may use them), so they are registered here, each once; their params
+# dataclasses validate the YAML ``params``. A trial registers only the blocks it
+# defines itself.
+def _register_algorithms():
     from cosim.algorithms.aakf import (AaKF, AakfParams, EncoderDifferentiator,
                                        EncoderDifferentiatorParams)
+    from cosim.algorithms.bilateral import BilateralController, BilateralParams
+    from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams
+    from cosim.algorithms.zero_force import (PositionController, PositionControllerParams,
+                                             SineReference, SineReferenceParams,
+                                             ZeroForceController, ZeroForceParams)
     register_controller("aakf", AaKF, params=AakfParams)
     register_controller("encoder_diff", EncoderDifferentiator, params=EncoderDifferentiatorParams)
+    register_controller("sine_reference", SineReference, params=SineReferenceParams)
+    register_controller("position_controller", PositionController,
+                        params=PositionControllerParams)
+    register_controller("zero_force", ZeroForceController, params=ZeroForceParams, static=True)
+    register_controller("dob", DOB, params=DOBParams)
+    register_controller("rfob", RFOB, params=RFOBParams)
+    register_controller("bilateral", BilateralController, params=BilateralParams, static=True)

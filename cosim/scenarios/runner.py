@@ -6,7 +6,9 @@ Layout of a scenario's output folder ``DIR``::
     DIR/runs/<run>/...               the stored runs (:mod:`.store`)
     DIR/verdict.json                 scenario, status, per requirement id, verdict,
                                      value, limit, negative control (what, value, held)
-    DIR/report.html                  the report (reads the stored results only)
+
+The pages (``DIR/report.html``) are drawn from this store by :mod:`cosim.report`
+(``cosim run`` does both); nothing here imports the report.
 
 A run's folder is written under a temporary name and renamed into place, so an
 interrupted run leaves nothing that looks finished, and a finished run is never
@@ -18,16 +20,17 @@ import json
 import math
 import os
 import shutil
-import sys
 import tempfile
 import time
 import traceback
 from pathlib import Path
 
-from ..fileio import atomic_write_text as atomic_write, jsonable
+from ..fileio import jsonable
 from . import registry as reg
-from .loader import Scenario, ScenarioError, deep_merge, expand, load, make_builder
-from .store import run_done, run_key, safe_name, source_hash  # noqa: F401
+from .build import check_build, make_builder
+from .expand import deep_merge, expand
+from .schema import Scenario, ScenarioError, load
+from .store import run_done, run_key, safe_name, versions, write_verdict
 from .verdict import all_runs, evaluate
 
 
@@ -108,42 +111,21 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
     return info
 
 
-def versions() -> dict:
-    import platform
-    import cosim
-    out = {"cosim": getattr(cosim, "__version__", "?"), "python": platform.python_version(),
-           "source_sha256": source_hash()[:16]}
-    for mod in ("numpy", "scipy", "fmpy", "dask", "distributed", "pyarrow", "matplotlib"):
-        try:
-            out[mod] = __import__(mod).__version__
-        except Exception:
-            pass
-    return out
-
-
 def finish_scenario(sc: Scenario, out_dir: Path, fmu_swaps=None) -> dict:
-    """verdict.json and report.html of a scenario whose runs are stored."""
-    from cosim.report.html import scenario_page
+    """The verdict of a scenario whose runs are stored, written to ``verdict.json``."""
     verdict = evaluate(sc, out_dir)
     verdict["versions"] = versions()
     verdict["negative_control_runs"] = [r.label for r in all_runs(sc) if r.control]
     verdict["seeds"] = sorted({r.seed for r in expand(sc)})
     verdict["fmu_swaps"] = {k: str(v) for k, v in (fmu_swaps or {}).items()}
-    atomic_write(Path(out_dir) / "verdict.json", json.dumps(jsonable(verdict), indent=1))
-    try:
-        html = scenario_page(sc, out_dir, verdict)
-    except Exception as exc:       # a broken figure must not hide the verdict
-        html = (f"<html><body><h1>{sc.name}: report failed</h1><pre>{type(exc).__name__}: "
-                f"{exc}</pre></body></html>")
-        verdict.setdefault("report_error", f"{type(exc).__name__}: {exc}")
-    atomic_write(Path(out_dir) / "report.html", html)
+    write_verdict(out_dir, verdict)
     return verdict
 
 
 def run_scenario(path, out_dir, fmu_swaps: dict | None = None, fmu_dir=None,
                  use_cache: bool = True, progress=None) -> dict:
-    """``cosim run``: every run of one scenario (serially), then verdict + report."""
-    from .loader import check_build
+    """``cosim run``: every run of one scenario (serially), then its verdict (the
+    page: :func:`cosim.report.render.render_scenario`)."""
     sc = load(path)
     check_build(sc, fmu_dir, fmu_swaps, runs=all_runs(sc))   # bad names before running
     out_dir = Path(out_dir)
@@ -169,7 +151,3 @@ def parse_fmu_swaps(items) -> dict:
             raise ScenarioError(f"--fmu {it!r}: FMU file {path} does not exist")
         out[role] = str(Path(path).resolve())
     return out
-
-
-def _stderr(msg):
-    print(msg, file=sys.stderr)

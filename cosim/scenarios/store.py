@@ -5,6 +5,7 @@ Layout of a scenario's output folder ``DIR``::
     DIR/runs/<run>/<phase>.parquet   recorded signals per phase (time first)
     DIR/runs/<run>/run.json          status, error, values, artifacts, provenance,
                                      cache key, wall time (written last = "done")
+    DIR/verdict.json                 the scenario's verdict (:mod:`.verdict`), versions
 
 Negative-control runs (``docs/scenario-format.md``) are stored the same way under
 ``DIR/runs/nc.<control>_<run>/``. The report reads this store, never reruns.
@@ -16,8 +17,11 @@ import json
 import re
 from pathlib import Path
 
+from ..fileio import atomic_write_text, jsonable
 from . import registry as reg
-from .loader import Scenario, deep_merge, fmu_file
+from .build import fmu_file
+from .expand import deep_merge, expand
+from .schema import Scenario
 
 
 def safe_name(label: str) -> str:
@@ -92,7 +96,6 @@ def read_runs(sc: Scenario, out_dir: Path, runs: list | None = None
     """Stored runs (default: the scenario's own runs, no negative controls) as
     RunViews (every phase) and the run.json infos."""
     from cosim.master.system import RunResult
-    from .loader import expand
     views, infos = [], []
     for run in (expand(sc) if runs is None else runs):
         d = Path(out_dir) / "runs" / safe_name(run.label)
@@ -110,6 +113,25 @@ def read_runs(sc: Scenario, out_dir: Path, runs: list | None = None
                                      values=info.get("values", {}),
                                      artifacts=info.get("artifacts", {}), point=run.point))
     return views, infos
+
+
+def versions() -> dict:
+    """The package and library versions the results were made with."""
+    import platform
+    import cosim
+    out = {"cosim": getattr(cosim, "__version__", "?"), "python": platform.python_version(),
+           "source_sha256": source_hash()[:16]}
+    for mod in ("numpy", "scipy", "fmpy", "dask", "distributed", "pyarrow", "matplotlib"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception:
+            pass
+    return out
+
+
+def write_verdict(out_dir: Path, verdict: dict) -> None:
+    """``DIR/verdict.json`` (atomically)."""
+    atomic_write_text(Path(out_dir) / "verdict.json", json.dumps(jsonable(verdict), indent=1))
 
 
 def read_verdict(out_dir: Path) -> dict | None:

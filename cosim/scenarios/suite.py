@@ -1,11 +1,13 @@
-"""``cosim suite``: many scenarios on Dask, with a cache, resume, summary, JUnit, report.
+"""``cosim suite``: many scenarios on Dask, with a cache, resume, summary and JUnit.
 
 Layout of ``DIR``::
 
     DIR/<scenario>/...          one scenario's folder (as ``cosim run``)
     DIR/summary.json            per scenario: status, requirements, runs, errors
     DIR/junit.xml               one testcase per requirement (failure / error)
-    DIR/report.html             overview linking to DIR/<scenario>/report.html
+
+The pages (``DIR/report.html`` linking to ``DIR/<scenario>/report.html``) are drawn
+from this store by :func:`cosim.report.render.render_suite` (``cosim suite`` does both).
 
 Every run is a Dask task (:func:`cosim.scenarios.runner.execute_run`) that writes its
 outputs atomically; a run whose stored ``run.json`` has the same cache key (scenario
@@ -21,10 +23,12 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from ..fileio import atomic_write_text as atomic_write
 from . import registry as reg
-from .loader import Scenario, check_build, load
-from .runner import atomic_write, execute_run, finish_scenario, versions
-from .store import run_done, run_key, safe_name
+from .build import check_build
+from .runner import execute_run, finish_scenario
+from .schema import Scenario, load
+from .store import run_done, run_key, safe_name, versions
 from .verdict import all_runs, summary_row
 
 
@@ -200,7 +204,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                                                       "thesis-inconsistent", "error")},
         "runs_executed": len(todo), "runs_cached": sum(cached.values()),
         "wall_s": time.perf_counter() - t0, "cluster": cluster_desc, "versions": versions(),
-        "timing": {**timing, "verdicts_and_pages_s": time.perf_counter() - t1},
+        "timing": {**timing, "verdicts_s": time.perf_counter() - t1},
         "scenarios": [{k: v.get(k) for k in ("scenario", "file", "status", "errors",
                                              "control_errors", "requirements", "runs",
                                              "cached_runs", "provenance", "seeds")}
@@ -208,9 +212,6 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
     }
     atomic_write(out_dir / "summary.json", json.dumps(summary, indent=1, default=str))
     atomic_write(out_dir / "junit.xml", junit_xml(summary))
-    from cosim.report.html import suite_page
-    links = {v["scenario"]: f"{safe_name(v['scenario'])}/report.html" for v in results}
-    atomic_write(out_dir / "report.html", suite_page(summary, links))
     return summary
 
 
@@ -239,7 +240,7 @@ def junit_xml(summary: dict) -> str:
                       f"{'holds' if nc['held'] else 'does not hold' if nc['held'] is False else 'no verdict'}"
                       if nc else "")
                    + (f" ({r['message']})" if r.get("message") else ""))
-            verdict = r.get("verdict", r.get("status"))
+            verdict = r["verdict"]
             if verdict == "fail":
                 ET.SubElement(tc, "failure", message=msg[:500]).text = msg
             elif verdict == "cannot-fail":

@@ -35,7 +35,9 @@ import math
 import numpy as np
 
 from . import registry as reg
-from .loader import Scenario, deep_merge, expand
+from .expand import deep_merge, expand
+from .schema import Scenario, derivation_text
+from .store import read_runs
 
 FAILING = ("fail", "cannot-fail")
 
@@ -55,9 +57,11 @@ class Control:
         return not pats or any(fnmatch.fnmatchcase(label, p) for p in pats)
 
 
-def controls(sc: Scenario) -> dict[str, Control]:
-    """Every negative control of the scenario by name; an inline control is named after
-    its requirement, or after the first named/inline control with the same content."""
+def _controls(sc: Scenario) -> tuple[dict[str, Control], dict[str, str]]:
+    """Every negative control by name, and the name of each requirement's control
+    (requirement id -> control name). Controls with the same content are one control
+    (named after the first, a named one or an inline one's requirement), so their
+    runs are shared."""
     out: dict[str, Control] = {}
     seen: dict[str, str] = {}
 
@@ -70,28 +74,22 @@ def controls(sc: Scenario) -> dict[str, Control]:
         seen[key] = name
         return name
 
-    for name, spec in (sc.data.get("negative_controls") or {}).items():
-        add(str(name), spec)
+    named = {str(k): v for k, v in (sc.data.get("negative_controls") or {}).items()}
+    shared = {name: add(name, spec) for name, spec in named.items()}
+    of_req = {}
     for r in sc.data.get("requirements", []):
         nc = r.get("negative_control")
         if isinstance(nc, dict):
-            add(r["id"], nc)
-    return out
+            of_req[r["id"]] = add(r["id"], nc)
+        elif isinstance(nc, str):
+            of_req[r["id"]] = shared[nc]
+    return out, of_req
 
 
-def control_of(sc: Scenario, req) -> Control | None:
-    """The Control a requirement names (after sharing), or None."""
-    nc = req.negative_control
-    if nc is None:
-        return None
-    cs = controls(sc)
-    if isinstance(nc, str):
-        return cs[nc]
-    key = _content(nc)
-    for c in cs.values():
-        if _content(dataclasses.asdict(c)) == key:
-            return c
-    return None
+def controls(sc: Scenario) -> dict[str, Control]:
+    """Every negative control of the scenario by name; an inline control is named after
+    its requirement, or after the first named/inline control with the same content."""
+    return _controls(sc)[0]
 
 
 def _content(spec) -> str:
@@ -245,12 +243,11 @@ def verdict_of(real: dict, control: dict | None, inconsistent: bool) -> tuple[st
 def evaluate(sc: Scenario, out_dir) -> dict:
     """Metrics on the stored runs, each requirement on the real runs and on its negative
     control, and the verdicts (the scenario's verdict.json content, without versions)."""
-    from .loader import derivation_text
-    from .store import read_runs
     views, infos = read_runs(sc, out_dir)
     errors = [f"{i['label']}: {i.get('error')}" for i in infos if i.get("status") != "ok"]
     mvals, merrs = metric_table(sc, views, infos)
     nc_sets: dict[str, tuple] = {}            # control name -> (metric values, errors, infos)
+    by_name, of_req = _controls(sc)
     reqs = []
     for r in sc.requirements:
         real = judge(r, mvals, merrs, infos, r.case)
@@ -258,7 +255,7 @@ def evaluate(sc: Scenario, out_dir) -> dict:
                "limit": r.limit, "case": r.case, "value": real["value"],
                "message": real["message"], "per_run": real["per_run"]}
         ctl = None
-        c = control_of(sc, r)
+        c = by_name[of_req[r.id]] if r.id in of_req else None
         if c is not None:
             if c.case is not None:
                 res = judge(r, mvals, merrs, infos, c.case)
@@ -274,7 +271,7 @@ def evaluate(sc: Scenario, out_dir) -> dict:
                 res = judge(r, nm, ne, ninfos, r.case)
             ctl = {"name": c.name, "what": c.what, "case": c.case,
                    "override": c.override, "runs": c.runs or c.apply_to,
-                   "keeps_other_runs": bool(c.apply_to), "value": res["value"],
+                   "value": res["value"],
                    "held": res["held"], "message": res["message"], "per_run": res["per_run"]}
             row["negative_control"] = ctl
         ti = r.thesis_inconsistent
@@ -289,7 +286,7 @@ def evaluate(sc: Scenario, out_dir) -> dict:
             row["thesis_inconsistent"] = {
                 "reason": ti["reason"], "derivation_ref": der,
                 "derivation": derivation_text(der) if der else None, "values": run_vals}
-        row["verdict"] = row["status"] = verdict
+        row["verdict"] = verdict
         if msg and not row["message"]:
             row["message"] = msg
         reqs.append(row)

@@ -1,8 +1,9 @@
 """Zero-force (thesis Sec. 2.5.3) and bilateral position-force (Sec. 2.5.4) trials.
 
-Registers the control blocks these trials wire by name (sine reference, partner
-position controller, zero-force controller, DOB, RFOB, bilateral controller, an
-operator intention profile), the metrics the requirements use, and the report figures.
+Registers what these trials add to the blocks of :mod:`cosim.algorithms` (sine
+reference, partner position controller, zero-force controller, DOB, RFOB, bilateral
+controller: registered by :mod:`cosim.scenarios.registry`): an operator intention
+profile, the metrics the requirements use, the g-sweep procedure and the figures.
 
 Why rigs: the unit under test is joined to its partner by a load cell, and the
 bilateral slave meets a wall, both about 2e5 N/m. Exchanging such a coupling between
@@ -21,20 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cosim.algorithms.bilateral import BilateralController, BilateralParams
-from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams
-from cosim.algorithms.zero_force import (PositionController, PositionControllerParams,
-                                         SineReference, SineReferenceParams,
-                                         ZeroForceController, ZeroForceParams)
-from cosim.scenarios.registry import figures, metric, procedure, register_controller, stimulus
-
-register_controller("sine_reference", SineReference, params=SineReferenceParams)
-register_controller("position_controller", PositionController, params=PositionControllerParams)
-register_controller("zero_force", ZeroForceController, params=ZeroForceParams, static=True)
-register_controller("dob", DOB, params=DOBParams)
-register_controller("rfob", RFOB, params=RFOBParams)
-register_controller("bilateral", BilateralController, params=BilateralParams,
-                    static=True)
+from cosim.scenarios.registry import figures, metric, procedure, stimulus
 
 
 # =========================================================================== stimuli
@@ -383,21 +371,15 @@ def _bilateral_g_sweep(run, build, ctx):
     nothing more."""
     from types import SimpleNamespace
     from cosim.master import Master
-    from cosim.scenarios.loader import deep_merge
+    from cosim.scenarios.expand import deep_merge
     from cosim.trials import startup_identification as si
-    calls = []
-
-    def build_rec(overrides=None):
-        calls.append(overrides)
-        return build(overrides)
-    out = si.startup_identification(run, build_rec, ctx)
+    out, main_over = si.identify_then_run(run, build, ctx)
     sw = dict((ctx.parameters or {}).get("g_sweep") or {})
     gs = [float(g) for g in sw.get("g_rad_s") or []]
     if not gs:
         return out
     vib_p = dict(sw.get("vibration") or {})
     cfg = si.config(ctx.parameters)
-    main_over = calls[-1] or {}
     for g in gs:
         over = {"controllers": {}}
         for u in cfg["units"].values():

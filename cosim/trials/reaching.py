@@ -549,7 +549,7 @@ def _path_points(path: ReachingPath, n: int = 600) -> np.ndarray:
     return np.array([(f["rx"](t), f["ry"](t)) for t in ts])
 
 
-@procedure("reaching-session")
+@procedure("reaching-session", uses=("cosim.trials.patients",))
 def _reaching_session(run, build, ctx):
     """A weekly session (Table 6): 5 trainings of ``duration`` with the motor drivers
     OFF/ON/ON/ON/OFF, the patient model of ``parameters.subject`` at

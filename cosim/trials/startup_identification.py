@@ -280,6 +280,14 @@ def identify(run, build, ctx, cfg: dict):
 def startup_identification(run, build, ctx):
     """Start-up RLS identification of each unit, then the trial with its DOB/RFOB
     built from the identified J, b, fc (the thesis chain, Sec. 2.3 -> 2.5.3/2.5.4)."""
+    return identify_then_run(run, build, ctx)[0]
+
+
+def identify_then_run(run, build, ctx) -> tuple[ProcedureResult, dict]:
+    """The ``startup_identification`` procedure's result and the overrides its main
+    phase was built with (the units' DOB/RFOB from the identified values), so that a
+    procedure running the main phase again (e.g. at other observer bandwidths) builds
+    the same observers: ``build(deep_merge(main_overrides, more))``."""
     from cosim.master import Master
     cfg = config(ctx.parameters)
     # which roles, controllers and stimuli the run's trial has (to remove them for the
@@ -295,7 +303,8 @@ def startup_identification(run, build, ctx):
     # "true": the unit as the main phase runs it (the plant the observers act on)
     truth = {name: true_values(system, u) for name, u in cfg["units"].items()}
     used = ident if cfg["source"] == "identified" else truth
-    system, record = build({"controllers": observer_overrides(cfg, used)})
+    main_overrides = {"controllers": observer_overrides(cfg, used)}
+    system, record = build(main_overrides)
     obs = observer_readback(system, cfg)
     main = Master(system, record).run(run.duration)
     out = ProcedureResult(runs={"main": main, "identification": id_res})
@@ -318,5 +327,5 @@ def startup_identification(run, build, ctx):
         "source": cfg["source"], "units": table, "observers": obs,
         "observer_units": {n: list(u["dob"]) + list(u["rfob"]) for n, u in cfg["units"].items()},
         "observer_scale": cfg["observer_scale"] or {}, "duration_s": cfg["duration_s"]}
-    return out
+    return out, main_overrides
 

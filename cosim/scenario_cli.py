@@ -3,6 +3,9 @@
     cosim run SCENARIO --out DIR [--fmu ROLE=PATH ...]
     cosim suite PATH... --out DIR [--scheduler ADDRESS] [--workers N] [--fmu ROLE=PATH ...]
 
+Each runs the scenarios (:mod:`cosim.scenarios`: runs, verdict.json, summary.json,
+junit.xml) and then draws the pages from what was stored (:mod:`cosim.report`).
+
 Exit codes: 0 all requirements pass, 1 a requirement fails or a scenario errors,
 2 bad input (scenario file, --fmu, scheduler).
 """
@@ -36,14 +39,16 @@ def _ensure_fmus(a) -> int | None:
 def _cmd_run(a) -> int:
     from cosim.master.fmu import FMUError
     from cosim.master.system import SystemError_
-    from .loader import ScenarioError
-    from .registry import RegistryError
-    from .runner import parse_fmu_swaps, run_scenario
+    from cosim.report.render import render_scenario
+    from cosim.scenarios.registry import RegistryError
+    from cosim.scenarios.runner import parse_fmu_swaps, run_scenario
+    from cosim.scenarios.schema import ScenarioError
     if (rc := _ensure_fmus(a)) is not None:
         return rc
     try:
         swaps = parse_fmu_swaps(a.fmu)
         v = run_scenario(a.scenario, a.out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache)
+        render_scenario(a.scenario, a.out)
     except (ScenarioError, RegistryError, SystemError_, FMUError) as exc:
         return _err(str(exc))
     for r in v["requirements"]:
@@ -61,10 +66,11 @@ def _cmd_run(a) -> int:
 def _cmd_suite(a) -> int:
     from cosim.master.fmu import FMUError
     from cosim.master.system import SystemError_
-    from .loader import ScenarioError
-    from .registry import RegistryError
-    from .runner import parse_fmu_swaps
-    from .suite import SuiteError, run_suite
+    from cosim.report.render import render_suite
+    from cosim.scenarios.registry import RegistryError
+    from cosim.scenarios.runner import parse_fmu_swaps
+    from cosim.scenarios.schema import ScenarioError
+    from cosim.scenarios.suite import SuiteError, run_suite
     if (rc := _ensure_fmus(a)) is not None:
         return rc
     try:
@@ -72,6 +78,7 @@ def _cmd_suite(a) -> int:
         s = run_suite(a.paths, a.out, scheduler=a.scheduler, workers=a.workers,
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
                       progress=not a.no_progress)
+        render_suite(a.out)
     except (ScenarioError, RegistryError, SystemError_, FMUError, SuiteError) as exc:
         return _err(str(exc))
     c = s["counts"]

@@ -1,17 +1,17 @@
-"""Scenario files: YAML with line numbers, validation, expansion into runs, and the
-builder of a :class:`~cosim.master.System` from the declarative description.
+"""Scenario files: YAML with line numbers, the schema and its validation (``docs/scenario-format.md``).
 
-The format is documented in ``docs/scenario-format.md``. Every error names the file
-and the line (PyYAML node marks) and, where a name is close to a known one, says
-"did you mean ...".
+:func:`load` reads a file and checks it: structure and types, the names it gives
+(registered controllers, stimuli, metrics, procedures; roles, contracts, signals,
+cases), requirement rules and their negative controls, and the shapes of ``sweep``
+and ``monte_carlo``. Every error names the file and the line (PyYAML node marks) and,
+where a name is close to a known one, says "did you mean ...". FMU variable names are
+checked by :func:`cosim.scenarios.build.check_build`, which builds the systems.
 """
 from __future__ import annotations
 
-import copy
 import dataclasses
+import fnmatch
 import hashlib
-import itertools
-import json
 import math
 import re
 from pathlib import Path
@@ -20,10 +20,7 @@ from typing import Any
 import yaml
 
 from . import registry as reg
-
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_FMU_DIR = REPO / "fmus"
-
+from .expand import MC_KINDS, OVERRIDE_HEADS, deep_merge, expand
 
 class ScenarioError(ValueError):
     """A scenario file that cannot run; the message starts with ``file:line:``."""
@@ -122,6 +119,9 @@ NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
 INCONS = {"reason": (str, True), "derivation": (str, False), "values": (list, False)}
 CASE_KEYS = {"description", "system", "controllers", "stimuli", "duration", "record",
              "parameters"}
+#: the human-arm model (``cosim.profiles.human_parameters``) whose parameter set a role
+#: with ``human_profile`` takes, by the role's contract (``cosim.master.roles``)
+HUMAN_ARM_MODELS = {"human_1d": "HumanArm1D", "human_2d": "HumanArm2D"}
 RULES = ("<=", ">=", "<", ">", "within", "outside")
 AGGREGATES = ("worst", "mean", "max", "min")
 CITATION = re.compile(r"\b(Fig\.?|Figure|Table|eq\.?|Eq\.?|Sec\.?|Section|Chapter)\s*\(?\d",
@@ -221,7 +221,9 @@ class _Checker:
 
 def load(path, fmu_dir=None) -> Scenario:
     """Read and validate a scenario file (structure, registry names, parameters,
-    requirement rules, sweeps; FMU variable names are checked by :func:`check_build`)."""
+    requirement rules, sweeps, negative controls; FMU variable names are checked by
+    :func:`cosim.scenarios.build.check_build`). ``fmu_dir`` is accepted for the
+    callers' symmetry with the builder; nothing here opens an FMU."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -319,7 +321,8 @@ def load(path, fmu_dir=None) -> Scenario:
         if r.get("aggregate", "worst") not in AGGREGATES:
             c.err(p + ("aggregate",), f"aggregate must be one of {AGGREGATES}")
         _check_requirement_controls(c, d, r, p)
-    runs = expand(sc)          # sweeps / Monte Carlo: shapes and zero-run checks
+    _check_variations(c, d)    # sweeps / Monte Carlo: shapes, paths, no zero-run axis
+    runs = expand(sc)
     for name, nc in (d.get("negative_controls") or {}).items():
         _check_negative_control(c, d, nc, ("negative_controls", name), runs)
     for i, r in enumerate(d.get("requirements", [])):
@@ -409,7 +412,6 @@ def _check_negative_control(c, d, nc, p, runs, req=None):
             c.err(p + ("override", "system", "fmus", role), f"negative control: unknown role "
                   f"{role!r}" + (f"; did you mean {close!r}?" if close else
                                  f" (roles: {list(roles)})"))
-    import fnmatch
     key = "runs" if "runs" in nc else "apply_to"
     pats = nc.get(key)
     for j, pat in enumerate(pats or []):
@@ -504,6 +506,11 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
             c.err(P("system", "fmus", role, "kind"), "kind must be auto, cs or me")
         if "human_profile" in spec:
             from cosim.profiles import GRASPS, HUMAN_PROFILES
+            if spec.get("contract") not in HUMAN_ARM_MODELS:
+                c.err(P("system", "fmus", role, "human_profile"),
+                      f"role {role!r}: human_profile needs the role's contract, one of "
+                      f"{sorted(HUMAN_ARM_MODELS)} (it says which arm model's parameters "
+                      f"the profile gives), got contract {spec.get('contract')!r}")
             if spec["human_profile"] not in HUMAN_PROFILES:
                 close = reg.suggest(spec["human_profile"], HUMAN_PROFILES)
                 c.err(P("system", "fmus", role, "human_profile"),
@@ -580,143 +587,41 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
         _check_signal_head(c, d, r, P("record", i))
 
 
-# =========================================================================== merging
-_DELETE = object()
-
-
-def deep_merge(base: dict, over: dict) -> dict:
-    """``over`` applied onto a deep copy of ``base``; a ``null`` value deletes a key
-    (e.g. ``controllers: {zf: null}`` for a case without that controller)."""
-    out = copy.deepcopy(base)
-    for k, v in over.items():
-        if v is None:
-            out.pop(k, None)
-        elif isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = deep_merge(out[k], v)
-        else:
-            out[k] = copy.deepcopy(v)
-    return out
-
-
-def set_path(d: dict, dotted: str, value) -> dict:
-    """A nested override dict setting ``dotted`` (e.g. 'system.fmus.plant.parameters.J')."""
-    keys = dotted.split(".")
-    out: dict = {}
-    cur = out
-    for k in keys[:-1]:
-        cur = cur.setdefault(k, {})
-    cur[keys[-1]] = value
-    return deep_merge(d, out)
-
-
-def get_path(d: dict, dotted: str, default=None):
-    cur = d
-    for k in dotted.split("."):
-        if not isinstance(cur, dict) or k not in cur:
-            return default
-        cur = cur[k]
-    return cur
-
-
-# =========================================================================== expansion
-@dataclasses.dataclass(frozen=True)
-class Relative:
-    """A Monte-Carlo factor on a nominal value that the FMU supplies (start value)."""
-    factor: float
-
-
-def expand(sc: Scenario) -> list[reg.RunSpec]:
-    """Runs of a scenario: cases x sweep points x Monte-Carlo draws x seeds."""
-    d = sc.data
-    c = _Checker(sc)
-    step = float(d.get("step", 1e-3))
-    seeds = d.get("seeds", [0])
-    seeds = [seeds] if isinstance(seeds, int) else list(seeds)
-    cases = d.get("cases") or {"default": {}}
-    # sweep: path -> list of values (cartesian product)
-    sweep = d.get("sweep") or {}
-    axes = []
-    for path, values in sweep.items():
+def _check_variations(c: _Checker, d: dict):
+    """``sweep`` (path -> non-empty list) and ``monte_carlo`` (draws >= 1, one
+    ``{kind: argument}`` per varied path): a file never expands to zero runs."""
+    for path, values in (d.get("sweep") or {}).items():
         if not isinstance(values, list):
             c.err(("sweep", path), f"sweep {path!r}: values must be a list, got {values!r}")
         if not values:
             c.err(("sweep", path), f"sweep {path!r} has no values: the scenario would expand "
                   f"to zero runs")
         _check_override_path(c, d, path, ("sweep", path))
-        axes.append([(path, v) for v in values])
-    points = [dict(p) for p in itertools.product(*axes)] if axes else [{}]
-    # Monte Carlo: N draws from its own seed
     mc = d.get("monte_carlo")
-    draws: list[dict] = [{}]
-    if mc is not None:
-        c.keys(mc, {"draws": (int, True), "seed": (int, False), "vary": (dict, True)},
-               ("monte_carlo",), "monte_carlo")
-        if mc["draws"] <= 0:
-            c.err(("monte_carlo", "draws"), f"monte_carlo draws must be >= 1, got {mc['draws']} "
-                  f"(the scenario would expand to zero runs)")
-        import numpy as np
-        rng = np.random.default_rng(mc.get("seed", 0))
-        for path, spec in mc["vary"].items():
-            _check_override_path(c, d, path, ("monte_carlo", "vary", path))
-            if not (isinstance(spec, dict) and len(spec) == 1 and
-                    next(iter(spec)) in ("relative", "uniform", "normal", "choice")):
-                c.err(("monte_carlo", "vary", path), f"{path}: give one of relative: 0.1 "
-                      f"(+-10 % uniform), uniform: [lo, hi], normal: [mean, std], choice: [..]")
-            kind, arg = next(iter(spec.items()))
-            bad = (kind == "relative" and not (isinstance(arg, NUM) and 0 <= arg < 1)) or \
-                  (kind in ("uniform", "normal") and not (isinstance(arg, list) and len(arg) == 2)) or \
-                  (kind == "choice" and not (isinstance(arg, list) and arg))
-            if bad:
-                c.err(("monte_carlo", "vary", path, kind), f"{path}: bad {kind} {arg!r}")
-        draws = []
-        for _ in range(mc["draws"]):
-            pt = {}
-            for path, spec in mc["vary"].items():
-                kind, arg = next(iter(spec.items()))
-                if kind == "relative":
-                    f = float(rng.uniform(1 - arg, 1 + arg))
-                    nominal = get_path(d, path)
-                    pt[path] = f * nominal if isinstance(nominal, NUM) else Relative(f)
-                elif kind == "uniform":
-                    pt[path] = float(rng.uniform(*arg))
-                elif kind == "normal":
-                    pt[path] = float(rng.normal(*arg))
-                else:
-                    pt[path] = arg[int(rng.integers(len(arg)))]
-            draws.append(pt)
-    runs = []
-    multi_pt = len(points) > 1
-    for cname, case in cases.items():
-        case = {k: v for k, v in (case or {}).items() if k != "description"}
-        for pi, pt in enumerate(points):
-            for di, dr in enumerate(draws):
-                for seed in seeds:
-                    ov = dict(case)
-                    point = {**pt, **dr}
-                    for path, v in point.items():
-                        ov = set_path(ov, path, v)
-                    label = cname
-                    if multi_pt:
-                        label += "/" + ",".join(f"{p.split('.')[-1]}={v}" for p, v in pt.items())
-                    if mc is not None:
-                        label += f"/mc{di}"
-                    if len(seeds) > 1 or mc is None and not multi_pt and len(cases) == 1:
-                        label += f"/seed{seed}"
-                    merged = deep_merge(d, ov)
-                    runs.append(reg.RunSpec(label=label, case=cname, seed=int(seed),
-                                            duration=float(merged["duration"]), step=step,
-                                            overrides=ov,
-                                            point={k: (v.factor if isinstance(v, Relative) else v)
-                                                   for k, v in point.items()}))
-    if not runs:
-        c.err(("scenario",), "the scenario expands to zero runs")
-    return runs
+    if mc is None:
+        return
+    c.keys(mc, {"draws": (int, True), "seed": (int, False), "vary": (dict, True)},
+           ("monte_carlo",), "monte_carlo")
+    if mc["draws"] <= 0:
+        c.err(("monte_carlo", "draws"), f"monte_carlo draws must be >= 1, got {mc['draws']} "
+              f"(the scenario would expand to zero runs)")
+    for path, spec in mc["vary"].items():
+        _check_override_path(c, d, path, ("monte_carlo", "vary", path))
+        if not (isinstance(spec, dict) and len(spec) == 1 and next(iter(spec)) in MC_KINDS):
+            c.err(("monte_carlo", "vary", path), f"{path}: give one of relative: 0.1 "
+                  f"(+-10 % uniform), uniform: [lo, hi], normal: [mean, std], choice: [..]")
+        kind, arg = next(iter(spec.items()))
+        bad = (kind == "relative" and not (isinstance(arg, NUM) and 0 <= arg < 1)) or \
+              (kind in ("uniform", "normal") and not (isinstance(arg, list) and len(arg) == 2)) or \
+              (kind == "choice" and not (isinstance(arg, list) and arg))
+        if bad:
+            c.err(("monte_carlo", "vary", path, kind), f"{path}: bad {kind} {arg!r}")
 
 
 def _check_override_path(c, d, path, where):
     head = str(path).split(".")[0]
-    if head not in ("system", "controllers", "stimuli", "duration", "parameters"):
-        close = reg.suggest(head, ("system", "controllers", "stimuli", "duration", "parameters"))
+    if head not in OVERRIDE_HEADS:
+        close = reg.suggest(head, OVERRIDE_HEADS)
         c.err(where, f"{path!r}: a sweep/Monte-Carlo path must start with system, controllers, "
               f"stimuli, duration or parameters" + (f"; did you mean {close!r}?" if close else ""))
     parts = str(path).split(".")
@@ -729,115 +634,3 @@ def _check_override_path(c, d, path, where):
         c.err(where, f"{path!r}: unknown controller {parts[1]!r}"
               + (f"; did you mean {close!r}?" if close else ""))
 
-
-# =========================================================================== building
-def fmu_file(spec_fmu: str, fmu_dir) -> Path:
-    """An FMU by name (``BallScrewUnit`` -> ``fmus/BallScrewUnit.fmu``) or by path."""
-    p = Path(spec_fmu)
-    if p.suffix == ".fmu" or "/" in spec_fmu:
-        return p if p.is_absolute() else (REPO / p if not p.exists() else p)
-    return Path(fmu_dir or DEFAULT_FMU_DIR) / f"{spec_fmu}.fmu"
-
-
-def make_builder(sc: Scenario, run: reg.RunSpec, ctx: reg.BuildContext,
-                 fmu_swaps: dict | None = None):
-    """``build(overrides=None) -> (System, record)`` for a procedure."""
-    def build(overrides: dict | None = None):
-        d = deep_merge(sc.data, run.overrides)
-        if overrides:
-            d = deep_merge(d, overrides)
-        return build_system(sc, d, ctx, fmu_swaps)
-    return build
-
-
-def _err(sc, path, exc):
-    return ScenarioError(f"{sc.where(path)}: {exc}")
-
-
-def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict | None = None):
-    """A System from the (merged) scenario data. System errors carry the line of the
-    item that caused them."""
-    from cosim.master.fmu import FMUError
-    from cosim.master.system import System, SystemError_
-    from cosim.profiles import human_parameters
-    system = System(step_size=float(d.get("step", 1e-3)))
-    swaps = dict(fmu_swaps or {})
-    for role, spec in d["system"]["fmus"].items():
-        path = swaps.pop(role, None) or fmu_file(spec["fmu"], ctx.fmu_dir)
-        params = {}
-        if "human_profile" in spec:
-            model = "HumanArm1D" if "1D" in Path(str(spec["fmu"])).stem else "HumanArm2D"
-            params.update(human_parameters(spec["human_profile"], spec.get("grasp", "hard"), model))
-        rel = {}
-        for k, v in (spec.get("parameters") or {}).items():
-            if isinstance(v, Relative):
-                rel[k] = v.factor
-            else:
-                params[k] = v
-        try:
-            slave = system.add_fmu(role, path, contract=spec.get("contract"), parameters=params,
-                                   kind=spec.get("kind", "auto"))
-            if rel:
-                starts = {v.name: v.start for v in slave.md.modelVariables}
-                system.set_parameters(role, {k: f * float(starts[k]) for k, f in rel.items()})
-        except (SystemError_, FMUError) as exc:
-            raise _err(sc, ("system", "fmus", role), exc) from None
-    if swaps:
-        raise ScenarioError(f"--fmu: unknown role(s) {sorted(swaps)} (roles of {sc.name}: "
-                            f"{list(d['system']['fmus'])})")
-    for name, spec in (d.get("stimuli") or {}).items():
-        e = reg.get("stimulus", spec["type"])
-        try:
-            system.add_stimulus(name, e.make(spec.get("params") or {}, ctx))
-        except Exception as exc:
-            raise _err(sc, ("stimuli", name), exc) from None
-    for i, conn in enumerate(d["system"].get("connections", [])):
-        if isinstance(conn, str):
-            m = re.fullmatch(r"\s*(\S+)\s*->\s*(\S+)\s*(?:\*\s*(\S+))?\s*", conn)
-            conn = {"from": m.group(1), "to": m.group(2), "scale": float(m.group(3) or 1)}
-        try:
-            system.connect(conn["from"], conn["to"], conn.get("scale", 1.0),
-                           sequential=bool(conn.get("sequential", False)))
-        except SystemError_ as exc:
-            raise _err(sc, ("system", "connections", i), exc) from None
-    for name, spec in (d.get("controllers") or {}).items():
-        e = reg.get("controller", spec["type"])
-        try:
-            block = e.make(spec.get("params") or {}, ctx)
-            system.add_controller(name, block, spec.get("wiring") or {}, spec.get("outputs") or {},
-                                  record=tuple(spec.get("record") or ()))
-        except (SystemError_, ValueError, TypeError) as exc:
-            raise _err(sc, ("controllers", name), exc) from None
-    record = list(d.get("record") or [])
-    return system, record
-
-
-def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None, runs=None):
-    """Build every case's System once (and every negative control's, if ``runs``
-    includes them) and plan it (FMU variable names, controller outputs, recorded
-    names) without running: errors name the file and line."""
-    from cosim.master.system import Master, SystemError_
-    seen = set()
-    for run in (expand(sc) if runs is None else runs):
-        if (run.case, run.control) in seen:
-            continue
-        seen.add((run.case, run.control))
-        ctx = reg.BuildContext(scenario=sc.name, case=run.case, seed=run.seed, step_s=run.step,
-                               duration_s=run.duration, fmu_dir=str(fmu_dir or ""))
-        system, record = make_builder(sc, run, ctx, fmu_swaps)()
-        try:
-            Master(system, record)._plan()
-        except SystemError_ as exc:
-            msg = str(exc)
-            m = re.search(r"'([A-Za-z_]\w*\.[\w\[\], ]+)'", msg)
-            path = ("record",)
-            if m and m.group(1) in (sc.data.get("record") or []):
-                path = ("record", sc.data["record"].index(m.group(1)))
-            raise _err(sc, path, msg) from None
-        finally:
-            for s in system.roles.values():
-                s.terminate()
-
-
-def scenario_digest(sc: Scenario) -> str:
-    return hashlib.sha256(json.dumps(sc.data, sort_keys=True, default=str).encode()).hexdigest()
