@@ -41,3 +41,16 @@ def test_hf_rms_known_answers():
     assert hf_rms(A * np.sin(2 * math.pi * 250 * t), n) == pytest.approx(A / math.sqrt(2), rel=1e-6)
     with pytest.raises(ValueError):
         hf_rms(np.zeros(30), n)
+
+
+def test_whiteness_metric_judges_only_the_window_after_from_s():
+    """White noise after 1 s, a slow drift before: the metric on the window is white
+    (<= 1 at 95 %), on the whole record it is not."""
+    from cosim.trials.free_motion import whiteness
+    rng = np.random.default_rng(11)
+    t = np.arange(0, 5.0, 0.001)
+    x = rng.normal(size=t.size)
+    x[t < 1.0] += np.linspace(0.0, 30.0, int(np.sum(t < 1.0)))
+    ctx = _ctx(t, e=x)
+    assert whiteness({"signal": "e", "from_s": 1.0}, ctx) <= 1.0
+    assert whiteness({"signal": "e", "from_s": 0.0}, ctx) > 1.0
