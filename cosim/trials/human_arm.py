@@ -221,37 +221,42 @@ def arm_identification(run, build, ctx):
 # =========================================================================== figures
 @figures("human-arm-identification")
 def arm_figures(runs, info):
-    """Admittance magnitudes |X/F| (the form of Fig. 42 and 44): ETFE, eq. 75 fit,
-    arm + grasp fit and the FMU's truth, per axis, one curve set per run."""
+    """Admittance magnitudes |X/F| (the form of Fig. 42 and 44): ETFE (solid), eq. 75
+    fit (dashed), arm + grasp fit (dotted) per case (its first run); left the grasps at
+    position 1, right the hard grasp at the four positions."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     out = []
+    first = {}
+    for r in runs:
+        if r.phase in ("main", "") and (r.artifacts or {}).get("etfe"):
+            first.setdefault(r.case, r)
     for axis in ("x", "y"):
         fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharey=True)
-        for r in runs:
-            e = (r.artifacts or {}).get("etfe", {}).get(axis)
-            if not e or r.phase not in ("main", ""):
-                continue
+        for case, r in first.items():
+            e = r.artifacts["etfe"][axis]
             f = np.asarray(e["f_hz"])
             Z = np.asarray(e["Z_re"]) + 1j * np.asarray(e["Z_im"])
             lo, hi = (r.artifacts.get("band_hz") or [0.5, 20.0])
             m = (f >= lo) & (f <= hi)
-            a = axes[0] if "soft" in r.case or "hard" in r.case and "pos" not in r.case \
-                else axes[1]
-            line, = a.loglog(f[m], 1 / np.abs(Z[m]), lw=0.8, label=f"{r.label} ETFE")
-            fit = ai.second_order_impedance(f[m], *(e["eq75"][k] for k in ai.SECOND_ORDER))
-            a.loglog(f[m], 1 / np.abs(fit), "--", color=line.get_color(), lw=1,
-                     label=f"{r.label} eq. 75 fit")
-            ag = ai.arm_grasp_impedance(f[m], *(e["arm_grasp"][k] for k in ai.ARM_GRASP))
-            a.loglog(f[m], 1 / np.abs(ag), ":", color=line.get_color(), lw=1.5,
-                     label=f"{r.label} arm + grasp fit")
-        axes[0].set_title(f"{axis}: grasp (Fig. 41-42 form)")
-        axes[1].set_title(f"{axis}: arm configuration (Fig. 43-44 form)")
+            panels = ([axes[0]] if case.startswith("pos1") else []) + \
+                ([axes[1]] if case.endswith("hard") else [])
+            for a in panels:
+                line, = a.loglog(f[m], 1 / np.abs(Z[m]), lw=1.2, label=f"{case}: ETFE")
+                fit = ai.second_order_impedance(f[m], *(e["eq75"][k] for k in ai.SECOND_ORDER))
+                a.loglog(f[m], 1 / np.abs(fit), "--", color=line.get_color(), lw=1,
+                         label=f"{case}: eq. 75 fit")
+                ag = ai.arm_grasp_impedance(f[m], *(e["arm_grasp"][k] for k in ai.ARM_GRASP))
+                a.loglog(f[m], 1 / np.abs(ag), ":", color=line.get_color(), lw=2,
+                         label=f"{case}: arm + grasp fit")
+        axes[0].set_title(f"{axis}: grasp at position 1 (Fig. 41-42 form)")
+        axes[1].set_title(f"{axis}: hard grasp, four positions (Fig. 43-44 form)")
         for a in axes:
             a.set_xlabel("frequency [Hz]")
             a.grid(True, which="both", lw=0.3)
-            a.legend(fontsize=6)
+            a.legend(fontsize=6, ncol=1)
         axes[0].set_ylabel("|X/F| [m/N]")
-        out.append((f"admittance along {axis}: ETFE and fits", fig))
+        fig.tight_layout()
+        out.append((f"admittance along {axis}: ETFE and fits (first seed of each case)", fig))
     return out
