@@ -205,7 +205,7 @@ def arm_identification(run, build, ctx):
         v[f"fitAG_{axis}"] = fag.fit_percent
         v[f"identifiableAG_{axis}"] = float(fag.identifiable)
         v[f"arm_err_{axis}"] = max(abs(v[f"{n}_err_{axis}"]) for n in ("M", "b", "K"))
-        sel = band | (fr <= 2 * cfg.band_hz[1]) & (fr > 0)
+        sel = (fr > 0) & (fr <= 2 * cfg.band_hz[1])      # the band and an octave above
         art[axis] = {"f_hz": fr[sel].tolist(), "Z_re": Z[sel].real.tolist(),
                      "Z_im": Z[sel].imag.tolist(), "coh": coh[sel].tolist(),
                      "eq75": f75.params, "arm_grasp": fag.params, "truth": truth}
