@@ -94,3 +94,25 @@ def test_circular_stability_check_uses_eq90_91():
     assert terms["human_stiffness"] == pytest.approx(2 * K * rd / (0.2 * 1.0))
     assert st["tau_max_s"] == pytest.approx(1.0 / sum(terms.values()))
     assert st["admissible"] is False
+
+
+def test_table3_values_on_synthetic_signals():
+    """table3_values (Table 3's quantities) against closed forms: a 5 Hz ripple of
+    amplitude A on a constant stiffness k0 gives A / (sqrt(2) k0) (the 1 s moving mean
+    removes it exactly: whole periods); an exp(-t/tau) decay over the hold leaves
+    exp(-fit_s/tau); a constant 3 mm offset on x is the first lap's rms error."""
+    from cosim.trials.circular import table3_values
+    task = CircleTask(period_s=4.0, bad_laps=2, good_laps=1, hold_s=6.0, fit_s=2.0)
+    t = np.arange(0.0, task.duration_s, 1e-3)
+    k0, A, tau = 20.0, 1.5, 4.0
+    kp = k0 + A * np.sin(2 * np.pi * 5.0 * t)
+    t0 = task.t_stop + 1.0
+    hold = t >= t0
+    kp[hold] = k0 * np.exp(-(t[hold] - t0) / tau)
+    sig = {"time": t, "ac.kp_x": kp, "ac.kp_y": kp, "stim.rx": np.full(t.size, 0.003),
+           "stim.ry": np.zeros(t.size), "table.x_enc": np.zeros(t.size),
+           "table.y_enc": np.zeros(t.size)}
+    v = table3_values(task, sig)
+    assert v["kp_ripple_bad_laps"] == pytest.approx(A / math.sqrt(2) / k0, rel=2e-3)
+    assert v["hold_kp_fraction"] == pytest.approx(math.exp(-task.fit_s / tau), rel=1e-3)
+    assert v["err_rms_first_lap_m"] == pytest.approx(0.003, rel=1e-12)

@@ -183,6 +183,19 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
        "assumed: grasp mode 3.2 Hz; no thesis value"),
     _A("grasp (Fig. 41-42)", "soft grasp damping", 4.0, "N.s/m",
        ("cosim.profiles:GRASPS[soft][b_grasp]",), "assumed", "assumed: no thesis value"),
+    _A("arm identification (Sec. 3.3.1.1)", "shaker motion rms per axis", 0.002, "m",
+       ("scenarios/human_arm_identification.yaml:stimuli.x.params.rms_m",
+        "scenarios/human_arm_identification.yaml:stimuli.y.params.rms_m"), "assumed",
+       "assumed: the thesis gives the band (20 Hz), not the amplitude; 2 mm keeps the "
+       "hand within the small-signal range of the arm model and the force far above the "
+       "reading noise (coherence 0.997 over 0.5-20 Hz)"),
+    _A("arm identification (Sec. 3.3.1.1)", "force reading noise (std)", 0.05, "N",
+       ("scenarios/human_arm_identification.yaml:parameters.identification.force_noise_N",),
+       "assumed", "assumed: the shaker's force sensor is not specified; 2.5x the load "
+       "cell's assumed 0.02 N (LoadCell.mo)"),
+    _A("arm identification (Sec. 3.3.1.1)", "shaker encoder resolution", 1e-6, "m",
+       ("scenarios/human_arm_identification.yaml:parameters.identification.position_quantum_m",),
+       "assumed", "assumed: not in the thesis; a common linear-encoder resolution"),
     _A("human arm (eq. 75)", "operator factor on K_h and b_h (bilateral)", 3.0, "1",
        ("scenarios/bilateral.yaml:system.fmus.human.parameters.scale_K",
         "scenarios/bilateral.yaml:system.fmus.human.parameters.scale_b"), "assumed",

@@ -32,6 +32,12 @@ controller "becomes softer". Measured here:
   zero, the clamp holds them and the tail decays more slowly than exp(-t/tau) (seen
   after ~5 s of hold with a_min = 1 N/m, and even with a_min = 1e-6). Hence the
   window ``fit_s`` = tau.
+* Table 3's tuning guideline (:func:`table3_values`): ``bump_N_per_m`` (bad - away
+  stiffness after the bad laps: the sensitivity to errors that k sets),
+  ``kp_ripple_bad_laps`` (relative high-frequency variation of the stiffness, which a
+  small tau makes larger), ``hold_kp_fraction`` (stiffness left 5 s after the errors
+  end, which a small tau makes smaller) and ``err_rms_first_lap_m`` (the first lap's tracking error,
+  which a large alpha0 makes smaller); the scenario compares them between cases;
 * eq. 90-91 admissibility of (k, tau) per axis for the human parameters used, and a
   direct simulation of each axis' loop (see :func:`cosim.trials.reaching.stability_check`).
 
@@ -179,6 +185,47 @@ class CircleTask:
         return bad, away
 
 
+def table3_values(task: CircleTask, signals: Mapping[str, np.ndarray],
+                  ripple_window_s: float = 1.0) -> dict:
+    """What Table 3's tuning guideline speaks of, from the recorded signals.
+
+    ``kp_ripple_bad_laps``: "noisier values of the controller parameters" (small tau):
+    rms of the end-effector stiffness minus its ``ripple_window_s`` moving average,
+    over its mean, during the laps with errors (where the person's performance
+    changes within a lap), mean of the two axes. ``hold_kp_fraction``: "better tracking
+    of the patient's performances" (small tau): stiffness at the hold point ``fit_s``
+    after the hold's start (1 s after the stop; the errors have ended) over its value
+    at the start, mean of the axes (the run's own decay, whatever tau it has).
+    ``err_rms_first_lap_m``: "robotic
+    assistance allows to correctly perform the task immediately" (large alpha0): rms
+    of |target - end effector| over the first lap [m]."""
+    t = np.asarray(signals["time"])
+    dt = float(t[1] - t[0])
+    n = max(1, int(round(ripple_window_s / dt)))
+    sel = t < task.t_bad_end
+    ripple = []
+    for ax in ("x", "y"):
+        kp = np.asarray(signals["ac.kp_" + ax], dtype=float)[sel]
+        if kp.size <= n:
+            raise ValueError(f"table3_values: the bad laps ({kp.size} samples) are shorter "
+                             f"than the ripple window ({n} samples)")
+        c = np.cumsum(np.r_[0.0, kp])
+        smooth = (c[n:] - c[:-n]) / n                  # centred n-sample moving mean
+        h = n // 2
+        hf = kp[h:h + smooth.size] - smooth
+        ripple.append(float(np.sqrt(np.mean(hf ** 2)) / np.mean(kp)))
+    # the hold: the errors have stopped; stiffness left after 5 s (of the first 5 s fit window)
+    t0 = task.t_stop + 1.0                                       # after the stop transient
+    i0, i1 = np.searchsorted(t, [t0, min(t0 + task.fit_s, task.t_good_start)])
+    frac = [float(np.asarray(signals["ac.kp_" + ax])[i1] / np.asarray(signals["ac.kp_" + ax])[i0])
+            for ax in ("x", "y")]
+    first = t < task.period_s
+    e = np.hypot(np.asarray(signals["stim.rx"])[first] - np.asarray(signals["table.x_enc"])[first],
+                 np.asarray(signals["stim.ry"])[first] - np.asarray(signals["table.y_enc"])[first])
+    return {"kp_ripple_bad_laps": float(np.mean(ripple)), "hold_kp_fraction": float(np.mean(frac)),
+            "err_rms_first_lap_m": float(np.sqrt(np.mean(e ** 2)))}
+
+
 def circle_metrics(task: CircleTask, params: AdaptiveComplianceParams, snapshots,
                    signals: Mapping[str, np.ndarray], *, expected_tau_s: float | None = None,
                    expected_k_N_per_m2s: float | None = None) -> dict:
@@ -205,11 +252,13 @@ def circle_metrics(task: CircleTask, params: AdaptiveComplianceParams, snapshots
     kb1, ka1 = at(task.t_bad_end)
     kb2, ka2 = at(task.t_good_end)
     out = {"kp_bad_end_bad_N_per_m": kb1, "kp_away_end_bad_N_per_m": ka1,
+           "bump_N_per_m": kb1 - ka1,
            "ratio_bad_else": kb1 / ka1, "else_over_alpha0": ka1 / params.alpha0_N_per_m,
            "kp_bad_end_good_N_per_m": kb2, "kp_away_end_good_N_per_m": ka2,
            "bump_left": (kb2 - ka2) / (kb1 - ka1) if kb1 > ka1 else float("nan")}
-    # ---- hold: fixed position, exponential forgetting (eq. 71)
     t = np.asarray(signals["time"])
+    out.update(table3_values(task, signals))
+    # ---- hold: fixed position, exponential forgetting (eq. 71)
     t0 = task.t_stop + 1.0                                       # after the stop transient
     sel = (t >= t0) & (t <= min(task.t_good_start, t0 + task.fit_s))
     tt = t[sel] - t[sel][0]
