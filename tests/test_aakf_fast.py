@@ -268,8 +268,8 @@ def _reference_bank(p: AakfParams, enc: np.ndarray, acc: np.ndarray) -> dict[str
     lam = math.exp(-p.Ts / p.bank_memory_s)
     L = np.zeros(len(members))
     w_prev = np.full(len(members), 1.0 / len(members))
-    out = {"omega_rad_s": [], "theta_rad": [], "bias_m_s2": [], "innov_acc_m_s2": [],
-           "reset_fired": []}
+    out = {"omega_rad_s": [], "theta_rad": [], "bias_m_s2": [], "innov_enc_rad": [],
+           "innov_acc_m_s2": [], "reset_fired": []}
     enc_prev = None
     for e, a in zip(enc.tolist(), acc.tolist()):
         rows = [f.step({"theta_enc": e, "acc_meas": a}) for f in members]
@@ -295,7 +295,8 @@ def _reference_bank(p: AakfParams, enc: np.ndarray, acc: np.ndarray) -> dict[str
             mixed["theta_rad"], mixed["omega_rad_s"] = th, om
         for key in ("omega_rad_s", "theta_rad", "bias_m_s2"):
             out[key].append(mixed[key])
-        out["innov_acc_m_s2"].append(w_prev @ np.array([r["innov_acc_m_s2"] for r in rows]))
+        for key in ("innov_enc_rad", "innov_acc_m_s2"):   # the prior weights: e_k refers to x_k|k-1
+            out[key].append(w_prev @ np.array([r[key] for r in rows]))
         out["reset_fired"].append(fired)
         w_prev = w
         enc_prev = e
