@@ -24,7 +24,7 @@ from pathlib import Path
 from . import registry as reg
 from .loader import Scenario, check_build, load
 from .runner import atomic_write, execute_run, finish_scenario, versions
-from .store import run_done, run_key, safe_name
+from .store import clean_run_tmp, run_done, run_key, safe_name
 from .verdict import all_runs, summary_row
 
 
@@ -128,6 +128,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
         if unknown:
             raise SuiteError(f"--fmu: no scenario has role(s) {unknown} (roles: {sorted(used)})")
     out_dir.mkdir(parents=True, exist_ok=True)
+    clean_run_tmp(out_dir)                    # what a killed process left
     todo = []          # (scenario, run, key, scenario dir)
     cached = {sc.name: 0 for sc in scenarios}
     for sc in scenarios:
@@ -216,6 +217,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
 
 def _record_crash(sdir: Path, run: reg.RunSpec, key, exc):
     """A run whose worker process died: store an error run.json (atomically)."""
+    clean_run_tmp(sdir)                       # the dead worker's half-written folder
     d = Path(sdir) / "runs" / safe_name(run.label)
     if (d / "run.json").is_file():
         return
