@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import traceback
@@ -96,6 +97,19 @@ def _sigterm(signum, frame):
     raise KeyboardInterrupt     # SIGTERM ends a command like Ctrl-C: cleaned up, exit 3
 
 
+def _unraisable(prev):
+    """sys.unraisablehook: Python swallows an exception raised inside a finalizer (e.g.
+    Ctrl-C while a TemporaryDirectory is removed) after printing a traceback; an
+    interrupt must not be lost that way, so it is delivered again (SIGINT to this
+    process) and nothing is printed."""
+    def hook(u):
+        if isinstance(u.exc_value, KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+            return
+        prev(u)
+    return hook
+
+
 def main(argv=None) -> int:
     """Run one command; return its exit code (:mod:`cosim.exitcodes`). Bad input is
     one line on stderr (2); Ctrl-C or SIGTERM is one line (3; ``cosim run``/``suite``
@@ -109,6 +123,8 @@ def main(argv=None) -> int:
         old = signal.signal(signal.SIGTERM, _sigterm)
     except ValueError:                              # not the main thread: leave it
         old = None
+    old_hook = sys.unraisablehook
+    sys.unraisablehook = _unraisable(old_hook)
     try:
         return args.func(args)
     except (ModelicaError, BuildError, FMUCheckError, CliError, FileNotFoundError,
@@ -124,6 +140,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return ec.INCOMPLETE
     finally:
+        sys.unraisablehook = old_hook
         if old is not None:
             signal.signal(signal.SIGTERM, old)
 

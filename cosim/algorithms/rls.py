@@ -274,6 +274,7 @@ class RLSIdentifier:
         self._Syy = lam * self._Syy + y * y
         self._Sw = lam * self._Sw + 1.0
         self._Sw2 = lam * lam * self._Sw2 + 1.0
+        self._n_updates += 1
         return float(e)
 
     def uncertainty(self) -> dict[str, float]:
@@ -440,8 +441,6 @@ class RLSIdentifier:
             a1 = b0 = fcb0 = math.nan
         else:
             a1, b0, fcb0 = (float(v) for v in physical_to_theta(J, b, fc, p.Ts_s))
-        if informative:
-            self._n_updates += 1
         if self._n_updates >= 3:       # before: the P0 prior, NaN like eq. 51-53's undefined
             Jo, bo, fco = J, b, fc
         else:
