@@ -38,8 +38,9 @@ class CliError(Exception):
 
 
 def _cmd_fmus_build(a) -> int:
+    from .fileio import ensure_out_dir
     from .fmubuild.build import build_all
-    paths = build_all(Path(a.modelica), Path(a.out), a.models or None, force=a.force,
+    paths = build_all(Path(a.modelica), ensure_out_dir(a.out), a.models or None, force=a.force,
                       fmi_version=a.fmi_version)
     print(f"{len(paths)} FMU(s) in {a.out}")
     return 0
@@ -127,8 +128,10 @@ def main(argv=None) -> int:
     sys.unraisablehook = _unraisable(old_hook)
     try:
         return args.func(args)
-    except (ModelicaError, BuildError, FMUCheckError, CliError, FileNotFoundError,
-            OutputPathError) as exc:
+    except (ModelicaError, BuildError, FMUCheckError, CliError, OutputPathError) as exc:
+        print(f"cosim: error: {exc}", file=sys.stderr)
+        return ec.BAD_INPUT
+    except OSError as exc:          # a file that cannot be read or written: it names it
         print(f"cosim: error: {exc}", file=sys.stderr)
         return ec.BAD_INPUT
     except KeyboardInterrupt:

@@ -11,7 +11,8 @@ OK = 0
 #: fail; ``cosim fmus check``: the FMU fails validation)
 FAILED = 1
 #: bad input or usage: a command-line error, a malformed scenario, trial log or FMU, an
-#: unusable output folder; the message names the file, field or row
+#: unusable output folder, a file that cannot be read or written; the message names
+#: the file, field or row
 BAD_INPUT = 2
 #: the run did not complete: interrupted (SIGINT / SIGTERM), a run crashed or ended in
 #: an error (its scenario's status is ``error``), or cosim itself failed unexpectedly
@@ -26,7 +27,8 @@ TABLE = """\
 exit codes (all commands):
   0  success: every requirement / check passes
   1  a requirement or check failed (cosim run/suite verdict fail, cosim fmus check)
-  2  bad input or usage (arguments, scenario, trial log, FMU, output folder)
+  2  bad input or usage (arguments, scenario, trial log, FMU, output folder,
+     a file that cannot be read or written)
   3  incomplete: interrupted (Ctrl-C, SIGTERM), a run crashed or errored, or an
      internal error; finished runs are kept and a rerun resumes
   4  the data do not say: log too short or too poorly excited to identify,
