@@ -102,9 +102,10 @@ def main(sets: list[str]) -> None:
                     if p:
                         rows.append(_row(p, truth, tag, w))
     groups = collections.defaultdict(list)
-    for r in rows:
-        groups[r["tag"].rsplit("_", 1)[0] if r["tag"].startswith("synth") else
-               r["tag"].split("_at")[0]].append(r)
+    for r in rows:                                  # per set and window length
+        parts = r["tag"].split("_")
+        length = [p for p in parts if p.endswith("s") and p[:-1].replace(".", "").isdigit()]
+        groups[parts[0] + "_" + (length[0] if length else parts[-1])].append(r)
     print("\nidentified per set and length:")
     for k, g in groups.items():
         print(f"  {k:22s} {sum(r['verdict'] == 'identified' for r in g)}/{len(g)}")

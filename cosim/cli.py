@@ -13,6 +13,7 @@ import argparse
 import os
 import signal
 import sys
+import threading
 import traceback
 from pathlib import Path
 
@@ -105,7 +106,11 @@ def _unraisable(prev):
     process) and nothing is printed."""
     def hook(u):
         if isinstance(u.exc_value, KeyboardInterrupt):
-            os.kill(os.getpid(), signal.SIGINT)
+            # from another thread, a moment later: a signal sent from here would be
+            # handled inside this hook, and swallowed again
+            t = threading.Timer(0.02, os.kill, (os.getpid(), signal.SIGINT))
+            t.daemon = True
+            t.start()
             return
         prev(u)
     return hook
@@ -122,6 +127,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)          # usage errors: argparse exits 2
     try:
         old = signal.signal(signal.SIGTERM, _sigterm)
+        old_int = signal.getsignal(signal.SIGINT)   # the handlers set SIG_IGN when done
     except ValueError:                              # not the main thread: leave it
         old = None
     old_hook = sys.unraisablehook
@@ -135,6 +141,8 @@ def main(argv=None) -> int:
         print(f"cosim: error: {exc}", file=sys.stderr)
         return ec.BAD_INPUT
     except KeyboardInterrupt:
+        if old is not None:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         print("\ncosim: interrupted", file=sys.stderr)
         return ec.INCOMPLETE
     except Exception:
@@ -146,6 +154,7 @@ def main(argv=None) -> int:
         sys.unraisablehook = old_hook
         if old is not None:
             signal.signal(signal.SIGTERM, old)
+            signal.signal(signal.SIGINT, old_int)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,12 @@
 """The exit codes of every ``cosim`` command (one table; docs/exit-codes.md lists it).
 
-A leaf module (no imports) so that every layer's command handlers can return these
-names. ``cosim --help`` prints :data:`TABLE` as its epilog.
+A leaf module (standard library only) so that every layer's command handlers can
+return these names. ``cosim --help`` prints :data:`TABLE` as its epilog.
 """
 from __future__ import annotations
+
+import contextlib
+import signal
 
 #: success: the command did what was asked; every requirement / check passes
 OK = 0
@@ -33,3 +36,24 @@ exit codes (all commands):
      internal error; finished runs are kept and a rerun resumes
   4  the data do not say: log too short or too poorly excited to identify,
      estimate or diagnose (cannot_identify / cannot_diagnose)"""
+
+
+@contextlib.contextmanager
+def children_ignore_sigint():
+    """Processes started inside this block (Dask's local workers) ignore SIGINT.
+
+    Ctrl-C in a terminal goes to the whole process group; the coordinating process
+    handles it (keeps what finished, says so, exits 3) and closes its workers, which
+    would otherwise each print a KeyboardInterrupt traceback. SIG_IGN survives exec
+    and Python then installs no SIGINT handler. This process ignores SIGINT for the
+    duration of the block (a cluster start-up, seconds); outside the main thread it
+    does nothing."""
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)

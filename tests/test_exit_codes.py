@@ -151,6 +151,17 @@ def test_sigint_during_cosim_run_keeps_finished_runs_and_removes_half_written(tm
     assert len(_finished(runs)) == 16 and _dot(runs) == []
 
 
+def test_sigterm_ends_cosim_run_like_ctrl_c(tmp_path, fmus):
+    sc = write(tmp_path, LONG)
+    runs = tmp_path / "out" / "runs"
+    proc = popen("run", sc, "--out", tmp_path / "out", "--no-build")
+    assert _wait_for(lambda: len(_finished(runs)) >= 1 and _dot(runs))
+    proc.terminate()
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == ec.INCOMPLETE and "cosim: interrupted:" in stderr, stderr
+    assert "Traceback" not in stderr and _dot(runs) == []
+
+
 def test_leftovers_of_a_killed_run_are_cleaned_at_the_next_start(tmp_path, fmus):
     from cosim.scenarios.store import _host
     sc = write(tmp_path, LONG)

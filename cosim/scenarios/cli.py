@@ -38,7 +38,10 @@ def _interrupted(cmd: str, out: Path, before: set) -> int:
     """After Ctrl-C / SIGTERM: remove this process's (and dead workers') half-written
     run folders, say what is kept and where; exit code 3."""
     from .store import clean_run_tmp, finished_runs
-    signal.signal(signal.SIGINT, signal.SIG_IGN)    # a second Ctrl-C must not cut this short
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut this short
+    except ValueError:                                # (not the main thread)
+        pass
     removed = clean_run_tmp(out)
     kept = finished_runs(out)
     new = [d for d in kept if d not in before]

@@ -21,6 +21,7 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from ..exitcodes import children_ignore_sigint
 from . import registry as reg
 from .loader import Scenario, check_build, load
 from .runner import atomic_write, execute_run, finish_scenario, versions
@@ -87,8 +88,9 @@ def _client(scheduler: str | None, workers: int | None):
         except ValueError as exc:
             raise SuiteError(f"bad Dask scheduler address {scheduler!r}: {exc}") from None
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=50)
+    with children_ignore_sigint():        # Ctrl-C is this process's to handle
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=50)
     client = Client(cluster)
     # import the trial modules (numpy, scipy, matplotlib, FMPy...) once per worker
     # now, so that the first run of each worker is not seconds slower than the rest
