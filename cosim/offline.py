@@ -26,8 +26,9 @@ result file, used by the ``cosim estimate`` and ``cosim identify`` subcommands
     on ``i_cmd`` and a speed that is either the aaKF estimate (``speed="aakf"``,
     needs ``acc_meas``) or the encoder backward difference (``speed="encoder"``);
     writes a JSON with the estimates over time (decimated, default every 10 ms), the
-    final J, b, fc, the Kt used, and the settling time of each estimate to within
-    +-10 % of its own final value.
+    final J, b, fc, the Kt used, the settling time of each estimate to within
+    +-10 % of its own final value, their standard errors and the verdict whether the
+    log determines them (``identified`` / ``cannot_identify``).
 
 Parameters taken from the log
 -----------------------------
@@ -296,7 +297,15 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
          "settling_time_s": {"J", "b", "fc", "all"} (to within +-10 % of the final
          values, null if not settled), "settling_band",
          "nominal" and "relative_to_nominal" (when the sidecar has J, b, fc),
+         "uncertainty" (:meth:`RLSIdentifier.uncertainty`: standard errors, degrees
+         of freedom), "identification" (:func:`cosim.algorithms.rls.
+         identification_verdict`: per parameter value, se, relative_se, identified,
+         reason), "verdict" ("identified" or "cannot_identify"), "cannot_identify"
+         (the reasons, only with that verdict),
          "history": {"decimation_s", "time", "J", "b", "fc"}}
+
+    A log too short or too poorly excited is not an error: the file is written with
+    ``verdict: "cannot_identify"`` (``cosim identify`` then exits 4).
     """
     if speed not in ("aakf", "encoder"):
         raise ValueError(f"speed must be 'aakf' or 'encoder', got {speed!r}")

@@ -151,6 +151,25 @@ def test_sigint_during_cosim_run_keeps_finished_runs_and_removes_half_written(tm
     assert len(_finished(runs)) == 16 and _dot(runs) == []
 
 
+def test_ctrl_c_on_a_dask_suite_is_one_message(tmp_path, fmus):
+    """Ctrl-C in a terminal signals the whole process group, Dask's worker processes
+    too: only the suite's message, no worker traceback."""
+    sc = write(tmp_path, LONG)
+    out = tmp_path / "out"
+    runs = out / "spin" / "runs"
+    proc = subprocess.Popen([sys.executable, "-m", "cosim.cli", "suite", str(sc), "--out",
+                             str(out), "--workers", "2", "--no-build", "--no-progress"],
+                            cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    assert _wait_for(lambda: len(_finished(runs)) >= 1, timeout=300)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == ec.INCOMPLETE, stderr
+    assert "cosim: interrupted:" in stderr and f"in {runs};" in stderr, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert _dot(runs) == [] and not (out / "summary.json").exists()
+
+
 def test_sigterm_ends_cosim_run_like_ctrl_c(tmp_path, fmus):
     sc = write(tmp_path, LONG)
     runs = tmp_path / "out" / "runs"
