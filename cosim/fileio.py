@@ -1,7 +1,10 @@
-"""Small file helpers shared by the commands: atomic text writes and JSON-safe values.
+"""Small file helpers shared by the commands: atomic text writes, JSON-safe values,
+and the check of an output path (:func:`ensure_out_dir`, :func:`check_out_file`).
 
 A result file is written through a temporary file in the same folder and renamed, so a
-failure (or an interrupted suite) never leaves a partial or stale-looking file.
+failure (or an interrupted suite) never leaves a partial or stale-looking file. An
+output path that cannot be one (a regular file, under a regular file, not writable)
+is an :class:`OutputPathError` naming it, before any work (exit 2).
 """
 from __future__ import annotations
 

@@ -7,7 +7,6 @@ named as such."""
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 import signal
