@@ -5,12 +5,19 @@
     cosim demo --out DIR                       build FMUs, run a short demonstration
     cosim estimate --log LOG.csv --out OUT.csv aaKF + encoder differencing over a trial log
     cosim identify --log LOG.csv --out OUT.json RLS identification of J, b, fc over a log
+    cosim run / suite / gap diagnose / data import-emps (see their --help)
 """
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
+import threading
+import traceback
 from pathlib import Path
+
+from . import exitcodes as ec
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_MODELICA = REPO / "modelica" / "RehabSim"
@@ -18,7 +25,7 @@ DEFAULT_FMUS = REPO / "fmus"
 
 
 # Modules that define ``add_commands(subparsers)``; their handlers return an exit code
-# and report bad input themselves (exit 2), naming the file/field at fault.
+# of cosim.exitcodes and report bad input themselves (exit 2), naming the file/field.
 COMMAND_MODULES = (
     ".offline",          # cosim estimate / cosim identify (trial logs)
     ".scenario_cli",     # cosim run / cosim suite (scenario files, Dask, reports)
@@ -32,8 +39,9 @@ class CliError(Exception):
 
 
 def _cmd_fmus_build(a) -> int:
+    from .fileio import ensure_out_dir
     from .fmubuild.build import build_all
-    paths = build_all(Path(a.modelica), Path(a.out), a.models or None, force=a.force,
+    paths = build_all(Path(a.modelica), ensure_out_dir(a.out), a.models or None, force=a.force,
                       fmi_version=a.fmi_version)
     print(f"{len(paths)} FMU(s) in {a.out}")
     return 0
@@ -43,17 +51,18 @@ def _cmd_fmus_check(a) -> int:
     from .fmubuild.check import check_fmu, format_report
     rep = check_fmu(a.fmu, simulate=a.simulate)
     print(format_report(rep))
-    return 0 if rep.ok else 1
+    return ec.OK if rep.ok else ec.FAILED
 
 
 def _cmd_demo(a) -> int:
     from .demo import run_demo
-    run_demo(Path(a.out), Path(a.modelica), Path(a.fmus))
-    return 0
+    from .fileio import ensure_out_dir
+    run_demo(ensure_out_dir(a.out), Path(a.modelica), Path(a.fmus))
+    return ec.OK
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="cosim", description=__doc__,
+    p = argparse.ArgumentParser(prog="cosim", description=__doc__, epilog=ec.TABLE,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd", required=True)
 
@@ -86,16 +95,66 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _sigterm(signum, frame):
+    raise KeyboardInterrupt     # SIGTERM ends a command like Ctrl-C: cleaned up, exit 3
+
+
+def _unraisable(prev):
+    """sys.unraisablehook: Python swallows an exception raised inside a finalizer (e.g.
+    Ctrl-C while a TemporaryDirectory is removed) after printing a traceback; an
+    interrupt must not be lost that way, so it is delivered again (SIGINT to this
+    process) and nothing is printed."""
+    def hook(u):
+        if isinstance(u.exc_value, KeyboardInterrupt):
+            # from another thread, a moment later: a signal sent from here would be
+            # handled inside this hook, and swallowed again
+            t = threading.Timer(0.02, os.kill, (os.getpid(), signal.SIGINT))
+            t.daemon = True
+            t.start()
+            return
+        prev(u)
+    return hook
+
+
 def main(argv=None) -> int:
+    """Run one command; return its exit code (:mod:`cosim.exitcodes`). Bad input is
+    one line on stderr (2); Ctrl-C or SIGTERM is one line (3; ``cosim run``/``suite``
+    also say what was kept); only an unexpected error (a bug) prints a traceback (3)."""
+    from .fileio import OutputPathError
     from .fmubuild.build import BuildError
     from .fmubuild.check import FMUCheckError
     from .fmubuild.modelica import ModelicaError
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(argv)          # usage errors: argparse exits 2
+    try:
+        old = signal.signal(signal.SIGTERM, _sigterm)
+        old_int = signal.getsignal(signal.SIGINT)   # the handlers set SIG_IGN when done
+    except ValueError:                              # not the main thread: leave it
+        old = None
+    old_hook = sys.unraisablehook
+    sys.unraisablehook = _unraisable(old_hook)
     try:
         return args.func(args)
-    except (ModelicaError, BuildError, FMUCheckError, CliError, FileNotFoundError) as exc:
+    except (ModelicaError, BuildError, FMUCheckError, CliError, OutputPathError) as exc:
         print(f"cosim: error: {exc}", file=sys.stderr)
-        return 2
+        return ec.BAD_INPUT
+    except OSError as exc:          # a file that cannot be read or written: it names it
+        print(f"cosim: error: {exc}", file=sys.stderr)
+        return ec.BAD_INPUT
+    except KeyboardInterrupt:
+        if old is not None:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        print("\ncosim: interrupted", file=sys.stderr)
+        return ec.INCOMPLETE
+    except Exception:
+        traceback.print_exc()
+        print("cosim: internal error (a bug: please report the traceback above)",
+              file=sys.stderr)
+        return ec.INCOMPLETE
+    finally:
+        sys.unraisablehook = old_hook
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+            signal.signal(signal.SIGINT, old_int)
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .exitcodes import BAD_INPUT, OK
 from .paths import emps_dir
 
 
@@ -25,6 +26,7 @@ def default_emps_dir() -> Path:
 
 def _cmd_import_emps(a: argparse.Namespace) -> int:
     from .emps import EmpsImportError, import_emps
+    from .fileio import OutputPathError, check_out_file
     from .trial_log import TrialLogError, read_trial_log
 
     src = Path(a.src) if a.src else default_emps_dir()
@@ -32,18 +34,19 @@ def _cmd_import_emps(a: argparse.Namespace) -> int:
         print(f"cosim: error: {src}: EMPS source folder not found (give --src DIR or set "
               f"COSIM_EMPS_DIR; it must hold DATA_EMPS.mat and DATA_EMPS_PULSES.mat)",
               file=sys.stderr)
-        return 2
+        return BAD_INPUT
     try:
+        check_out_file(Path(a.out) / "DATA_EMPS.csv")   # not under a regular file
         paths = import_emps(src, Path(a.out))
         # read back: what we wrote must satisfy the trial-log contract
         logs = [read_trial_log(p) for p in paths]
-    except (EmpsImportError, TrialLogError, OSError) as exc:
+    except (EmpsImportError, TrialLogError, OSError, OutputPathError) as exc:
         print(f"cosim: error: {exc}", file=sys.stderr)
-        return 2
+        return BAD_INPUT
     for p, log in zip(paths, logs):
         cols = ", ".join(k for k in log.data if k != "time")
         print(f"{p} ({log.n_samples} samples, {log.device}: {cols})")
-    return 0
+    return OK
 
 
 def add_commands(subparsers: Any) -> None:

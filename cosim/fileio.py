@@ -1,7 +1,10 @@
-"""Small file helpers shared by the commands: atomic text writes and JSON-safe values.
+"""Small file helpers shared by the commands: atomic text writes, JSON-safe values,
+and the check of an output path (:func:`ensure_out_dir`, :func:`check_out_file`).
 
 A result file is written through a temporary file in the same folder and renamed, so a
-failure (or an interrupted suite) never leaves a partial or stale-looking file.
+failure (or an interrupted suite) never leaves a partial or stale-looking file. An
+output path that cannot be one (a regular file, under a regular file, not writable)
+is an :class:`OutputPathError` naming it, before any work (exit 2).
 """
 from __future__ import annotations
 
@@ -59,3 +62,49 @@ def jsonable(x: Any) -> Any:
     if isinstance(x, str) or x is None:
         return x
     return repr(x)
+
+
+class OutputPathError(ValueError):
+    """An output path that cannot be used (bad input: exit 2); the message names it."""
+
+
+def _blocking_file(path: Path) -> Path | None:
+    """The first existing ancestor of ``path`` (or ``path`` itself) that is not a folder."""
+    for q in [path, *path.parents]:
+        if q.exists() or q.is_symlink():
+            return None if q.is_dir() else q
+    return None
+
+
+def ensure_out_dir(path: str | os.PathLike, what: str = "--out") -> Path:
+    """Create the output folder ``path`` (with its parents) or raise
+    :class:`OutputPathError` saying why it cannot be one: ``path`` or one of its
+    parents is a regular file, or it cannot be created (permissions, read-only file
+    system)."""
+    p = Path(path)
+    bad = _blocking_file(p)
+    if bad is not None:
+        where = "is" if bad == p else f"is under {bad}, which is"
+        raise OutputPathError(f"{what} {p}: {where} a regular file, not a folder")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"{what} {p}: cannot create the output folder: "
+                              f"{exc.strerror or exc}") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{what} {p}: the output folder is not writable")
+    return p
+
+
+def check_out_file(path: str | os.PathLike, what: str = "--out") -> Path:
+    """Check, before any work, that the output file ``path`` can be written: not a
+    folder, not under a regular file (nothing is created); else
+    :class:`OutputPathError`."""
+    p = Path(path)
+    if p.is_dir():
+        raise OutputPathError(f"{what} {p}: is a folder, expected an output file name")
+    bad = _blocking_file(p.parent)
+    if bad is not None:
+        raise OutputPathError(f"{what} {p}: is under {bad}, which is a regular file, "
+                              f"not a folder")
+    return p

@@ -26,8 +26,9 @@ result file, used by the ``cosim estimate`` and ``cosim identify`` subcommands
     on ``i_cmd`` and a speed that is either the aaKF estimate (``speed="aakf"``,
     needs ``acc_meas``) or the encoder backward difference (``speed="encoder"``);
     writes a JSON with the estimates over time (decimated, default every 10 ms), the
-    final J, b, fc, the Kt used, and the settling time of each estimate to within
-    +-10 % of its own final value.
+    final J, b, fc, the Kt used, the settling time of each estimate to within
+    +-10 % of its own final value, their standard errors and the verdict whether the
+    log determines them (``identified`` / ``cannot_identify``).
 
 Parameters taken from the log
 -----------------------------
@@ -72,9 +73,10 @@ import numpy as np
 
 from .algorithms.aakf import AakfParams, AaKF, EncoderDifferentiator
 from .algorithms.aakf import EncoderDifferentiatorParams
-from .algorithms.rls import RLSIdentifier, RLSParams, speed_timing_for
+from .algorithms.rls import RLSIdentifier, RLSParams, identification_verdict, speed_timing_for
 from .algorithms.whiteness import cumulative_periodogram
-from .fileio import atomic_write_text, jsonable
+from .fileio import atomic_write_text, check_out_file, jsonable
+from .exitcodes import BAD_INPUT, CANNOT_TELL, OK
 from .trial_log import TrialLog, TrialLogError, format_csv, read_trial_log, require_columns
 
 __all__ = [
@@ -96,6 +98,10 @@ ESTIMATE_COLUMNS = (
 DEFAULT_KT = 0.0603
 #: settling band of ``identify`` (thesis Fig. 26: +-10 %)
 SETTLING_BAND = 0.10
+#: fewest samples after the burn-in for ``estimate``'s whiteness verdict: below, the
+#: 95 % KS band of the cumulative periodogram is wider than 1.36/sqrt(50) = 0.19 and
+#: the test can only see gross colouring (the verdict is then ``cannot_judge``)
+MIN_WHITENESS_SAMPLES = 100
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -110,9 +116,7 @@ def _load(log_path: str | os.PathLike, columns: list[str], use: str) -> TrialLog
 
 
 def _check_out(out: str | os.PathLike, log: TrialLog) -> Path:
-    out_p = Path(out)
-    if out_p.exists() and out_p.is_dir():
-        raise IsADirectoryError(f"{out_p}: is a directory, expected an output file name")
+    out_p = check_out_file(out)          # not a folder, not under a regular file
     for src in (log.csv_path, log.json_path):
         try:
             if out_p.resolve() == src.resolve():
@@ -153,8 +157,10 @@ def _run_encdiff(Ts: float, lead: float, enc: np.ndarray) -> dict[str, np.ndarra
 
 def _whiteness(e: np.ndarray, burn: int) -> dict[str, Any]:
     x = e[burn:]
-    if x.size < 8:
-        return {"white": None, "reason": f"too few samples after the burn-in ({x.size})"}
+    if x.size < MIN_WHITENESS_SAMPLES:
+        return {"white": None, "samples": int(x.size),
+                "reason": f"{x.size} sample(s) after the {burn}-sample burn-in (start-up "
+                          f"transient); the whiteness test needs {MIN_WHITENESS_SAMPLES}"}
     try:
         cp = cumulative_periodogram(x, 0.95)
     except ValueError as exc:  # constant sequence etc.
@@ -197,8 +203,10 @@ def estimate(log_path: str | os.PathLike, out_csv: str | os.PathLike,
     Needs the columns ``theta_enc`` [rad] and ``acc_meas`` [m/s^2]. ``params``: aaKF
     parameters (default :class:`AakfParams`; ``Ts`` and, if the sidecar has
     ``nominal.lead``, ``lead_m`` are taken from the log). ``burn_in_s``: start-up
-    transient excluded from the whiteness tests (shortened to a tenth of the log if
-    the log is shorter than 2x burn-in).
+    transient excluded from the whiteness tests. A log with fewer than
+    :data:`MIN_WHITENESS_SAMPLES` samples after it cannot be judged: its whiteness
+    entries are ``white: None`` with the reason, ``verdict`` is ``"cannot_judge"``
+    and ``cannot_judge`` says why (the estimate CSV is written all the same).
 
     Returns ``{"log", "out", "samples", "duration_s", "sample_time", "aakf_params",
     "whiteness": {"innov_enc_rad": {...}, "innov_acc_m_s2": {...}}, "reset_fraction",
@@ -206,7 +214,7 @@ def estimate(log_path: str | os.PathLike, out_csv: str | os.PathLike,
     ``white`` (True/False: the cumulative periodogram stays inside the 95 % KS band),
     ``max_deviation``, ``band_halfwidth``, ``normalised_statistic`` (<= 1 white),
     ``signed_max_deviation`` (> 0: excess low-frequency power, filter too slow),
-    ``p_value``, ``samples``.
+    ``p_value``, ``samples``; and ``verdict``: ``"judged"`` or ``"cannot_judge"``.
     """
     log = _load(log_path, ["theta_enc", "acc_meas"], "aaKF estimation (cosim estimate)")
     out_p = _check_out(out_csv, log)
@@ -231,8 +239,6 @@ def estimate(log_path: str | os.PathLike, out_csv: str | os.PathLike,
                                  f"(column {ESTIMATE_COLUMNS[j]}); nothing written")
     n = log.n_samples
     burn = int(round(burn_in_s / p.Ts))
-    if n < 2 * burn:
-        burn = n // 10
     summary = {
         "log": str(log.csv_path),
         "out": str(out_p),
@@ -252,6 +258,13 @@ def estimate(log_path: str | os.PathLike, out_csv: str | os.PathLike,
         "final_speed_rad_s": float(kf["omega_rad_s"][-1]),
         "columns": list(ESTIMATE_COLUMNS),
     }
+    untested = [k for k in ("innov_enc_rad", "innov_acc_m_s2")
+                if summary["whiteness"][k]["white"] is None]
+    summary["verdict"] = "cannot_judge" if untested else "judged"
+    if untested:
+        summary["cannot_judge"] = (
+            f"the innovations' whiteness cannot be tested ({', '.join(untested)}): "
+            + summary["whiteness"][untested[0]]["reason"])
     atomic_write_text(out_p, format_csv(ESTIMATE_COLUMNS, arr))
     return jsonable(summary)
 
@@ -278,7 +291,15 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
          "settling_time_s": {"J", "b", "fc", "all"} (to within +-10 % of the final
          values, null if not settled), "settling_band",
          "nominal" and "relative_to_nominal" (when the sidecar has J, b, fc),
+         "uncertainty" (:meth:`RLSIdentifier.uncertainty`: standard errors, degrees
+         of freedom), "identification" (:func:`cosim.algorithms.rls.
+         identification_verdict`: per parameter value, se, relative_se, identified,
+         reason), "verdict" ("identified" or "cannot_identify"), "cannot_identify"
+         (the reasons, only with that verdict),
          "history": {"decimation_s", "time", "J", "b", "fc"}}
+
+    A log too short or too poorly excited is not an error: the file is written with
+    ``verdict: "cannot_identify"`` (``cosim identify`` then exits 4).
     """
     if speed not in ("aakf", "encoder"):
         raise ValueError(f"speed must be 'aakf' or 'encoder', got {speed!r}")
@@ -335,6 +356,11 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
         "settling_band": SETTLING_BAND,
         "settling_time_s": settle,
     }
+    result["uncertainty"] = unc = rls.uncertainty()
+    result["identification"] = iv = identification_verdict(unc)
+    result["verdict"] = iv["verdict"]
+    if iv["reasons"]:
+        result["cannot_identify"] = "; ".join(iv["reasons"])
     nom = {k: float(log.nominal[k]) for k in ("J", "b", "fc") if k in log.nominal}
     if nom:
         result["nominal"] = nom
@@ -368,16 +394,20 @@ def _aakf_params_arg(a: argparse.Namespace) -> AakfParams | None:
 
 def _cmd_estimate(a: argparse.Namespace) -> int:
     try:
-        s = estimate(a.log, a.out, _aakf_params_arg(a))
+        s = estimate(a.log, a.out, _aakf_params_arg(a), burn_in_s=a.burn_in)
     except (TrialLogError, OSError, ValueError, FloatingPointError) as exc:
         _print_err(exc)
-        return 2
+        return BAD_INPUT
+    if s["verdict"] == "cannot_judge":
+        print(f"{s['samples']} samples -> {s['out']}; cannot judge the estimate: "
+              f"{s['cannot_judge']}")
+        return CANNOT_TELL
     w = s["whiteness"]
     verdict = {k: w[k].get("white") for k in ("innov_enc_rad", "innov_acc_m_s2")}
     print(f"{s['samples']} samples -> {s['out']}; final bias {s['final_bias_m_s2']:.4g} m/s^2; "
           f"innovations white (enc, acc): {verdict['innov_enc_rad']}, {verdict['innov_acc_m_s2']}; "
           f"reset fired {100 * (s['reset_fraction'] or 0):.1f} % of samples")
-    return 0
+    return OK
 
 
 def _cmd_identify(a: argparse.Namespace) -> int:
@@ -385,24 +415,38 @@ def _cmd_identify(a: argparse.Namespace) -> int:
         r = identify(a.log, a.out, speed=a.speed, aakf_params=_aakf_params_arg(a))
     except (TrialLogError, OSError, ValueError, FloatingPointError) as exc:
         _print_err(exc)
-        return 2
+        return BAD_INPUT
     f, st = r["final"], r["settling_time_s"]
+    par = r["identification"]["parameters"]
 
     def fmt(v: Any) -> str:
         return "nan" if v is None else f"{v:.4g}"
 
-    print(f"{r['samples']} samples, speed {r['speed']}, Kt {r['Kt']:.4g} N m/A ({r['Kt_source']}) "
-          f"-> {r['out']}\n  J {fmt(f['J'])} kg m^2, b {fmt(f['b'])} N m s/rad, fc {fmt(f['fc'])} N m; "
+    def rse(k: str) -> str:
+        v = par[k]["relative_se"]
+        return "inf" if v is None else f"{100 * v:.2g} %"
+
+    head = (f"{r['samples']} samples ({r['updates']} used), speed {r['speed']}, Kt {r['Kt']:.4g} "
+            f"N m/A ({r['Kt_source']}) -> {r['out']}")
+    if r["verdict"] == "cannot_identify":
+        print(head + "\ncannot identify: the log does not determine the parameters:\n  "
+              + "\n  ".join(r["identification"]["reasons"]))
+        return CANNOT_TELL
+    print(head + f"\n  J {fmt(f['J'])} kg m^2 (+-{rse('J')}), b {fmt(f['b'])} N m s/rad "
+          f"(+-{rse('b')}), fc {fmt(f['fc'])} N m (+-{rse('fc')}; 1 standard error); "
           f"settled within +-10 % of final at {fmt(st['all'])} s")
-    return 0
+    return OK
 
 
 def add_commands(subparsers: Any) -> None:
     """Register ``estimate`` and ``identify`` on an argparse ``subparsers`` object.
 
     Each parser gets ``func`` (set_defaults) taking the parsed namespace and
-    returning an exit code: 0 ok, 2 on a bad log / bad arguments / I/O error (the
-    message is printed to stderr as ``cosim: error: ...``; nothing is written).
+    returning an exit code (:mod:`cosim.exitcodes`): 0 ok, 2 on a bad log / bad
+    arguments / I/O error (the message is printed to stderr as ``cosim: error:
+    ...``; nothing is written), 4 when the log cannot tell (``identify``:
+    ``cannot_identify``, ``estimate``: ``cannot_judge``; the result is written and
+    says why).
     """
     e = subparsers.add_parser(
         "estimate", help="run the aaKF and encoder differencing over a ballscrew-1dof log",
@@ -415,6 +459,9 @@ def add_commands(subparsers: Any) -> None:
                         "(default: the sigma_a bank, weighed by the data)")
     e.add_argument("--sigma-b", type=float, default=None, dest="sigma_b",
                    help="bias random-walk intensity [(m/s^2)/sqrt(s)] (default 1e-3)")
+    e.add_argument("--burn-in", type=float, default=1.0, dest="burn_in", metavar="S",
+                   help="start-up transient excluded from the innovation whiteness tests [s] "
+                        f"(default 1; at least {MIN_WHITENESS_SAMPLES} samples must follow it)")
     e.set_defaults(func=_cmd_estimate)
     i = subparsers.add_parser(
         "identify", help="RLS identification of J, b, fc from a ballscrew-1dof log",

@@ -6,18 +6,55 @@
 Each runs the scenarios (:mod:`cosim.scenarios`: runs, verdict.json, summary.json,
 junit.xml) and then draws the pages from what was stored (:mod:`cosim.report`).
 
-Exit codes: 0 all requirements pass, 1 a requirement fails or a scenario errors,
-2 bad input (scenario file, --fmu, scheduler).
+Exit codes (:mod:`cosim.exitcodes`): 0 all requirements pass, 1 a requirement fails,
+2 bad input (scenario file, --fmu, scheduler, --out), 3 a run errored or crashed, or
+the command was interrupted (SIGINT/SIGTERM: the finished runs are kept, the
+half-written ones removed, and the message says where; the same command resumes).
 """
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
+
+from cosim import exitcodes as ec
 
 
 def _err(msg: str) -> int:
     print(f"cosim: error: {msg}", file=sys.stderr)
-    return 2
+    return ec.BAD_INPUT
+
+
+def _out_dir(a) -> Path | int:
+    from cosim.fileio import OutputPathError, ensure_out_dir
+    try:
+        return ensure_out_dir(a.out)
+    except OutputPathError as exc:
+        return _err(str(exc))
+
+
+def _status_code(status: str) -> int:
+    return {"pass": ec.OK, "fail": ec.FAILED}.get(status, ec.INCOMPLETE)
+
+
+def _interrupted(cmd: str, out: Path, before: set) -> int:
+    """After Ctrl-C / SIGTERM: remove this process's (and dead workers') half-written
+    run folders, say what is kept and where; exit code 3."""
+    from cosim.scenarios.store import clean_run_tmp, finished_runs
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C must not cut this short
+    except ValueError:                                # (not the main thread)
+        pass
+    removed = clean_run_tmp(out)
+    kept = finished_runs(out)
+    new = [d for d in kept if d not in before]
+    where = sorted({str(d.parent) for d in kept}) or [str(out)]
+    print(f"\ncosim: interrupted: {len(kept)} finished run(s) kept ({len(new)} finished by "
+          f"this {cmd}, {len(kept) - len(new)} from before) in {', '.join(where)}; "
+          f"{len(removed)} half-written run folder(s) removed. Rerun the same command to "
+          f"resume: finished runs are reused, no verdict or report was written.",
+          file=sys.stderr)
+    return ec.INCOMPLETE
 
 
 def _ensure_fmus(a) -> int | None:
@@ -43,14 +80,20 @@ def _cmd_run(a) -> int:
     from cosim.scenarios.registry import RegistryError
     from cosim.scenarios.runner import parse_fmu_swaps, run_scenario
     from cosim.scenarios.schema import ScenarioError
+    from cosim.scenarios.store import finished_runs
+    if isinstance(out := _out_dir(a), int):
+        return out
     if (rc := _ensure_fmus(a)) is not None:
         return rc
+    before = set(finished_runs(out))
     try:
         swaps = parse_fmu_swaps(a.fmu)
-        v = run_scenario(a.scenario, a.out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache)
-        render_scenario(a.scenario, a.out)
+        v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache)
+        render_scenario(a.scenario, out)
     except (ScenarioError, RegistryError, SystemError_, FMUError) as exc:
         return _err(str(exc))
+    except KeyboardInterrupt:
+        return _interrupted("cosim run", out, before)
     for r in v["requirements"]:
         nc = r.get("negative_control")
         print(f"{r['verdict'].upper():5s} {r['id']}: value {r['value']} {r['rule']} {r['limit']}"
@@ -60,7 +103,7 @@ def _cmd_run(a) -> int:
         print(f"ERROR {e}")
     print(f"{v['scenario']}: {v['status']} -> {Path(a.out) / 'verdict.json'}, "
           f"{Path(a.out) / 'report.html'}")
-    return 0 if v["status"] == "pass" else 1
+    return _status_code(v["status"])
 
 
 def _cmd_suite(a) -> int:
@@ -71,21 +114,27 @@ def _cmd_suite(a) -> int:
     from cosim.scenarios.runner import parse_fmu_swaps
     from cosim.scenarios.schema import ScenarioError
     from cosim.scenarios.suite import SuiteError, run_suite
+    from cosim.scenarios.store import finished_runs
+    if isinstance(out := _out_dir(a), int):
+        return out
     if (rc := _ensure_fmus(a)) is not None:
         return rc
+    before = set(finished_runs(out))
     try:
         swaps = parse_fmu_swaps(a.fmu)
-        s = run_suite(a.paths, a.out, scheduler=a.scheduler, workers=a.workers,
+        s = run_suite(a.paths, out, scheduler=a.scheduler, workers=a.workers,
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
                       progress=not a.no_progress)
-        render_suite(a.out)
+        render_suite(out)
     except (ScenarioError, RegistryError, SystemError_, FMUError, SuiteError) as exc:
         return _err(str(exc))
+    except KeyboardInterrupt:
+        return _interrupted("cosim suite", out, before)
     c = s["counts"]
     print(f"suite: {c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
           f"{c['error']} error; {s['runs_executed']} run(s) executed, {s['runs_cached']} "
           f"cached; {s['wall_s']:.1f} s -> {Path(a.out) / 'report.html'}")
-    return 0 if s["status"] == "pass" else 1
+    return _status_code(s["status"])
 
 
 def add_commands(sub) -> None:

@@ -339,6 +339,30 @@ def _check_time(t: np.ndarray, ts: float, cfile: Any) -> None:
                             column=TIME_COLUMN, row=i + 1)
 
 
+#: bytes that no text CSV holds: C0 controls other than tab, LF, CR; and DEL
+_CONTROL = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+
+
+def _check_text(content: bytes, file: Any, kind: str, base: int = 0) -> None:
+    """Raise :class:`TrialLogError` if ``content`` is not UTF-8 text (binary data named
+    .csv/.json): names the first offending byte, its offset in the file (``base``: bytes
+    before ``content``, e.g. a BOM) and its line; never echoes the content."""
+    m = _CONTROL.search(content)
+    bad = m.start() if m else None
+    why = "a control character"
+    try:
+        content.decode("utf-8")
+    except UnicodeDecodeError as e:
+        if bad is None or e.start < bad:
+            bad, why = e.start, "not UTF-8 text"
+    if bad is None:
+        return
+    line = content.count(b"\n", 0, bad) + 1
+    raise TrialLogError(file, f"not a text {kind}: byte 0x{content[bad]:02x} at offset "
+                        f"{base + bad} (file line {line}) is {why}; a trial log is UTF-8 "
+                        f"text (spec/trial-log.md)")
+
+
 _PARSER_LINE = re.compile(r"Expected (\d+) fields in line (\d+), saw (\d+)")
 
 
@@ -392,9 +416,11 @@ def read_trial_log(path: str | os.PathLike) -> TrialLog:
     if not jfile.is_file():
         raise TrialLogError(jfile, f"missing sidecar: {jfile.name} not found beside {cfile.name}")
     try:
-        text = jfile.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
+        raw = jfile.read_bytes()
+    except OSError as e:
         raise TrialLogError(jfile, f"cannot read the sidecar: {e}") from None
+    _check_text(raw, jfile, "JSON sidecar")
+    text = raw.decode("utf-8")
     try:
         meta = json.loads(text)
     except json.JSONDecodeError as e:
@@ -406,8 +432,9 @@ def read_trial_log(path: str | os.PathLike) -> TrialLog:
         content = cfile.read_bytes()
     except OSError as e:
         raise TrialLogError(cfile, f"cannot read the CSV: {e}") from None
-    if content.startswith(b"\xef\xbb\xbf"):
-        content = content[3:]
+    bom = 3 if content.startswith(b"\xef\xbb\xbf") else 0
+    content = content[bom:]
+    _check_text(content, cfile, "CSV", base=bom)
     first = content.split(b"\n", 1)[0].decode("utf-8", "replace").rstrip("\r")
     header = [h.strip() for h in next(csv.reader([first]), [])]
     _check_header(header, signals, cfile, jfile)

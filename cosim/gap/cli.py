@@ -4,18 +4,21 @@ from __future__ import annotations
 import sys
 from typing import Any
 
+from ..exitcodes import BAD_INPUT, CANNOT_TELL, OK
 from .device import GapInputError, known_devices
 
 __all__ = ["add_commands"]
 
 
 def _cmd_diagnose(a: Any) -> int:
+    from ..fileio import OutputPathError, ensure_out_dir
     from .diagnose import diagnose
     try:
+        ensure_out_dir(a.out)
         res = diagnose(a.device, a.fit, a.test, a.out, report=not a.no_report, margin=a.margin)
-    except GapInputError as e:
+    except (GapInputError, OutputPathError) as e:
         print(f"cosim: error: {e}", file=sys.stderr)
-        return 2
+        return BAD_INPUT
     if res.get("cannot_diagnose"):
         print(f"cannot diagnose: {res['cannot_diagnose']}")
     else:
@@ -23,11 +26,12 @@ def _cmd_diagnose(a: Any) -> int:
         print(f"selected: {res['selected']}  gap ({g['metric']}) on the test logs: "
               f"{g['test_before']:.4g} -> {g['test_after']:.4g}")
     print(f"wrote {a.out}/diagnosis.json" + ("" if a.no_report else f" and {a.out}/report.html"))
-    return 0
+    return CANNOT_TELL if res.get("cannot_diagnose") else OK
 
 
 def add_commands(subparsers: Any) -> None:
-    """Register ``cosim gap diagnose`` (exit 0: ran; 2: bad input, message on stderr)."""
+    """Register ``cosim gap diagnose`` (exit 0: diagnosed; 2: bad input, message on
+    stderr; 4: the logs cannot tell, ``cannot_diagnose`` in diagnosis.json)."""
     g = subparsers.add_parser("gap", help="sim-to-real gap diagnosis")
     gsub = g.add_subparsers(dest="gap_cmd", required=True)
     d = gsub.add_parser(

@@ -20,7 +20,6 @@ import json
 import math
 import os
 import shutil
-import tempfile
 import time
 import traceback
 from pathlib import Path
@@ -30,7 +29,8 @@ from . import registry as reg
 from .build import check_build, make_builder
 from .expand import deep_merge, expand
 from .schema import Scenario, ScenarioError, load
-from .store import run_done, run_key, safe_name, versions, write_verdict
+from .store import (clean_run_tmp, run_done, run_key, run_tmp_dir, safe_name, versions,
+                    write_verdict)
 from .verdict import all_runs, evaluate
 
 
@@ -45,7 +45,7 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
     runs_dir = out_dir / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     info: dict = {"label": run_label, "key": key, "status": "error", "error": None}
-    tmp = Path(tempfile.mkdtemp(prefix=f".{safe_name(run_label)}.", dir=runs_dir))
+    tmp = run_tmp_dir(runs_dir, run_label)
     try:
         sc = load(scenario_path)
         runs = {r.label: r for r in all_runs(sc)}
@@ -130,6 +130,7 @@ def run_scenario(path, out_dir, fmu_swaps: dict | None = None, fmu_dir=None,
     check_build(sc, fmu_dir, fmu_swaps, runs=all_runs(sc))   # bad names before running
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    clean_run_tmp(out_dir)                      # what a killed process left
     runs = all_runs(sc)                         # with the negative-control runs
     for i, run in enumerate(runs):
         key = run_key(sc, run, fmu_dir, fmu_swaps)

@@ -138,3 +138,89 @@ def read_verdict(out_dir: Path) -> dict | None:
     """The stored verdict.json of a scenario folder (None if there is none)."""
     f = Path(out_dir) / "verdict.json"
     return json.loads(f.read_text()) if f.is_file() else None
+
+
+# =========================================================================== temp folders
+# A run is written into a dot-folder of runs/ and renamed into place when complete
+# (runner.execute_run). The folder's name says which process made it,
+# ``.<run>.<random>.tmp-<pid>@<host>``, so that what a killed or interrupted process
+# left can be told from what a live one is writing.
+_TMP_RE = re.compile(r"\.(?P<label>.+)\.[a-z0-9_]{8}(?:\.tmp-(?P<pid>\d+)@(?P<host>[A-Za-z0-9_.=,-]+))?")
+
+
+def _host() -> str:
+    import socket
+    return safe_name(socket.gethostname())
+
+
+def run_tmp_dir(runs_dir: Path, label: str) -> Path:
+    """A new temporary folder in ``runs_dir`` for run ``label``, named after this
+    process (:func:`clean_run_tmp` removes it if the process dies)."""
+    import os
+    import tempfile
+    return Path(tempfile.mkdtemp(prefix=f".{safe_name(label)}.",
+                                 suffix=f".tmp-{os.getpid()}@{_host()}", dir=runs_dir))
+
+
+def _pid_alive(pid: int) -> bool:
+    import os
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:        # someone else's live process
+        return True
+    return True
+
+
+def clean_run_tmp(out_dir: Path) -> list[Path]:
+    """Remove the half-written run folders in ``out_dir/runs`` and ``out_dir/*/runs``
+    (a scenario folder, or a suite folder) that no live process is writing: those of
+    this process (call it when none of its runs is in progress: at the start, after
+    an interrupt) and those of processes of this host that no longer exist. Only
+    folders named as :func:`run_tmp_dir` names them (or as before that, without the
+    process) and holding nothing but ``*.parquet`` and ``run.json`` files are
+    touched; a folder of a process on another host is left alone. Returns the
+    removed folders."""
+    import os
+    import shutil
+    out_dir = Path(out_dir)
+    me, host = os.getpid(), _host()
+    removed = []
+    for runs in [out_dir / "runs", *out_dir.glob("*/runs")]:
+        if not runs.is_dir():
+            continue
+        for d in runs.iterdir():
+            m = _TMP_RE.fullmatch(d.name)
+            if m is None or not d.is_dir() or d.is_symlink():
+                continue
+            if m["pid"] is not None:
+                pid = int(m["pid"])
+                if m["host"] != host or (pid != me and _pid_alive(pid)):
+                    continue
+            try:
+                ours = all(f.is_file() and (f.suffix == ".parquet" or f.name == "run.json")
+                           for f in d.iterdir())
+            except OSError:
+                continue
+            if ours:
+                shutil.rmtree(d, ignore_errors=True)
+                removed.append(d)
+    return removed
+
+
+def finished_runs(out_dir: Path) -> list[Path]:
+    """The run folders in ``out_dir/runs`` and ``out_dir/*/runs`` that hold a finished
+    run (a run.json with status ok): what a rerun with the same --out reuses when the
+    scenario, its FMUs and the code are unchanged."""
+    out = []
+    out_dir = Path(out_dir)
+    for f in [*out_dir.glob("runs/*/run.json"), *out_dir.glob("*/runs/*/run.json")]:
+        if f.parent.name.startswith("."):
+            continue
+        try:
+            if json.loads(f.read_text()).get("status") == "ok":
+                out.append(f.parent)
+        except (OSError, ValueError):
+            pass
+    return sorted(out)

@@ -23,12 +23,13 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from ..exitcodes import children_ignore_sigint
 from ..fileio import atomic_write_text as atomic_write
 from . import registry as reg
 from .build import check_build
 from .runner import execute_run, finish_scenario
 from .schema import Scenario, load
-from .store import run_done, run_key, safe_name, versions
+from .store import clean_run_tmp, run_done, run_key, safe_name, versions
 from .verdict import all_runs, summary_row
 
 
@@ -91,8 +92,9 @@ def _client(scheduler: str | None, workers: int | None):
         except ValueError as exc:
             raise SuiteError(f"bad Dask scheduler address {scheduler!r}: {exc}") from None
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=50)
+    with children_ignore_sigint():        # Ctrl-C is this process's to handle
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=50)
     client = Client(cluster)
     # import the trial modules (numpy, scipy, matplotlib, FMPy...) once per worker
     # now, so that the first run of each worker is not seconds slower than the rest
@@ -132,6 +134,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
         if unknown:
             raise SuiteError(f"--fmu: no scenario has role(s) {unknown} (roles: {sorted(used)})")
     out_dir.mkdir(parents=True, exist_ok=True)
+    clean_run_tmp(out_dir)                    # what a killed process left
     todo = []          # (scenario, run, key, scenario dir)
     cached = {sc.name: 0 for sc in scenarios}
     for sc in scenarios:
@@ -217,6 +220,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
 
 def _record_crash(sdir: Path, run: reg.RunSpec, key, exc):
     """A run whose worker process died: store an error run.json (atomically)."""
+    clean_run_tmp(sdir)                       # the dead worker's half-written folder
     d = Path(sdir) / "runs" / safe_name(run.label)
     if (d / "run.json").is_file():
         return
