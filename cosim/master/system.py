@@ -1038,8 +1038,14 @@ class Master:
             return ([indent + "_t0 = _pc()"] + [indent + b for b in body]
                     + [indent + f"_T[{i}] += _pc() - _t0"])
 
-        def every(d, body):     # an FMU stepped every d base steps: its writes and doStep
-            return body if d == 1 else [f"if not k % {d}:"] + ["    " + b for b in body]
+        def every(d, body, end=False):
+            # an FMU stepped every d base steps (a macro step from t_k, k % d == 0, to
+            # t_{k+d}): its inputs are set at the macro step's start, its doStep is made
+            # in the macro step's last tick, so that its outputs read in between are its
+            # values at t_k (held), never values from the future
+            if d == 1:
+                return body
+            return [f"if not {'(k + 1)' if end else 'k'} % {d}:"] + ["    " + b for b in body]
 
         read_blocks = []       # (role, slave, names, first slot)
         L_read, L_write, L_step = [], [], []
@@ -1183,13 +1189,15 @@ class Master:
                          f"_fail_fmu({j}, 'set', t, st)")
             if W:
                 L_write += timed(f"fmu:{role}:set", every(d, W), "        ")
-            h = "_h"
+            h, tc, pre = "_h", "_tc", []
             if d > 1:
-                h = f"_h{j}"
+                h, tc = f"_h{j}", f"_tc{j}"
                 ns[h] = ctypes.c_double(d * Ts)
+                ns[tc] = ctypes.c_double(0.0)
+                pre = [f"{tc}.value = t - {(d - 1) * Ts!r}"]
             if slave.kind == "me":
                 ns[f"me_{j}"] = slave.stepper()
-                body = ["try:", f"    me_{j}(t, {d * Ts!r})", "except Exception as e:",
+                body = ["try:", f"    me_{j}(t - {(d - 1) * Ts!r}, {d * Ts!r})", "except Exception as e:",
                         f"    _fail_fmu({j}, 'step', t, None, e)"]
             elif io.fmi3:
                 ns[f"do_{j}"] = io.step
@@ -1198,15 +1206,15 @@ class Master:
                 ns[f"last_{j}"] = io.last_time
                 for i, x in enumerate(io.step_extra):
                     ns[f"x{i}_{j}"] = x
-                body = [f"if (st := do_{j}(c_{j}, _tc, {h}, _true, x0_{j}, x1_{j}, x2_{j}, x3_{j})) > 1 "
+                body = pre + [f"if (st := do_{j}(c_{j}, {tc}, {h}, _true, x0_{j}, x1_{j}, x2_{j}, x3_{j})) > 1 "
                         f"or term_{j}.value or early_{j}.value: _fail_fmu({j}, 'step', t, st)"]
             else:
                 ns[f"do_{j}"] = io.step
-                body = [f"if (st := do_{j}(c_{j}, _tc, {h}, _one)) > 1: _fail_fmu({j}, 'step', t, st)"]
+                body = pre + [f"if (st := do_{j}(c_{j}, {tc}, {h}, _one)) > 1: _fail_fmu({j}, 'step', t, st)"]
             blk = []
             if L_seq:
-                blk += timed(f"fmu:{role}:sequential-inputs", every(d, L_seq), "")
-            blk += timed(f"fmu:{role}:doStep", every(d, body), "")
+                blk += timed(f"fmu:{role}:sequential-inputs", every(d, L_seq, True), "")
+            blk += timed(f"fmu:{role}:doStep", every(d, body, True), "")
             step_blocks.append(blk)
             L_step += ["        " + x for x in blk]
 
@@ -1305,6 +1313,7 @@ class Master:
             d = getattr(slave, "step_mult", 1)
             h = d * Ts
             k = int(round((t - T0) / Ts))
+            t = t - (d - 1) * Ts        # the macro step's start (see every())
             term = ns.get(f"term_{j}")
             if term is not None and (status is None or status <= 1):
                 early, last = ns[f"early_{j}"], ns[f"last_{j}"]
