@@ -181,7 +181,7 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
 
 
 def probe2_md(y_unit: str = "m", u_causality: str = "input", extra_cs: str = "",
-              default_experiment: str = "") -> str:
+              default_experiment: str = "", variable_step: bool = True) -> str:
     """modelDescription.xml of probe2; the unit of y, the causality of u and extra
     CoSimulation attributes are parameters of the tests (a replacement whose u is an
     output, a unit mismatch, capability flags)."""
@@ -190,7 +190,7 @@ def probe2_md(y_unit: str = "m", u_causality: str = "input", extra_cs: str = "",
     u_start = ' start="0"' if u_causality != "output" else ""
     return f"""<?xml version="1.0" encoding="UTF-8"?>
 <fmiModelDescription fmiVersion="2.0" modelName="probe2" guid="{{probe2}}" numberOfEventIndicators="0">
-  <CoSimulation modelIdentifier="probe2" canHandleVariableCommunicationStepSize="true" {extra_cs}/>
+  <CoSimulation modelIdentifier="probe2" canHandleVariableCommunicationStepSize="{str(variable_step).lower()}" {extra_cs}/>
   <LogCategories><Category name="logStep"/><Category name="logAll"/></LogCategories>
   {default_experiment}
   <UnitDefinitions>
