@@ -13,8 +13,9 @@ k = 0 .. N with N = duration / Ts (which must be an integer). In tick k:
 
 1. read every FMU variable used by anything: the values at t_k, i.e. after the
    doStep that ended at t_k (k = 0: after initialisation). An output with direct
-   feedthrough reflects the inputs held over [t_{k-1}, t_k) (at k = 0: the inputs'
-   start values, or values given as ``parameters``);
+   feedthrough reflects the inputs held over [t_{k-1}, t_k) (at k = 0: the values
+   connections from stimuli and FMUs gave the inputs in initialisation mode; inputs
+   driven by controllers keep their start values, or values given as ``parameters``);
 2. evaluate the stimuli at t_k;
 3. step the controllers in the order they were added. A controller sees the FMU
    values and stimuli of tick k, the outputs of controllers added *before* it from
@@ -35,6 +36,20 @@ and B's input, if read back, shows A(t_k) at tick k + 1. A controller output of
 tick k acts on the plant over [t_k, t_{k+1}) and is first seen in the plant's
 outputs at tick k + 1.
 
+Types
+-----
+Every FMI 2 and FMI 3 type is read and written with its own call (fmi2GetInteger,
+fmi3GetFloat32, fmi3SetInt8, an FMI 3 Enumeration as Int64...); a recorded column keeps
+its type (int8 ... uint64, float32, bool, str, bytes); an FMI 3 array records one
+column per element, ``x[1]``, ``x[2]`` (``m[i,j]`` for a matrix, 1-based as FMI's
+structured names). Values are held as Python numbers in the tick loop, recorded as
+float64 and cast back: a 64-bit integer beyond 2**53 loses its last digits.
+Scalar Float64/Real variables keep the one-call-per-FMU fast path.
+
+An FMU stepped every d base steps (a fixed internal step, or a DefaultExperiment
+stepSize it cannot vary from) gets its inputs at t_k (k % d == 0) and is stepped to
+t_{k+d} in tick k + d - 1: its outputs are held in between.
+
 Errors
 ------
 An FMU error status (get/set/doStep), a non-finite FMU value or stimulus, a
@@ -42,7 +57,11 @@ controller that raises or returns a non-finite, missing or non-numeric output st
 the run with an :class:`FMUError` (:class:`ControllerError` for controllers and
 stimuli) naming the role/controller, the variable and the time. The rows recorded
 before the failure are kept: the error carries ``.result`` (a :class:`RunResult`
-with ``completed=False``); ``run(raise_on_error=False)`` returns it instead.
+with ``completed=False``); ``run(raise_on_error=False)`` returns it instead. After
+an Error status only FreeInstance is called on that FMU, after Fatal nothing. An FMU
+that ends the simulation itself (fmi2Discard + fmi2Terminated, FMI 3
+terminateSimulation) ends the run normally: the tick is completed and recorded, and
+``RunResult.stop_reason`` names the FMU and the time.
 
 Speed
 -----
@@ -1300,6 +1319,8 @@ class Master:
 
         def _fail_fmu(j, what, t, status=None, exc=None):
             role, slave = slaves[j]
+            if exc is not None:           # e.g. FMPy's FMICallException (has .status)
+                slave.note_status(getattr(exc, "status", None))
             if isinstance(exc, FMUError):
                 raise exc
             if exc is not None:
@@ -1573,7 +1594,7 @@ def _convert(x, dv, c, where):
         return bool(x)
     if isinstance(x, (bool, np.bool_)) or not _finite(x) or x != int(x):
         raise ControllerError(f"{where}: {x!r} is not a whole number for {dv.fmi_type} {c.dest}")
-    lo, hi = INT_RANGE[dv.fmi_type if dv.fmi_type in INT_RANGE else "Int64"]
+    lo, hi = INT_RANGE.get(dv.fmi_type, INT_RANGE["Int64"])      # FMI 3 Enumeration: Int64
     if not lo <= int(x) <= hi:
         raise ControllerError(f"{where}: {x!r} is out of the range [{lo}, {hi}] of "
                               f"{dv.fmi_type} {c.dest}")
