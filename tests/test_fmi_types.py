@@ -233,3 +233,14 @@ def test_fmi3_type_range_and_shape_checks(tmp_path):
     with pytest.raises(ControllerError, match=r"200.0 is out of the range \[-128, 127\] of "
                                               r"Int8 dst.int8_in"):
         Master(s, ["dst.int8_out"]).run(0.2)
+
+
+def test_a_connection_made_before_its_source_fmu_is_checked_when_the_run_is_planned(tmp_path):
+    fmu = build_probe2(tmp_path)
+    s = System(0.1)
+    s.add_fmu("dst", fmu)
+    s.connect("src.y", "dst.n_in")          # 'src' is not bound yet: nothing to check
+    s.add_fmu("src", fmu)
+    with pytest.raises(SystemError_, match=r"src.y \(Real output\) -> dst.n_in \(Integer "
+                                           r"input\): types differ"):
+        Master(s, ["dst.n_out"]).run(0.1)

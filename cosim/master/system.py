@@ -721,6 +721,9 @@ class Master:
 
         for c in sys_._connections:
             source(c.source, f"connection to {c.dest}")
+            # again here: the source's FMU may have been added after connect()
+            c.unit_gain, c.unit_offset = sys_._check_connection(
+                c.source, c.dest, c.scale, c.sequential, c.check_units)
             d_role, _, d_var = c.dest.partition(".")
             dslave = sys_.roles[d_role]
             dv, d_el = dslave.element(d_var)
