@@ -318,3 +318,33 @@ def test_can_be_instantiated_only_once_per_process(tmp_path):
                                            r"'a' already uses it"):
         s.add_fmu("b", fmu)
     assert Master(s, ["a.y"]).run(0.1).completed
+
+
+def test_a_stepper_raising_fmu_terminated_ends_the_run_normally(tmp_path, monkeypatch):
+    """The hook for Model Exchange FMUs (their integrator raises FMUTerminated when
+    the FMU sets terminateSimulation): a normal end, tick completed, reason kept."""
+    from cosim.master.fmu import FMUTerminated
+    fmu = build_probe2(tmp_path)
+    orig = FMUSlave.stepper
+
+    def stepper(self):
+        kind, self.kind = self.kind, "cs"        # the probe's own (CS) doStep inside
+        step = orig(self)
+        self.kind = kind
+
+        def wrapped(t, h):
+            if t >= 0.2 - 1e-9 and self.role == "a":
+                raise FMUTerminated("terminateSimulation at t = 0.2 s")
+            step(t, h)
+        return wrapped
+    monkeypatch.setattr(FMUSlave, "stepper", stepper)
+    s = System(0.1)
+    a = s.add_fmu("a", fmu, parameters={"u": 1.0})
+    s.add_fmu("b", fmu, parameters={"u": 2.0})
+    a.kind = "me"            # its step goes through stepper(), as a Model Exchange FMU's
+    a.exit_initialization = lambda: a._fmu.exitInitializationMode()
+    r = Master(s, ["a.x", "b.x"]).run(1.0)
+    assert r.completed and r.ticks == 4
+    assert r.stop_reason == "role a: probe2.fmu ended the simulation (terminateSimulation " \
+                            "at t = 0.2 s)"
+    np.testing.assert_allclose(r["b.x"], [0, 0.2, 0.4, 0.6], rtol=1e-12)

@@ -34,6 +34,12 @@ class FMUError(RuntimeError):
     (the :class:`~cosim.master.system.RunResult` recorded up to the failure)."""
 
 
+class FMUTerminated(FMUError):
+    """An FMU ended the simulation itself (e.g. a Model Exchange FMU's
+    terminateSimulation in event mode): raised by a stepper, it ends the run normally
+    (the master completes the tick and records ``stop_reason``), not as a failure."""
+
+
 @dataclasses.dataclass(frozen=True)
 class VarInfo:
     name: str

@@ -86,7 +86,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, suggest
+from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, FMUTerminated, suggest
 from .roles import CONTRACTS, RoleContract, check_contract
 
 
@@ -1322,6 +1322,10 @@ class Master:
 
         def _fail_fmu(j, what, t, status=None, exc=None):
             role, slave = slaves[j]
+            if isinstance(exc, FMUTerminated):     # the FMU's own, normal end
+                raise _Terminated(j, int(round((t - T0) / Ts)),
+                                  f"role {role}: {slave.path.name} ended the simulation "
+                                  f"({exc})")
             if exc is not None:           # e.g. FMPy's FMICallException (has .status)
                 slave.note_status(getattr(exc, "status", None))
             if isinstance(exc, FMUError):
