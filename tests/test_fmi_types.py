@@ -14,7 +14,6 @@ import pytest
 from fmi_probes import build_probe2, build_probe3
 from probe_fmu import read_trace, traced
 
-from cosim.master.fmu import FMUError
 from cosim.master.system import ControllerError, Master, RunResult, System, SystemError_
 
 
