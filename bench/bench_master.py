@@ -118,8 +118,18 @@ class _Bare:
             for k, v in params.items():
                 f.setReal([var[k]], [float(v)])
             f.enterInitializationMode()
-            f.exitInitializationMode()
             self.slaves[role], self.vars[role] = f, var
+        # connected inputs are set in initialisation mode, as the master does (FMI:
+        # row 0 consistent); passes until the chain settles
+        for _ in range(len(self.slaves) + 1):
+            for src, dst, k in sc["conns"]:
+                head, _, name = src.partition(".")
+                x = sc["stim"][name](0.0) if head == "stim" else \
+                    self.slaves[head].getReal([self.vars[head][name]])[0]
+                role, _, var = dst.partition(".")
+                self.slaves[role].setReal([self.vars[role][var]], [x * k])
+        for f in self.slaves.values():
+            f.exitInitializationMode()
         self.reads = reads_of(sc)
 
     def close(self):

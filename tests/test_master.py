@@ -572,7 +572,12 @@ def test_unknown_names_give_clear_errors_with_suggestions(fmus):
         s.connect("stim.f", "plant.f_ex")
     with pytest.raises(SystemError_, match=r"plant.x has causality 'output', expected 'input'"):
         s.connect("stim.f", "plant.x")
-    s.connect("plant.theta", "plant.f_ext")
+    # both ends are checked: an angle [rad] is not a force [N] (issue 15 item 1)
+    with pytest.raises(SystemError_, match=r"plant.theta \(Real output\) -> plant.f_ext "
+                       r"\(Real input\): units 'rad' \(rad\) and 'N' \(kg.m.s-2\) are of "
+                       r"different dimensions"):
+        s.connect("plant.theta", "plant.f_ext")
+    s.connect("plant.theta", "plant.f_ext", check_units=False)
     with pytest.raises(SystemError_, match="already driven by plant.theta"):
         s.connect("plant.w", "plant.f_ext")
     with pytest.raises(SystemError_, match=r"inputs not wired: \['theta'\]"):

@@ -17,12 +17,15 @@ import ctypes
 import dataclasses
 import difflib
 import hashlib
+import re
 import sys
 import tempfile
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import numpy as np
+
+_ELEMENT = re.compile(r"^(.+)\[\s*(\d+(?:\s*,\s*\d+)*)\s*\]$")
 
 
 class FMUError(RuntimeError):
@@ -31,16 +34,43 @@ class FMUError(RuntimeError):
     (the :class:`~cosim.master.system.RunResult` recorded up to the failure)."""
 
 
+class FMUTerminated(FMUError):
+    """An FMU ended the simulation itself (e.g. a Model Exchange FMU's
+    terminateSimulation in event mode): raised by a stepper, it ends the run normally
+    (the master completes the tick and records ``stop_reason``), not as a failure."""
+
+
 @dataclasses.dataclass(frozen=True)
 class VarInfo:
     name: str
     vr: int
-    type: str            # Real | Integer | Boolean | String (FMI 3: Float64 -> Real)
+    type: str            # Real | Integer | Boolean | String | Binary | Clock (FMI 3: Float64 -> Real)
     causality: str
     variability: str
     unit: str
     description: str
-    fmi_type: str = ""   # the type as declared (Float64, Int32, Real, ...)
+    fmi_type: str = ""   # the type as declared (Float64, Int8, Real, Enumeration, ...)
+    initial: str = ""    # exact | approx | calculated | "" (inputs, independent)
+    shape: tuple = ()    # FMI 3 array dimensions (() for a scalar)
+    start: str | None = None
+    items: tuple = ()    # Enumeration: ((name, value), ...)
+
+    @property
+    def size(self) -> int:
+        """Number of values (1 for a scalar, the product of the dimensions for an array)."""
+        n = 1
+        for d in self.shape:
+            n *= d
+        return n
+
+    @property
+    def kind(self) -> str:
+        """real | int | bool | str | bin | clock: how values are held and wired."""
+        return _KIND[self.type]
+
+
+_KIND = {"Real": "real", "Integer": "int", "Boolean": "bool", "String": "str",
+         "Binary": "bin", "Clock": "clock"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,7 +94,38 @@ def sha256_file(path) -> str:
 _TYPE = {"Float64": "Real", "Float32": "Real", "Int32": "Integer", "Int64": "Integer",
          "Int16": "Integer", "Int8": "Integer", "UInt32": "Integer", "UInt64": "Integer",
          "UInt16": "Integer", "UInt8": "Integer", "Enumeration": "Integer",
-         "Boolean": "Boolean", "String": "String", "Real": "Real", "Integer": "Integer"}
+         "Boolean": "Boolean", "String": "String", "Real": "Real", "Integer": "Integer",
+         "Binary": "Binary", "Clock": "Clock"}
+
+# the FMI call, C type and numpy dtype of every declared type, per FMI version:
+# fmi3GetFloat32 reads 4-byte floats, fmi3SetInt8 writes 1-byte integers, an FMI 3
+# Enumeration is an Int64 (FMI 3.0 section 2.4.7.5), an FMI 2 Enumeration an
+# fmi2Integer (FMI 2.0 section 2.2.7), an fmi2Boolean is a C int, an fmi3Boolean a C bool.
+_C2 = {"Real": ("Real", ctypes.c_double, "float64"),
+       "Integer": ("Integer", ctypes.c_int, "int32"),
+       "Enumeration": ("Integer", ctypes.c_int, "int32"),
+       "Boolean": ("Boolean", ctypes.c_int, "bool"),
+       "String": ("String", ctypes.c_char_p, "object")}
+_C3 = {"Float64": ("Float64", ctypes.c_double, "float64"),
+       "Float32": ("Float32", ctypes.c_float, "float32"),
+       "Int8": ("Int8", ctypes.c_int8, "int8"), "UInt8": ("UInt8", ctypes.c_uint8, "uint8"),
+       "Int16": ("Int16", ctypes.c_int16, "int16"),
+       "UInt16": ("UInt16", ctypes.c_uint16, "uint16"),
+       "Int32": ("Int32", ctypes.c_int32, "int32"),
+       "UInt32": ("UInt32", ctypes.c_uint32, "uint32"),
+       "Int64": ("Int64", ctypes.c_int64, "int64"),
+       "UInt64": ("UInt64", ctypes.c_uint64, "uint64"),
+       "Enumeration": ("Int64", ctypes.c_int64, "int64"),
+       "Boolean": ("Boolean", ctypes.c_bool, "bool"),
+       "String": ("String", ctypes.c_char_p, "object"),
+       "Binary": ("Binary", ctypes.c_void_p, "object")}
+#: integer ranges of the FMI 3 integer types (FMI 2 Integer and Enumeration: int32)
+INT_RANGE = {"Int8": (-2**7, 2**7 - 1), "UInt8": (0, 2**8 - 1),
+             "Int16": (-2**15, 2**15 - 1), "UInt16": (0, 2**16 - 1),
+             "Int32": (-2**31, 2**31 - 1), "UInt32": (0, 2**32 - 1),
+             "Int64": (-2**63, 2**63 - 1), "UInt64": (0, 2**64 - 1),
+             "Integer": (-2**31, 2**31 - 1)}
+
 STATUS = {0: "OK", 1: "Warning", 2: "Discard", 3: "Error", 4: "Fatal", 5: "Pending"}
 
 
@@ -135,6 +196,16 @@ class RawIO:
     fmi3: bool
     step_extra: tuple    # FMI 3: byref out-arguments of fmi3DoStep
     terminate_flag: object   # FMI 3: the c_bool terminateSimulation out-argument
+    early_flag: object = None    # FMI 3: the c_bool earlyReturn out-argument
+    last_time: object = None     # FMI 3: the c_double lastSuccessfulTime out-argument
+
+
+#: FMUs declaring canBeInstantiatedOnlyOncePerProcess that have a live instance:
+#: (model identifier, instantiation token) -> role
+_ONCE: dict[tuple, str] = {}
+
+_RULE2 = "FMI 2.0 section 2.2.7 (causality/variability/initial) and 4.2.4 (fmi2SetXXX before initialisation)"
+_RULE3 = "FMI 3.0 section 2.4.7.4 (causality/variability/initial) and 2.3.2 (fmi3Set{VariableType} in Instantiated)"
 
 
 class FMUSlave:
@@ -186,15 +257,25 @@ class FMUSlave:
             dt = getattr(v, "declaredType", None)
             return (getattr(dt, "unit", None) or "") if dt is not None else ""
 
+        def items(v):
+            dt = getattr(v, "declaredType", None)
+            if v.type != "Enumeration" or dt is None:
+                return ()
+            return tuple((it.name, int(it.value)) for it in dt.items)
+
         self.variables: dict[str, VarInfo] = {
             v.name: VarInfo(v.name, v.valueReference, _TYPE.get(v.type, v.type), v.causality,
-                            v.variability, unit(v), v.description or "", v.type)
+                            v.variability, unit(v), v.description or "", v.type,
+                            v.initial or "", tuple(v.shape or ()), v.start, items(v))
             for v in md.modelVariables}
         self.info = FMUInfo(str(self.path), sha256_file(self.path), version,
                             "CoSimulation" if kind == "cs" else "ModelExchange",
                             md.modelName, md.generationTool or "")
         iface = md.coSimulation if kind == "cs" else md.modelExchange
+        self.iface = iface
         guid = md.instantiationToken if self.fmi3 else md.guid
+        self._once_key = (iface.modelIdentifier, guid) \
+            if getattr(iface, "canBeInstantiatedOnlyOncePerProcess", False) else None
         args = dict(guid=guid, unzipDirectory=str(unzip),
                     modelIdentifier=iface.modelIdentifier, instanceName=role)
         try:
@@ -209,11 +290,19 @@ class FMUSlave:
         self.rtol = rtol
         self.time = 0.0
         self._instantiated = False
+        self._closed = False
         self._id = _NEXT_ID[0]
         _NEXT_ID[0] += 1
         #: the FMU's log messages of the current/last run: (status, category, message)
         self.messages: collections.deque = collections.deque(maxlen=200)
         self._callbacks = None
+        #: the worst status an FMI call of this instance returned in this run: after
+        #: Error (3) only FreeInstance is called, after Fatal (4) nothing
+        self.worst_status = 0
+        #: False | True (all categories) | list of the FMU's LogCategories
+        self.debug_logging: bool | list = False
+        #: None: the FMU's DefaultExperiment tolerance if it declares one
+        self.tolerance: float | None = None
 
     # ------------------------------------------------------------ helpers
     def __repr__(self):
@@ -229,6 +318,35 @@ class FMUSlave:
                            + (f" (did you mean {', '.join(map(repr, close))}?)" if close else "")
                            ) from None
 
+    def element(self, name: str) -> tuple[VarInfo, int | None]:
+        """(variable, flat 0-based element index or None) of ``name``: a variable, or an
+        element ``x[i]`` / ``x[i,j]`` (1-based, row-major, as FMI's structured names)
+        of an FMI 3 array variable ``x``."""
+        if name in self.variables:
+            return self.variables[name], None
+        m = _ELEMENT.match(name)
+        if m and m.group(1) in self.variables and self.variables[m.group(1)].shape:
+            v = self.variables[m.group(1)]
+            idx = [int(x) for x in m.group(2).split(",")]
+            if len(idx) != len(v.shape) or any(not 1 <= i <= d for i, d in zip(idx, v.shape)):
+                raise FMUError(f"role {self.role}: {name!r}: {v.name} has shape {v.shape}; "
+                               f"give {len(v.shape)} index(es), each from 1 to its dimension")
+            flat = 0
+            for i, d in zip(idx, v.shape):
+                flat = flat * d + (i - 1)
+            return v, flat
+        return self.var(name), None       # raises with suggestions
+
+    @staticmethod
+    def element_names(v: VarInfo) -> list[str]:
+        """``x`` for a scalar, ``x[1]``, ``x[2]``... (``x[i,j]`` for a matrix) for an array."""
+        if not v.shape:
+            return [v.name]
+        out = [()]
+        for d in v.shape:
+            out = [o + (i,) for o in out for i in range(1, d + 1)]
+        return [f"{v.name}[{','.join(map(str, o))}]" for o in out]
+
     def names(self, causality: str) -> list[str]:
         return [n for n, v in self.variables.items() if v.causality == causality]
 
@@ -241,9 +359,15 @@ class FMUSlave:
         errs = [m for s, _, m in self.messages if s >= 2]
         return errs[-1] if errs else ""
 
+    def note_status(self, status) -> None:
+        """Remember an Error/Fatal status: it decides which FMI calls remain allowed."""
+        if isinstance(status, int) and status > self.worst_status:
+            self.worst_status = status
+
     def error(self, what: str, status: int | None = None, t: float | None = None) -> FMUError:
         """An FMUError for a failed call, with the FMU's own last error message."""
         t = self.time if t is None else t
+        self.note_status(status)
         msg = f"role {self.role}: {self.path.name}: {what}"
         if status is not None:
             msg += f" returned status {status} ({STATUS.get(status, '?')})"
@@ -254,43 +378,154 @@ class FMUSlave:
             msg += f"; the FMU says: {fmu_msg}"
         return FMUError(msg)
 
+    # ------------------------------------------------------------ the standard's rules
+    def init_rule(self, v: VarInfo) -> str | None:
+        """None if ``v`` may be given a value before initialisation (a parameter or a
+        start value), else the reason, citing the rule: only variables with
+        ``initial`` = exact or approx and inputs (not constants, not independent)."""
+        rule = _RULE3 if self.fmi3 else _RULE2
+        what = f"{v.name!r} of {self.path.name} (causality={v.causality}, variability={v.variability}" \
+               + (f", initial={v.initial}" if v.initial else "") + ")"
+        if v.type == "Clock":
+            return f"{what} is a Clock: clocks are not values that can be set"
+        if v.causality == "structuralParameter":
+            return (f"{what} is a structural parameter (it sizes arrays; it is set in "
+                    f"Configuration Mode, which this master does not use)")
+        if v.variability == "constant":
+            return f"{what} is a constant: it cannot be set ({rule})"
+        if v.causality == "independent":
+            return f"{what} is the independent variable: it cannot be set ({rule})"
+        if v.causality == "input" or v.initial in ("exact", "approx"):
+            return None
+        art = "an" if v.causality[0] in "aeiou" else "a"
+        return (f"{v.name!r} is {art} {v.causality} variable of {self.path.name} "
+                f"(variability={v.variability}, initial={v.initial or 'none'}), not a "
+                f"parameter or a start value the master may set: only variables with "
+                f"initial = exact or approx, and inputs, may be set before initialisation; "
+                f"this one is computed by the FMU ({rule}) (parameters: "
+                f"{', '.join(self.names('parameter'))})")
+
+    def run_rule(self, v: VarInfo) -> str | None:
+        """None if ``v`` may be set at every communication point during the run (an
+        input, or a tunable parameter of a Co-Simulation FMU), else the reason."""
+        if v.causality == "input" and v.variability != "constant":
+            return None
+        sec = ("FMI 3.0 section 4.2 (Step Mode: fmi3Set{VariableType} on inputs and tunable "
+               "parameters)" if self.fmi3 else
+               "FMI 2.0 section 4.2.4 (fmi2SetXXX in slaveInitialized: inputs and "
+               "parameters with variability tunable)")
+        if v.causality == "parameter" and v.variability == "tunable":
+            if self.kind == "me":
+                return (f"{v.name!r} is a tunable parameter of a Model Exchange FMU: it may "
+                        f"change only in Event Mode, which wiring does not use")
+            return None
+        return (f"{v.name!r} of {self.path.name} has causality {v.causality} and variability "
+                f"{v.variability}: only inputs and tunable parameters may be set during a "
+                f"run ({sec})")
+
+    def check_settable(self, name: str) -> VarInfo:
+        """The variable ``name`` if it may be set before initialisation, else FMUError
+        citing the standard's rule."""
+        v = self.var(name)
+        why = self.init_rule(v)
+        if why:
+            raise FMUError(f"role {self.role}: {why}")
+        return v
+
+    def step_multiple(self, Ts: float, requested: int | None = None) -> int:
+        """How many base steps ``Ts`` one doStep of this FMU spans (1 but for a
+        constraint), or FMUError with the constraint. ``requested`` overrides the
+        DefaultExperiment stepSize (not a fixed internal step)."""
+        if self.kind != "cs":
+            return 1 if requested is None else int(requested)
+        h_fix = getattr(self.iface, "fixedInternalStepSize", None) if self.fmi3 else None
+        variable = bool(getattr(self.iface, "canHandleVariableCommunicationStepSize", False))
+        de = self.md.defaultExperiment
+        h_de = float(de.stepSize) if de is not None and de.stepSize else None
+
+        def mult(a, b):          # a / b if a is a whole multiple of b, else None
+            r = a / b
+            return int(round(r)) if abs(r - round(r)) < 1e-9 * max(1.0, r) and round(r) >= 1 else None
+
+        if requested is not None:
+            d = int(requested)
+            if d < 1 or d != requested:
+                raise FMUError(f"role {self.role}: step_multiple must be an integer >= 1, got {requested!r}")
+        if h_fix:
+            h_fix = float(h_fix)
+            cands = [requested] if requested is not None else [mult(h_fix, Ts) or 1]
+            for d in cands:
+                if mult(d * Ts, h_fix):
+                    return d
+            raise FMUError(
+                f"role {self.role}: {self.path.name} has a fixed internal step of {h_fix:g} s "
+                f"(fixedInternalStepSize): its communication step must be a multiple of it, "
+                f"and {(cands[0]) * Ts:g} s (step_multiple {cands[0]} x base step {Ts:g} s) "
+                f"is not; choose a base step that divides or is a multiple of {h_fix:g} s")
+        if requested is not None:
+            return requested
+        if h_de and h_de > Ts * (1 + 1e-9) and not variable:
+            d = mult(h_de, Ts)
+            if d:
+                return d
+            raise FMUError(
+                f"role {self.role}: {self.path.name} declares a step of {h_de:g} s "
+                f"(DefaultExperiment stepSize) and canHandleVariableCommunicationStepSize="
+                f"false; the base step {Ts:g} s does not divide it, so it cannot be stepped "
+                f"at a multiple of the base step: choose a base step that divides {h_de:g} s, "
+                f"or pass step_multiple=1 to step it at {Ts:g} s anyway")
+        return 1
+
     # ------------------------------------------------------------ lifecycle
-    def instantiate(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0):
-        """Instantiate, set ``parameters`` by name and enter initialisation mode."""
+    def instantiate(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0,
+                    stop_time: float | None = None):
+        """Instantiate, set ``parameters`` by name and enter initialisation mode
+        (tolerance, start and stop time passed as the standard says: FMI 2 in
+        fmi2SetupExperiment, FMI 3 in fmi3EnterInitializationMode)."""
         f = self._fmu
         self.messages.clear()
+        if self.debug_logging:
+            self.messages = collections.deque(maxlen=100_000)
+        self.worst_status = 0
         self.time = start_time
+        if self._once_key is not None:
+            other = _ONCE.get(self._once_key)
+            if other is not None:
+                raise FMUError(f"role {self.role}: {self.path.name} declares "
+                               f"canBeInstantiatedOnlyOncePerProcess and is already "
+                               f"instantiated in this process (role {other})")
         _LIVE[self._id] = self
+        tol = self.tolerance
+        if tol is None and self.md.defaultExperiment is not None and \
+                self.md.defaultExperiment.tolerance:
+            tol = float(self.md.defaultExperiment.tolerance)
+        logging_on = bool(self.debug_logging)
         try:
             if self.fmi3:
                 def log3(env, status, category, message, _s=self):
                     _s._log(status, (category or b"").decode("utf-8", "replace"),
                             (message or b"").decode("utf-8", "replace"))
-                f.instantiate(logMessage=log3)
+                f.instantiate(logMessage=log3, loggingOn=logging_on)
             else:
                 self._callbacks = _fmi2_callbacks(self._id)
-                f.instantiate(callbacks=self._callbacks)
+                f.instantiate(callbacks=self._callbacks, loggingOn=logging_on)
             self._instantiated = True
+            if self._once_key is not None:
+                _ONCE[self._once_key] = self.role
+            if logging_on:
+                cats = [] if self.debug_logging is True else list(self.debug_logging)
+                f.setDebugLogging(True, cats)
             if self.fmi3:
                 self.set_parameters(parameters or {})
-                f.enterInitializationMode(startTime=start_time)
+                f.enterInitializationMode(tolerance=tol, startTime=start_time, stopTime=stop_time)
             else:
-                f.setupExperiment(startTime=start_time)
+                f.setupExperiment(tolerance=tol, startTime=start_time, stopTime=stop_time)
                 self.set_parameters(parameters or {})
                 f.enterInitializationMode()
         except FMUError:
             raise
         except Exception as exc:
-            raise self.error(f"instantiation failed ({exc})") from None
-
-    def check_settable(self, name: str) -> VarInfo:
-        """The variable ``name`` if it may be set before initialisation, else FMUError."""
-        v = self.var(name)
-        if v.causality not in ("parameter", "input") and v.variability != "tunable":
-            raise FMUError(f"role {self.role}: {name!r} is a{'n' if v.causality[0] in 'aeiou' else ''} "
-                           f"{v.causality} variable of {self.path.name}, not a parameter or input "
-                           f"(parameters: {', '.join(self.names('parameter'))})")
-        return v
+            raise self.error(f"instantiation failed ({exc})", getattr(exc, "status", None)) from None
 
     def set_parameters(self, parameters: Mapping[str, float]):
         for name, value in parameters.items():
@@ -300,24 +535,60 @@ class FMUSlave:
     _set_start = set_parameters
 
     def set_value(self, v: VarInfo, value):
+        """Set one variable (all of an array's values) with its own FMI call
+        (fmi2SetInteger, fmi3SetInt8, fmi3SetFloat32, ...)."""
         f = self._fmu
+        vals = list(np.ravel(np.asarray(value, dtype=object))) if v.shape else [value]
+        if v.items:          # an enumeration given by item name
+            vals = [dict(v.items)[x] if isinstance(x, str) else x for x in vals]
         try:
-            if v.type == "Real":
-                (f.setFloat64 if self.fmi3 else f.setReal)([v.vr], [float(value)])
-            elif v.type == "Integer":
-                if self.fmi3:
-                    (f.setInt64 if v.fmi_type == "Int64" else f.setInt32)([v.vr], [int(value)])
-                else:
-                    f.setInteger([v.vr], [int(value)])
-            elif v.type == "Boolean":
-                f.setBoolean([v.vr], [bool(value)])
+            if self.fmi3:
+                call = _C3[v.fmi_type][0]
+                if v.type == "Real":
+                    vals = [float(x) for x in vals]
+                elif v.type == "Integer":
+                    vals = [int(x) for x in vals]
+                elif v.type == "Boolean":
+                    vals = [bool(x) for x in vals]
+                elif v.type == "String":
+                    vals = [str(x) for x in vals]
+                elif v.type == "Binary":
+                    vals = [bytes(x) for x in vals]
+                getattr(f, "set" + call)([v.vr], vals)
             else:
-                f.setString([v.vr], [str(value)])
+                x = vals[0]
+                if v.type == "Real":
+                    f.setReal([v.vr], [float(x)])
+                elif v.type == "Integer":
+                    f.setInteger([v.vr], [int(x)])
+                elif v.type == "Boolean":
+                    f.setBoolean([v.vr], [bool(x)])
+                else:
+                    f.setString([v.vr], [str(x)])
         except Exception as exc:
+            self.note_status(getattr(exc, "status", None))
             raise FMUError(f"role {self.role}: cannot set {v.name} = {value!r} in "
                            f"{self.path.name}: {exc}"
                            + (f"; the FMU says: {self.last_error_message()}"
                               if self.last_error_message() else "")) from None
+
+    def get_value(self, v: VarInfo) -> list:
+        """All values of one variable (a list, one per array element) with its own
+        FMI call; for the slow paths (initialisation, termination)."""
+        f = self._fmu
+        try:
+            if self.fmi3:
+                call = _C3[v.fmi_type][0]
+                out = list(getattr(f, "get" + call)([v.vr], v.size))
+            else:
+                call = _C2[v.fmi_type][0]
+                out = list(getattr(f, "get" + call)([v.vr]))
+        except Exception as exc:
+            self.note_status(getattr(exc, "status", None))
+            raise self.error(f"getting {v.name}", getattr(exc, "status", None)) from None
+        if v.type == "Boolean":
+            out = [bool(x) for x in out]
+        return out
 
     def exit_initialization(self):
         f = self._fmu
@@ -328,9 +599,15 @@ class FMUSlave:
         except FMUError:
             raise
         except Exception as exc:
-            raise self.error(f"initialisation failed ({exc})") from None
+            raise self.error(f"initialisation failed ({exc})", getattr(exc, "status", None)) from None
 
     # ------------------------------------------------------------ fast I/O
+    def _fn(self, name: str):
+        dll = self._fmu.dll
+        fp = dll._FuncPtr((name, dll))
+        fp.restype = ctypes.c_int
+        return fp
+
     def raw(self) -> RawIO:
         """Private ctypes function objects for the per-tick calls, and the instance.
 
@@ -341,12 +618,7 @@ class FMUSlave:
         objects and must check the returned status (> 1 is Discard/Error/Fatal).
         """
         f = self._fmu
-        dll = f.dll
-
-        def fn(name):
-            fp = dll._FuncPtr((name, dll))
-            fp.restype = ctypes.c_int
-            return fp
+        fn = self._fn
         comp = ctypes.c_void_p(f.component)
         if self.fmi3:
             from fmpy.fmi3 import fmi3Boolean, fmi3Float64
@@ -354,9 +626,25 @@ class FMUSlave:
             return RawIO(fn("fmi3GetFloat64"), fn("fmi3SetFloat64"),
                          fn("fmi3DoStep") if self.kind == "cs" else None, comp, True,
                          (ctypes.byref(ev), ctypes.byref(term), ctypes.byref(early),
-                          ctypes.byref(last)), term)
+                          ctypes.byref(last)), term, early, last)
         return RawIO(fn("fmi2GetReal"), fn("fmi2SetReal"),
                      fn("fmi2DoStep") if self.kind == "cs" else None, comp, False, (), None)
+
+    def typed_io(self, v: VarInfo, direction: str):
+        """(raw ctypes function fmi2{Get,Set}<T> / fmi3{Get,Set}<T>, C element type,
+        numpy dtype) of the variable's own FMI call, e.g. fmi3GetFloat32 and c_float
+        for a Float32, fmi3SetInt8 and c_int8 for an Int8."""
+        table = _C3 if self.fmi3 else _C2
+        if v.fmi_type not in table:
+            raise FMUError(f"role {self.role}: {v.name} is a {v.fmi_type}: not a value "
+                           f"this master reads or writes")
+        call, ct, dtype = table[v.fmi_type]
+        return self._fn(f"fmi{3 if self.fmi3 else 2}{direction}{call}"), ct, dtype
+
+    def dtype(self, v: VarInfo) -> str:
+        """The numpy dtype a recorded column of ``v`` keeps (float32 for Float32, int8
+        for Int8, bool for Boolean, object for String and Binary)."""
+        return (_C3 if self.fmi3 else _C2).get(v.fmi_type, (None, None, "float64"))[2]
 
     def _real_vrs(self, names: list[str], what: str):
         vrs = []
@@ -439,6 +727,22 @@ class FMUSlave:
                 self.time = t + h
         return step
 
+    def terminated_status(self) -> tuple[bool, float | None]:
+        """After fmi2DoStep returned Discard: (fmi2Terminated, fmi2LastSuccessfulTime)
+        from fmi2GetBooleanStatus / fmi2GetRealStatus (FMI 2.0 section 4.2.3). (False,
+        None) if the FMU does not answer."""
+        from fmpy.fmi2 import fmi2LastSuccessfulTime, fmi2Terminated
+        f = self._fmu
+        try:
+            term = bool(f.getBooleanStatus(fmi2Terminated))
+        except Exception:
+            return False, None
+        try:
+            last = float(f.getRealStatus(fmi2LastSuccessfulTime))
+        except Exception:
+            last = None
+        return term, last
+
     # ------------------------------------------------------------ Model Exchange
     def _me_start(self):
         from fmpy.sundials import CVodeSolver
@@ -507,18 +811,45 @@ class FMUSlave:
 
     # ------------------------------------------------------------ end
     def terminate(self):
-        """Terminate and free the instance; the library stays loaded for another run."""
+        """End the instance as the standard allows after the worst status it returned:
+        Terminate and FreeInstance normally (also after Discard), only FreeInstance
+        after Error, no call at all after Fatal (FMI 2.0 section 2.1.3, FMI 3.0
+        section 2.2.3). The library stays loaded for another run."""
         if not self._instantiated:
             _LIVE.pop(self._id, None)
             return
         f = self._fmu
-        try:
-            f.terminate()
-        except Exception:
-            pass
-        try:       # not f.freeInstance(): FMPy would also unload the library
-            (f.fmi3FreeInstance if self.fmi3 else f.fmi2FreeInstance)(f.component)
-        except Exception:
-            pass
+        if self.worst_status < 4:
+            if self.worst_status < 3:
+                try:
+                    f.terminate()
+                except Exception:
+                    pass
+            try:       # not f.freeInstance(): FMPy would also unload the library
+                (f.fmi3FreeInstance if self.fmi3 else f.fmi2FreeInstance)(f.component)
+            except Exception:
+                pass
         self._instantiated = False
+        if self._once_key is not None and _ONCE.get(self._once_key) == self.role:
+            del _ONCE[self._once_key]
         _LIVE.pop(self._id, None)
+
+    def close(self):
+        """Terminate (if instantiated), unload the library and delete the extracted
+        files: for an FMU that is dropped (a failed or replaced ``replace_fmu``)."""
+        if self._closed:
+            return
+        self.terminate()
+        try:
+            self._fmu.freeLibrary()
+        except Exception:
+            pass
+        self._closed = True
+        try:
+            self._tmp.cleanup()
+        except Exception:
+            pass
+
+    @property
+    def closed(self) -> bool:
+        return self._closed

@@ -13,8 +13,9 @@ k = 0 .. N with N = duration / Ts (which must be an integer). In tick k:
 
 1. read every FMU variable used by anything: the values at t_k, i.e. after the
    doStep that ended at t_k (k = 0: after initialisation). An output with direct
-   feedthrough reflects the inputs held over [t_{k-1}, t_k) (at k = 0: the inputs'
-   start values, or values given as ``parameters``);
+   feedthrough reflects the inputs held over [t_{k-1}, t_k) (at k = 0: the values
+   connections from stimuli and FMUs gave the inputs in initialisation mode; inputs
+   driven by controllers keep their start values, or values given as ``parameters``);
 2. evaluate the stimuli at t_k;
 3. step the controllers in the order they were added. A controller sees the FMU
    values and stimuli of tick k, the outputs of controllers added *before* it from
@@ -35,6 +36,20 @@ and B's input, if read back, shows A(t_k) at tick k + 1. A controller output of
 tick k acts on the plant over [t_k, t_{k+1}) and is first seen in the plant's
 outputs at tick k + 1.
 
+Types
+-----
+Every FMI 2 and FMI 3 type is read and written with its own call (fmi2GetInteger,
+fmi3GetFloat32, fmi3SetInt8, an FMI 3 Enumeration as Int64...); a recorded column keeps
+its type (int8 ... uint64, float32, bool, str, bytes); an FMI 3 array records one
+column per element, ``x[1]``, ``x[2]`` (``m[i,j]`` for a matrix, 1-based as FMI's
+structured names). Values are held as Python numbers in the tick loop, recorded as
+float64 and cast back: a 64-bit integer beyond 2**53 loses its last digits.
+Scalar Float64/Real variables keep the one-call-per-FMU fast path.
+
+An FMU stepped every d base steps (a fixed internal step, or a DefaultExperiment
+stepSize it cannot vary from) gets its inputs at t_k (k % d == 0) and is stepped to
+t_{k+d} in tick k + d - 1: its outputs are held in between.
+
 Errors
 ------
 An FMU error status (get/set/doStep), a non-finite FMU value or stimulus, a
@@ -42,7 +57,11 @@ controller that raises or returns a non-finite, missing or non-numeric output st
 the run with an :class:`FMUError` (:class:`ControllerError` for controllers and
 stimuli) naming the role/controller, the variable and the time. The rows recorded
 before the failure are kept: the error carries ``.result`` (a :class:`RunResult`
-with ``completed=False``); ``run(raise_on_error=False)`` returns it instead.
+with ``completed=False``); ``run(raise_on_error=False)`` returns it instead. After
+an Error status only FreeInstance is called on that FMU, after Fatal nothing. An FMU
+that ends the simulation itself (fmi2Discard + fmi2Terminated, FMI 3
+terminateSimulation) ends the run normally: the tick is completed and recorded, and
+``RunResult.stop_reason`` names the FMU and the time.
 
 Speed
 -----
@@ -67,7 +86,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from .fmu import FMUError, FMUSlave, suggest
+from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, FMUTerminated, suggest
 from .roles import CONTRACTS, RoleContract, check_contract
 
 
@@ -91,9 +110,16 @@ class _Controller:
 @dataclasses.dataclass
 class _Connection:
     source: str
-    dest: str          # "role.input"
+    dest: str          # "role.input" (or "role.u[2]", or a tunable parameter)
     scale: float = 1.0
     sequential: bool = False
+    check_units: bool = True
+    unit_gain: float = 1.0     # source unit -> destination unit: dest = gain * (scale * src) + offset
+    unit_offset: float = 0.0
+
+    @property
+    def gain(self) -> float:
+        return self.scale * self.unit_gain
 
 
 _ATTR = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)(\[\s*-?\d+\s*(?:,\s*-?\d+\s*)*\])?$")
@@ -116,14 +142,24 @@ class System:
     # ----------------------------------------------------------- building
     def add_fmu(self, role: str, path, contract: str | RoleContract | None = None,
                 parameters: Mapping[str, float] | None = None, kind: str = "auto",
-                rtol: float = 1e-6) -> FMUSlave:
+                rtol: float = 1e-6, tolerance: float | None = None,
+                debug_logging: bool | list = False, step_multiple: int | None = None
+                ) -> FMUSlave:
         """Bind an FMU to ``role``. With a ``contract`` (a name of
         :data:`~cosim.master.roles.CONTRACTS` or a RoleContract) the FMU's interface is
         checked and every difference reported at once. ``parameters``: name -> value,
-        set before initialisation (parameters, or start values of inputs). ``kind``:
-        'auto' (Co-Simulation if the FMU has it), 'cs' or 'me'; ``rtol``: relative
-        tolerance of CVode for a Model Exchange FMU (restarted at every tick, since
-        the inputs jump; its absolute tolerance is rtol times the state nominals)."""
+        set before initialisation (parameters, start values of inputs and of any
+        variable with ``initial`` exact or approx; an FMI 3 array takes a sequence;
+        checked here against the standard's rules). ``kind``: 'auto' (Co-Simulation
+        if the FMU has it), 'cs' or 'me'; ``rtol``: relative tolerance of CVode for a
+        Model Exchange FMU. ``tolerance``: passed to the FMU in the experiment setup
+        (None: its DefaultExperiment tolerance if it declares one). ``debug_logging``:
+        True (all categories) or a list of the FMU's LogCategories: the FMU is
+        instantiated with logging on and fmi2/3SetDebugLogging called; its messages
+        are in ``RunResult.messages``. ``step_multiple``: step this FMU every n base
+        steps (n x step_size); None: 1, or what a fixed internal step
+        (FMI 3 fixedInternalStepSize) or a DefaultExperiment stepSize of an FMU that
+        cannot vary its step requires."""
         if not isinstance(role, str) or not role.isidentifier():
             raise SystemError_(f"role name {role!r} must be an identifier (letters, digits, _)")
         if role in self.roles:
@@ -131,62 +167,120 @@ class System:
         if role == "stim" or role in [c.name for c in self.controllers]:
             raise SystemError_(f"name {role!r} already used")
         slave, c = self._load(role, path, contract, kind, rtol)
+        try:
+            self._configure(role, slave, tolerance, debug_logging, step_multiple)
+            self._check_params(role, slave, parameters or {})
+        except BaseException:
+            slave.close()
+            raise
         self.roles[role] = slave
         self.contracts[role] = c
-        self.params[role] = {}
-        try:
-            self.set_parameters(role, parameters or {})
-        except SystemError_:
-            del self.roles[role], self.contracts[role], self.params[role]
-            raise
+        self.params[role] = dict(parameters or {})
         return slave
+
+    def _configure(self, role, slave, tolerance, debug_logging, step_multiple):
+        """Experiment options of one FMU, checked before it joins the system."""
+        if tolerance is not None and not (isinstance(tolerance, (int, float))
+                                          and math.isfinite(tolerance) and tolerance > 0):
+            raise SystemError_(f"role {role!r}: tolerance must be a finite number > 0, "
+                               f"got {tolerance!r}")
+        slave.tolerance = None if tolerance is None else float(tolerance)
+        if debug_logging not in (False, True, None):
+            cats = [c.name for c in slave.md.logCategories]
+            if isinstance(debug_logging, str):
+                debug_logging = [debug_logging]
+            bad = [c for c in debug_logging if c not in cats]
+            if bad:
+                raise SystemError_(f"role {role!r}: {slave.path.name} has no log categor"
+                                   f"{'y' if len(bad) == 1 else 'ies'} {bad} (its "
+                                   f"LogCategories: {cats or 'none declared'})")
+            debug_logging = list(debug_logging)
+        slave.debug_logging = debug_logging or False
+        try:
+            slave.step_mult = slave.step_multiple(self.Ts, step_multiple)
+        except FMUError as exc:
+            raise SystemError_(str(exc)) from None
+        if slave._once_key is not None:
+            for r, other in self.roles.items():
+                if other._once_key == slave._once_key and r != role:
+                    raise SystemError_(
+                        f"role {role!r}: {slave.path.name} declares "
+                        f"canBeInstantiatedOnlyOncePerProcess and role {r!r} already uses it")
 
     def replace_fmu(self, role: str, path, contract: str | RoleContract | None = "same",
                     parameters: Mapping[str, float] | None = None, kind: str = "auto",
-                    keep_parameters: bool = False, rtol: float = 1e-6) -> FMUSlave:
+                    keep_parameters: bool = False, rtol: float = 1e-6,
+                    tolerance: float | None = None, debug_logging: bool | list = False,
+                    step_multiple: int | None = None) -> FMUSlave:
         """Swap the FMU playing ``role`` for another (e.g. a user's plant model), keeping
-        connections, wiring and recordings. The contract of the role (``"same"``) is
-        checked, and so is every variable the system uses by name."""
+        connections, wiring and recordings. Atomic: the contract of the role
+        (``"same"``), every variable the system uses by name, every connection to or
+        from the role (type, causality, variability, unit) and the parameters are
+        checked first; on any failure the old FMU, its parameters and its contract stay
+        and the new one is unloaded."""
         old = self._role(role)
         if contract == "same":
             contract = self.contracts.get(role)
         slave, c = self._load(role, path, contract, kind, rtol)
-        used = self._names_used_of(role)
-        missing = [n for n in used if n not in slave.variables]
-        if missing:
-            raise SystemError_(f"role {role!r}: {Path(path).name} lacks variable(s) the system "
-                               f"uses: {missing}")
-        params = dict(self.params[role]) if keep_parameters else {}
-        params.update(parameters or {})
-        self.roles[role], self.contracts[role], self.params[role] = slave, c, {}
         try:
-            self.set_parameters(role, params)
-        except SystemError_:
-            self.roles[role] = old
+            self._configure(role, slave, tolerance, debug_logging, step_multiple)
+            used = self._names_used_of(role)
+            missing = []
+            for n in used:
+                try:
+                    slave.element(n)
+                except FMUError:
+                    missing.append(n)
+            if missing:
+                raise SystemError_(f"role {role!r}: {Path(path).name} lacks variable(s) the "
+                                   f"system uses: {missing}")
+            params = dict(self.params[role]) if keep_parameters else {}
+            params.update(parameters or {})
+            self._check_params(role, slave, params)
+            checked = [(conn, self._check_connection(conn.source, conn.dest, conn.scale,
+                                                     conn.sequential, conn.check_units,
+                                                     {role: slave}))
+                       for conn in self._connections
+                       if role in (conn.source.partition(".")[0], conn.dest.partition(".")[0])]
+            for w in self._controller_reads_of(role):
+                self._check_read(w, {role: slave})
+        except BaseException:
+            slave.close()
             raise
-        old.terminate()
+        for conn, (gain, offset) in checked:
+            conn.unit_gain, conn.unit_offset = gain, offset
+        self.roles[role], self.contracts[role], self.params[role] = slave, c, params
+        old.close()
         return slave
 
     def _load(self, role, path, contract, kind, rtol=1e-6):
-        slave = FMUSlave(path, role=role, kind=kind, rtol=rtol)
+        try:
+            slave = FMUSlave(path, role=role, kind=kind, rtol=rtol)
+        except FMUError:
+            raise
         c = None
-        if contract is not None:
-            if isinstance(contract, str):
-                if contract not in CONTRACTS:
-                    close = suggest(contract, CONTRACTS)
-                    raise SystemError_(f"unknown role contract {contract!r} (contracts: "
-                                       f"{sorted(CONTRACTS)}"
-                                       + (f"; did you mean {close}?)" if close else ")"))
-                c = CONTRACTS[contract]
-            else:
-                c = contract
-            diffs = check_contract(slave, c)
-            if diffs:
-                raise SystemError_(f"role {role!r}: {Path(path).name} does not fit the "
-                                   f"{c.name!r} contract ({len(diffs)} difference"
-                                   f"{'s' if len(diffs) > 1 else ''}):\n  - " + "\n  - ".join(diffs)
-                                   + f"\n  (the FMU's inputs: {slave.names('input')}; "
-                                   f"outputs: {slave.names('output')})")
+        try:
+            if contract is not None:
+                if isinstance(contract, str):
+                    if contract not in CONTRACTS:
+                        close = suggest(contract, CONTRACTS)
+                        raise SystemError_(f"unknown role contract {contract!r} (contracts: "
+                                           f"{sorted(CONTRACTS)}"
+                                           + (f"; did you mean {close}?)" if close else ")"))
+                    c = CONTRACTS[contract]
+                else:
+                    c = contract
+                diffs = check_contract(slave, c)
+                if diffs:
+                    raise SystemError_(f"role {role!r}: {Path(path).name} does not fit the "
+                                       f"{c.name!r} contract ({len(diffs)} difference"
+                                       f"{'s' if len(diffs) > 1 else ''}):\n  - "
+                                       + "\n  - ".join(diffs)
+                                       + f"\n  (the FMU's inputs: {slave.names('input')}; "
+                                       f"outputs: {slave.names('output')})")
+        except BaseException:
+            slave.close()
+            raise
         return slave, c
 
     def _names_used_of(self, role: str) -> list[str]:
@@ -201,33 +295,63 @@ class System:
                     names.append(n.partition(".")[2])
         return list(dict.fromkeys(names))
 
+    def _controller_reads_of(self, role: str) -> list[str]:
+        return [n for c in self.controllers for n in c.wiring.values()
+                if n.partition(".")[0] == role]
+
     def set_parameters(self, role: str, parameters: Mapping[str, float] | None = None, **values):
-        """Set FMU parameters (or input start values) by name, e.g.
+        """Set FMU parameters (or start values) by name, e.g.
         ``set_parameters("plant", J=3.4e-5)`` or ``set_parameters("plant", {"friction.z0": 0})``.
-        Unknown names, outputs and non-numeric values are refused at once."""
+        Unknown names, variables the standard does not let the master set before
+        initialisation (calculated parameters, outputs and locals with initial =
+        calculated, constants), values of the wrong type or range and arrays of the
+        wrong size are refused at once, citing the rule."""
         slave = self._role(role)
         values = {**(parameters or {}), **values}
+        self._check_params(role, slave, values)
+        self.params[role].update(values)
+
+    @staticmethod
+    def _check_params(role: str, slave: FMUSlave, values: Mapping):
         for name, value in values.items():
             try:
                 v = slave.check_settable(name)
             except FMUError as exc:
                 raise SystemError_(str(exc)) from None
-            if v.type in ("Real", "Integer", "Boolean"):
-                try:
-                    x = float(value)
-                except (TypeError, ValueError):
-                    raise SystemError_(f"role {role!r}: parameter {name} = {value!r} is not a "
-                                       f"number") from None
-                if v.type == "Real" and not math.isfinite(x):
-                    raise SystemError_(f"role {role!r}: parameter {name} = {value!r} is not finite")
-                if v.type == "Integer" and x != int(x):
-                    raise SystemError_(f"role {role!r}: parameter {name} is an Integer, "
-                                       f"got {value!r}")
-        self.params[role].update(values)
+            if isinstance(value, str) and v.type == "Integer" and v.items:
+                names = dict(v.items)
+                if value not in names:
+                    raise SystemError_(f"role {role!r}: {name} is an enumeration "
+                                       f"{[n for n, _ in v.items]}, not {value!r}")
+                continue
+            vals = list(np.ravel(np.asarray(value, dtype=object))) if v.shape else [value]
+            if v.shape and len(vals) != v.size:
+                raise SystemError_(f"role {role!r}: {name} is an array of shape {v.shape} "
+                                   f"({v.size} values); got {len(vals)} value(s)")
+            if not v.shape and isinstance(value, (list, tuple, np.ndarray)):
+                raise SystemError_(f"role {role!r}: {name} is a scalar; got {value!r}")
+            for x in vals:
+                _check_value(role, name, v, x)
 
-    def connect(self, source: str, dest: str, scale: float = 1.0, sequential: bool = False):
-        """Drive FMU input ``dest`` ('role.var') from ``source`` (any name), times
-        ``scale`` (e.g. -1 for an action/reaction pair such as a load cell's force).
+    def connect(self, source: str, dest: str, scale: float = 1.0, sequential: bool = False,
+                check_units: bool = True):
+        """Drive FMU input ``dest`` ('role.var', 'role.u[2]' for an element of an FMI 3
+        array, or a tunable parameter of a Co-Simulation FMU, set at every step) from
+        ``source`` (any name), times ``scale`` (e.g. -1 for an action/reaction pair
+        such as a load cell's force).
+
+        An FMU-to-FMU connection is checked on both ends (the standard's rules, as
+        libcosim and SSP do): the source must be an output (or calculated parameter),
+        the destination an input or a tunable parameter; the types must match (Real
+        with Real, Float32 with Float64; an integer with an integer whose range holds
+        the source's; Boolean with Boolean; Enumeration with the same enumeration);
+        String, Binary and Clock variables cannot be wired; units must have the same
+        dimension (from the FMUs' BaseUnit definitions; a factor or offset between
+        them, mm -> m, degC -> K, is applied), or be the same string when a side
+        defines none (``check_units=False`` skips the unit check). Every error names
+        both ends. Sources that are stimuli or controllers are checked when the
+        master plans the run; they may drive Real, integer (whole values only) and
+        Boolean (non-zero is true) inputs.
 
         ``sequential=True`` (Gauss-Seidel) is for a sensor FMU fed by a plant output
         (accelerometer on a unit): the destination is stepped after the source, with
@@ -236,25 +360,106 @@ class System:
         step late, a 1 ms delay the real sensor does not have, which matters in a loop
         closed at 1500 rad/s. The source must be an output of an FMU added before the
         destination's FMU."""
-        self._fmu_var(dest, causality="input")
         for c in self._connections:
             if c.dest == dest:
                 raise SystemError_(f"{dest} is already driven by {c.source}")
-        if not math.isfinite(float(scale)):
+        try:
+            scale = float(scale)
+        except (TypeError, ValueError):
+            raise SystemError_(f"connection {source} -> {dest}: scale must be a number") from None
+        if not math.isfinite(scale):
             raise SystemError_(f"connection {source} -> {dest}: scale must be finite")
+        gain, offset = self._check_connection(source, dest, scale, bool(sequential),
+                                              bool(check_units))
+        self._connections.append(_Connection(source, dest, scale, bool(sequential),
+                                             bool(check_units), gain, offset))
+
+    def _check_connection(self, source, dest, scale=1.0, sequential=False, check_units=True,
+                          override=None):
+        """Check one connection on both ends; returns the unit conversion (gain,
+        offset) from the source's unit to the destination's. ``override``: role ->
+        FMUSlave to check against instead of the bound one (replace_fmu)."""
+        roles = {**self.roles, **(override or {})}
+        d_role, dot, d_var = dest.partition(".")
+        if not dot:
+            raise SystemError_(f"{dest!r} is not of the form 'role.variable'")
+        if d_role not in roles:
+            self._role(d_role)
+        dslave = roles[d_role]
+        try:
+            dv, d_el = dslave.element(d_var)
+        except FMUError as exc:
+            raise SystemError_(f"connection {source} -> {dest}: {exc}") from None
+        why = dslave.run_rule(dv)
+        if why:
+            alt = suggest(d_var, dslave.names("input"), 3)
+            raise SystemError_(f"connection {source} -> {dest}: {dest} has causality "
+                               f"{dv.causality!r}, expected 'input' (or a tunable parameter): {why}"
+                               + (f" (did you mean {', '.join(f'{d_role}.{a}' for a in alt)}?)"
+                                  if alt else ""))
+        if dv.kind not in ("real", "int", "bool"):
+            raise SystemError_(f"connection {source} -> {dest}: {dest} is a {dv.fmi_type}: "
+                               f"only numeric and Boolean variables can be wired")
+        if dv.shape and d_el is None:
+            raise SystemError_(f"connection {source} -> {dest}: {dest} is an array of shape "
+                               f"{dv.shape}: connect its elements ({dest}[1], ...)")
+        s_role, sdot, s_var = source.partition(".")
         if sequential:
-            src_role = source.partition(".")[0]
-            roles = list(self.roles)
-            if src_role not in self.roles:
+            order = list(roles)
+            if s_role not in roles:
                 raise SystemError_(f"sequential connection {source} -> {dest}: the source "
-                                   f"must be an FMU output (roles: {roles})")
-            self._fmu_var(source, causality="output")
-            dest_role = dest.partition(".")[0]
-            if roles.index(src_role) >= roles.index(dest_role):
+                                   f"must be an FMU output (roles: {order})")
+            if order.index(s_role) >= order.index(d_role):
                 raise SystemError_(f"sequential connection {source} -> {dest}: role "
-                                   f"{src_role!r} must be added before {dest_role!r} "
+                                   f"{s_role!r} must be added before {d_role!r} "
                                    f"(FMUs are stepped in the order they were added)")
-        self._connections.append(_Connection(source, dest, float(scale), bool(sequential)))
+        if not sdot or s_role not in roles:
+            return 1.0, 0.0         # a stimulus or a controller: checked at planning
+        sslave = roles[s_role]
+        try:
+            sv, s_el = sslave.element(s_var)
+        except FMUError as exc:
+            raise SystemError_(f"connection {source} -> {dest}: {exc}") from None
+        both = f"connection {source} ({sv.fmi_type} {sv.causality}) -> {dest} " \
+               f"({dv.fmi_type} {dv.causality})"
+        if sv.causality not in ("output", "calculatedParameter"):
+            raise SystemError_(f"{both}: the source must be an output (or a calculated "
+                               f"parameter), not a{'n' if sv.causality[0] in 'aeiou' else ''} "
+                               f"{sv.causality} (FMI: only outputs are meant to be used by "
+                               f"another model)")
+        if sv.shape and s_el is None:
+            raise SystemError_(f"{both}: {source} is an array of shape {sv.shape}: connect "
+                               f"its elements ({source}[1], ...)")
+        if sv.kind != dv.kind:
+            raise SystemError_(f"{both}: types differ ({sv.fmi_type} -> {dv.fmi_type}); "
+                               f"a connection joins variables of the same type")
+        if sv.kind == "int":
+            if (sv.fmi_type == "Enumeration") != (dv.fmi_type == "Enumeration") or \
+                    (sv.items and dv.items and dict(sv.items) != dict(dv.items)):
+                raise SystemError_(f"{both}: an enumeration connects only to the same "
+                                   f"enumeration")
+            lo_s, hi_s = _int_range(sslave, sv)
+            lo_d, hi_d = _int_range(dslave, dv)
+            if lo_s < lo_d or hi_s > hi_d:
+                raise SystemError_(f"{both}: the source's range [{lo_s}, {hi_s}] does not "
+                                   f"fit the destination's [{lo_d}, {hi_d}]")
+            if scale != 1.0:
+                raise SystemError_(f"{both}: scale {scale} on an integer connection")
+        if sv.kind == "bool" and scale != 1.0:
+            raise SystemError_(f"{both}: scale {scale} on a Boolean connection")
+        if sv.kind != "real" or not check_units:
+            return 1.0, 0.0
+        return _unit_conversion(both, sslave, sv.unit, dslave, dv.unit)
+
+    def _check_read(self, name, override=None):
+        """A controller input or recording read from an FMU: any variable the FMU has
+        (or an element of an array)."""
+        roles = {**self.roles, **(override or {})}
+        role, _, var = name.partition(".")
+        try:
+            roles[role].element(var)
+        except FMUError as exc:
+            raise SystemError_(str(exc)) from None
 
     @property
     def connections(self) -> list[tuple[str, str]]:
@@ -348,6 +553,8 @@ class RunResult:
     timing: dict | None = None          # Master(timing=True): seconds per stage
     wall_time: float = 0.0              # seconds spent in the tick loop
     messages: dict = dataclasses.field(default_factory=dict)   # role -> FMU log lines
+    stop_reason: str | None = None      # an FMU ended the run itself (completed stays True)
+    notes: list = dataclasses.field(default_factory=list)      # e.g. early returns continued
 
     @property
     def names(self) -> list[str]:
@@ -370,9 +577,11 @@ class RunResult:
         and step size in the file's metadata (key ``cosim``)."""
         import pyarrow as pa
         import pyarrow.parquet as pq
-        table = pa.Table.from_pydict({k: np.asarray(v) for k, v in self.signals.items()})
+        table = pa.Table.from_pydict({k: (list(v) if np.asarray(v).dtype == object else np.asarray(v))
+                                      for k, v in self.signals.items()})
         meta = {"provenance": self.provenance, "completed": self.completed,
-                "error": self.error, "ticks": self.ticks, "step_size": self.step_size}
+                "error": self.error, "ticks": self.ticks, "step_size": self.step_size,
+                "stop_reason": self.stop_reason, "notes": self.notes}
         table = table.replace_schema_metadata({**(table.schema.metadata or {}),
                                                b"cosim": json.dumps(meta).encode()})
         pq.write_table(table, str(path))
@@ -385,10 +594,32 @@ class RunResult:
         signals = {name: table.column(name).to_numpy() for name in table.column_names}
         return cls(signals, meta.get("provenance", []), completed=meta.get("completed", True),
                    error=meta.get("error"), ticks=meta.get("ticks", len(signals.get("time", ()))),
-                   step_size=meta.get("step_size"))
+                   step_size=meta.get("step_size"), stop_reason=meta.get("stop_reason"),
+                   notes=meta.get("notes", []))
 
 
 # =========================================================================== master
+@dataclasses.dataclass
+class _Plan:
+    fmu_reads: dict       # role -> scalar Real/Float64 names (fmi2GetReal / fmi3GetFloat64)
+    typed_reads: dict     # role -> [VarInfo]: other numeric and Boolean variables, arrays
+    text_reads: dict      # role -> [VarInfo]: String and Binary variables (recorded)
+    stim_used: list
+    ctrl_used: dict
+    attrs: list
+    rec_names: list
+    alias: dict
+
+
+class _Terminated(Exception):
+    """An FMU ended the simulation normally (fmi2Discard + fmi2Terminated, FMI 3
+    terminateSimulation) during the doStep of tick ``k``."""
+
+    def __init__(self, j, k, reason):
+        super().__init__(reason)
+        self.j, self.k, self.reason = j, k, reason
+
+
 class Master:
     """Runs a System for a duration at its fixed step.
 
@@ -413,6 +644,9 @@ class Master:
         stim_used: list[str] = []
         ctrl_used: dict[str, list[str]] = {c.name: [] for c in sys_.controllers}
         attrs: list[tuple[str, str, str, tuple]] = []     # (full name, ctrl, attr, index)
+        typed_reads: dict[str, list] = {r: [] for r in sys_.roles}   # VarInfo, own FMI call
+        text_reads: dict[str, list] = {r: [] for r in sys_.roles}    # String / Binary (record only)
+        alias: dict[str, str] = {}          # "ss.y[ 2]" as written -> canonical "ss.y[2]"
 
         def source(name: str, purpose: str, allow_attr: bool = False):
             head, dot, tail = name.partition(".")
@@ -451,15 +685,34 @@ class Master:
                     + (f"; recordable attributes: {recordable}" if allow_attr and recordable else "")
                     + (f"; did you mean {close}?)" if close else ")"))
             elif head in sys_.roles:
+                slave = sys_.roles[head]
                 try:
-                    slave, v = sys_._fmu_var(name)
-                except SystemError_ as exc:
+                    v, el = slave.element(tail)
+                except FMUError as exc:
                     raise SystemError_(f"{purpose}: {exc}") from None
-                if v.type != "Real":
-                    raise SystemError_(f"{purpose}: {name} is {v.fmi_type or v.type}; only Real "
-                                       f"variables can be wired or recorded")
-                if tail not in fmu_reads[head]:
-                    fmu_reads[head].append(tail)
+                if v.kind == "clock":
+                    raise SystemError_(f"{purpose}: {name} is a Clock: clocks are not values")
+                if v.kind in ("str", "bin") and not allow_attr:
+                    raise SystemError_(f"{purpose}: {name} is a {v.fmi_type}: it can be "
+                                       f"recorded, not wired")
+                if v.fmi_type in ("Real", "Float64") and not v.shape:
+                    # the fast path: one fmi2GetReal / fmi3GetFloat64 per FMU and tick
+                    if tail not in fmu_reads[head]:
+                        fmu_reads[head].append(tail)
+                    return [name]
+                group = text_reads if v.kind in ("str", "bin") else typed_reads
+                if v.name not in [x.name for x in group[head]]:
+                    group[head].append(v)
+                els = [f"{head}.{e}" for e in slave.element_names(v)]
+                if el is None and v.shape and not allow_attr:
+                    raise SystemError_(f"{purpose}: {name} is an array of shape {v.shape}: "
+                                       f"wire one element ({els[0]}, ...)")
+                if el is not None:
+                    alias[name] = els[el]
+                    return [els[el]]
+                if not v.shape:
+                    return [name]
+                return els
             else:
                 close = suggest(head, list(sys_.roles) + list(ctrl) + ["stim"])
                 raise SystemError_(f"{purpose}: unknown signal {name!r}: {head!r} is not a role "
@@ -468,6 +721,22 @@ class Master:
 
         for c in sys_._connections:
             source(c.source, f"connection to {c.dest}")
+            # again here: the source's FMU may have been added after connect()
+            c.unit_gain, c.unit_offset = sys_._check_connection(
+                c.source, c.dest, c.scale, c.sequential, c.check_units)
+            d_role, _, d_var = c.dest.partition(".")
+            dslave = sys_.roles[d_role]
+            dv, d_el = dslave.element(d_var)
+            if d_el is not None:
+                alias[c.dest] = f"{d_role}.{dslave.element_names(dv)[d_el]}"
+            src = alias.get(c.source, c.source)
+            if src.partition(".")[0] not in sys_.roles:
+                if dv.kind != "real" and c.scale != 1.0:
+                    raise SystemError_(f"connection {c.source} -> {c.dest}: scale "
+                                       f"{c.scale} on a {dv.fmi_type} input")
+            if c.sequential and not (dv.fmi_type in ("Real", "Float64") and not dv.shape):
+                raise SystemError_(f"sequential connection {c.source} -> {c.dest}: only "
+                                   f"scalar Real/Float64 inputs can be connected sequentially")
         for c in sys_.controllers:
             for key, src in c.wiring.items():
                 source(src, f"controller {c.name!r} input {key!r}")
@@ -476,16 +745,25 @@ class Master:
         for r in self.record + extra:
             if r == "time" or r in rec_names:
                 continue
-            source(r, "record", allow_attr=True)
-            rec_names.append(r)
-        return fmu_reads, stim_used, ctrl_used, attrs, rec_names
+            for n in source(r, "record", allow_attr=True) or [r]:
+                if n not in rec_names:
+                    rec_names.append(n)
+        return _Plan(fmu_reads, typed_reads, text_reads, stim_used, ctrl_used, attrs,
+                     rec_names, alias)
 
     # ----------------------------------------------------------------- run
-    def run(self, duration: float, raise_on_error: bool = True) -> RunResult:
+    def run(self, duration: float, raise_on_error: bool = True,
+            start_time: float = 0.0) -> RunResult:
+        """Run from ``start_time`` for ``duration`` seconds (passed to every FMU as its
+        start and stop time). An FMU that ends the simulation itself (fmi2Discard with
+        fmi2Terminated, FMI 3 terminateSimulation) ends the run normally: the tick is
+        completed, its row recorded, and ``RunResult.stop_reason`` says who and when."""
         sys_ = self.system
         Ts = sys_.Ts
         if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
             raise SystemError_(f"duration must be a finite number > 0, got {duration!r}")
+        if not (isinstance(start_time, (int, float)) and math.isfinite(start_time)):
+            raise SystemError_(f"start time must be a finite number, got {start_time!r}")
         n_ticks = int(round(duration / Ts))
         if n_ticks <= 0:
             raise SystemError_(f"duration {duration} s is shorter than one step {Ts} s")
@@ -494,60 +772,108 @@ class Master:
                                f"(nearest: {n_ticks} steps = {n_ticks * Ts} s)")
         if not sys_.roles and not sys_.controllers:
             raise SystemError_("the system is empty")
+        for role, slave in sys_.roles.items():
+            d = getattr(slave, "step_mult", 1)
+            if n_ticks % d:
+                raise SystemError_(f"role {role!r} is stepped every {d} base steps "
+                                   f"({d * Ts:g} s): the duration must be a multiple of that "
+                                   f"({n_ticks} steps is not)")
         for c in sys_.controllers:          # reset before planning: attribute shapes
             c.block.reset()
-        fmu_reads, stim_used, ctrl_used, attrs, rec_names = self._plan()
+        plan = self._plan()
+        T0 = float(start_time)
 
         # ---- slots of the value list V
         slot: dict[str, int] = {"time": 0}
-        for role, names in fmu_reads.items():
+        for role, names in plan.fmu_reads.items():
             for n in names:
                 slot[f"{role}.{n}"] = len(slot)
+        for role, vs in plan.typed_reads.items():
+            for _, group in _groups(sys_.roles[role], vs):
+                for v in group:
+                    for e in FMUSlave.element_names(v):
+                        slot[f"{role}.{e}"] = len(slot)
         fmu_end = len(slot)
-        for s in stim_used:
-            slot[f"stim.{s}"] = len(slot)
+        for s_ in plan.stim_used:
+            slot[f"stim.{s_}"] = len(slot)
         stim_end = len(slot)
         for c in sys_.controllers:
-            for o in ctrl_used[c.name]:
+            for o in plan.ctrl_used[c.name]:
                 slot[f"{c.name}.{o}"] = len(slot)
         ctrl_end = len(slot)
-        for a in attrs:
+        for a in plan.attrs:
             slot[a[0]] = len(slot)
-        columns = ["time"] + rec_names
+        for role, vs in plan.text_reads.items():   # after every number: never summed
+            for _, group in _groups(sys_.roles[role], vs):
+                for v in group:
+                    for e in FMUSlave.element_names(v):
+                        slot[f"{role}.{e}"] = len(slot)
+        columns = ["time"] + plan.rec_names
+        dtypes = {}
+        text_cols = []
+        for name in plan.rec_names:
+            head, _, tail = name.partition(".")
+            if head in sys_.roles:
+                sl = sys_.roles[head]
+                v, _ = sl.element(tail)
+                dtypes[name] = sl.dtype(v)
+                if v.kind in ("str", "bin"):
+                    text_cols.append(name)
+        num_cols = [c for c in columns if c not in text_cols]
         rec = array.array("d")
-        ncol = len(columns)
+        srec: list = []
+        self._cols = (columns, num_cols, text_cols, dtypes, srec)
+        self._notes: list[str] = []
+        self._stop = None
 
         slaves = list(sys_.roles.items())
         try:
             for role, slave in slaves:
-                slave.instantiate(sys_.params.get(role), start_time=0.0)
+                slave.instantiate(sys_.params.get(role), start_time=T0,
+                                  stop_time=T0 + n_ticks * Ts)
+            wbufs = self._inputs_in_initialization(slaves, plan, T0)
             for role, slave in slaves:
                 slave.exit_initialization()
-            src, ns = self._generate(slaves, fmu_reads, fmu_end, stim_used, stim_end,
-                                     ctrl_used, ctrl_end, attrs, slot, columns, rec, Ts)
+            src, ns = self._generate(slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec,
+                                     srec, Ts, T0, wbufs)
         except BaseException as exc:
             for _, s in slaves:
                 s.terminate()
             if isinstance(exc, (FMUError, SystemError_)):
                 if isinstance(exc, FMUError):
-                    exc.result = self._result(rec, columns, Ts, str(exc), None)
+                    exc.result = self._result(rec, Ts, str(exc), None)
                 raise
             err = FMUError(f"initialisation failed: {type(exc).__name__}: {exc}")
-            err.result = self._result(rec, columns, Ts, str(err), None)
+            err.result = self._result(rec, Ts, str(err), None)
             raise err from exc
         self.source = src
         loop = ns["_loop"]
         timing = ns.get("_T")
+        ncol = len(num_cols)
 
         error: BaseException | None = None
         t_start = _time.perf_counter()
         try:
-            loop(0, n_ticks)
+            try:
+                loop(0, n_ticks)
+            except _Terminated as term:
+                # finish the tick (the FMUs after it are stepped too), record its end
+                # row and stop: the FMU's own end is a normal end (FMI 2.0 section
+                # 4.2.3, FMI 3.0 section 4.2.1: the master terminates the simulation)
+                stops = [term]
+                while True:
+                    try:
+                        ns["_steps"](term.k, stops[-1].j)
+                        break
+                    except _Terminated as more:
+                        stops.append(more)
+                loop(term.k + 1, term.k + 1)
+                self._stop = "; ".join(x.reason for x in stops)
         except FMUError as exc:
             error = exc
         except Exception as exc:          # a bug outside the guarded calls
             k = len(rec) // ncol
-            error = FMUError(f"run failed at tick {k} (t = {k * Ts:.6f} s): "
+            error = FMUError(f"run failed at tick {k} (t = {T0 + k * Ts:.6f} s): "
                              f"{type(exc).__name__}: {exc}")
             error.__cause__ = exc
         finally:
@@ -559,7 +885,7 @@ class Master:
             tim = {label: float(x) for label, x in zip(ns["_T_labels"], timing)}
             tim["total"] = wall
             tim["master"] = wall - sum(v for k, v in tim.items() if k != "total")
-        result = self._result(rec, columns, Ts, str(error) if error else None, tim)
+        result = self._result(rec, Ts, str(error) if error else None, tim)
         result.wall_time = wall
         if error is not None:
             error.result = result           # nothing recorded is lost
@@ -567,27 +893,161 @@ class Master:
                 raise error
         return result
 
-    def _result(self, rec, columns, Ts, error, timing) -> RunResult:
-        ncol = len(columns)
+    def _continue_early(self, j, slave, ns, t, h):
+        """An FMI 3 FMU returned early from fmi3DoStep (earlyReturn, lastSuccessfulTime
+        < t + h). The master instantiates every FMU with earlyReturnAllowed = false, so
+        this is the FMU's doing: if it can handle a variable communication step the
+        master steps it on from lastSuccessfulTime to t + h (and notes it in
+        ``RunResult.notes``), else the run fails; it never goes on as if the step had
+        been completed (FMI 3.0 section 4.2.1, fmi3DoStep)."""
+        import ctypes
+        do, c = ns[f"do_{j}"], ns[f"c_{j}"]
+        early, last, term = ns[f"early_{j}"], ns[f"last_{j}"], ns[f"term_{j}"]
+        extra = tuple(ns[f"x{i}_{j}"] for i in range(4))
+        tend = t + h
+        eps = 1e-9 * max(1.0, abs(tend))
+        first = last.value
+        n = 0
+        while early.value and last.value < tend - eps and not term.value:
+            if not getattr(slave.iface, "canHandleVariableCommunicationStepSize", False):
+                raise slave.error(
+                    f"fmi3DoStep from t = {t:.6f} s to {tend:.6f} s returned early at "
+                    f"lastSuccessfulTime = {last.value:.6f} s although it was instantiated "
+                    f"with earlyReturnAllowed = false, and it cannot handle a variable "
+                    f"communication step (canHandleVariableCommunicationStepSize = false) "
+                    f"to complete the step", None, t)
+            n += 1
+            if n > 10_000:
+                raise slave.error(f"fmi3DoStep kept returning early before t = {tend:.6f} s "
+                                  f"(10000 continuations)", None, t)
+            tl = last.value
+            if not tl > t - eps:
+                raise slave.error(f"fmi3DoStep returned early with lastSuccessfulTime = "
+                                  f"{tl!r} outside the step [{t:.6f}, {tend:.6f}] s", None, t)
+            st = do(c, ctypes.c_double(tl), ctypes.c_double(tend - tl), ctypes.c_bool(True),
+                    *extra)
+            if st > 1:
+                raise slave.error(f"fmi3DoStep from t = {tl:.6f} s (continuing after an "
+                                  f"early return)", st, tl)
+        if len(self._notes) < 50:
+            self._notes.append(f"role {slave.role}: fmi3DoStep from t = {t:.6f} s returned "
+                               f"early at {first:.6f} s; stepped on to {tend:.6f} s in {n} "
+                               f"more call(s)")
+
+    def _inputs_in_initialization(self, slaves, plan, T0):
+        """Set every input driven by a stimulus or an FMU in initialisation mode (as
+        FMPy and libcosim do), so that row 0 is consistent: the FMUs' outputs at t0
+        reflect their connected inputs at t0. FMU outputs are read in initialisation
+        mode (allowed for outputs: FMI 2.0 section 4.2.4, FMI 3.0 section 2.3.3);
+        passes repeat while a value changes, at most once per FMU (a chain
+        A -> B -> C settles in as many passes). Inputs driven by controllers keep
+        their start values until the controllers' first outputs (tick 0).
+
+        Returns the write buffers' initial contents for array inputs: role ->
+        {variable name: list of values} (the elements not wired keep them)."""
+        sys_ = self.system
+        roles = dict(slaves)
+        wbufs: dict = {r: {} for r in roles}
+        for r, sl in slaves:
+            for c in sys_._connections:
+                d_role, _, d_var = c.dest.partition(".")
+                if d_role != r:
+                    continue
+                dv, d_el = sl.element(d_var)
+                if dv.shape and dv.name not in wbufs[r]:
+                    given = sys_.params.get(r, {}).get(dv.name)
+                    wbufs[r][dv.name] = (list(np.ravel(np.asarray(given, dtype=object)))
+                                         if given is not None else _parse_start(dv))
+        conns = [c for c in sys_._connections
+                 if c.source.partition(".")[0] in roles or c.source.startswith("stim.")]
+        if not conns:
+            return wbufs
+        last: dict = {}
+        n_pass = 1 + sum(1 for c in conns if c.source.partition(".")[0] in roles)
+        for _ in range(min(n_pass, len(slaves) + 1)):
+            changed = False
+            for c in conns:
+                head, _, tail = c.source.partition(".")
+                if head == "stim":
+                    try:
+                        x = sys_.stimuli[tail](T0)
+                    except Exception as exc:
+                        raise ControllerError(f"stimulus {tail!r} failed at t = {T0:.6f} s "
+                                              f"(initialisation): {type(exc).__name__}: {exc}") from exc
+                    if not _finite(x):
+                        raise ControllerError(f"stimulus {tail!r} returned {x!r} at t = "
+                                              f"{T0:.6f} s (initialisation)")
+                else:
+                    sv, s_el = roles[head].element(tail)
+                    x = roles[head].get_value(sv)[s_el or 0]
+                if id(c) in last and last[id(c)] == x:
+                    continue
+                last[id(c)] = x
+                changed = True
+                d_role, _, d_var = c.dest.partition(".")
+                dsl = roles[d_role]
+                dv, d_el = dsl.element(d_var)
+                y = _convert(x, dv, c, f"connection {c.source} -> {c.dest} at t = {T0:.6f} s")
+                if d_el is not None:
+                    buf = wbufs[d_role][dv.name]
+                    buf[d_el] = y
+                    dsl.set_value(dv, list(buf))
+                else:
+                    dsl.set_value(dv, y)
+            if not changed:
+                break
+        return wbufs
+
+    def _result(self, rec, Ts, error, timing) -> RunResult:
+        columns, num_cols, text_cols, dtypes, srec = self._cols
+        ncol = len(num_cols)
         n = len(rec) // ncol
         data = np.frombuffer(rec, dtype=np.float64)[: n * ncol].reshape(n, ncol) if n else \
             np.empty((0, ncol))
-        signals = {name: data[:, i].copy() for i, name in enumerate(columns)}
-        msgs = {r: [f"[{s}] {m}" for s, _, m in sl.messages]
+        signals = {}
+        for name in columns:
+            if name in text_cols:
+                i = text_cols.index(name)
+                signals[name] = np.array([r[i] for r in srec[:n]], dtype=object)
+                continue
+            col = data[:, num_cols.index(name)]
+            dt = dtypes.get(name, "float64")
+            if dt == "bool":
+                col = col != 0.0
+            elif dt != "float64":
+                col = col.astype(dt)
+            else:
+                col = col.copy()
+            signals[name] = col
+        msgs = {r: [f"[{STATUS.get(s, s)}]" + (f" [{c}]" if c else "") + f" {m}"
+                    for s, c, m in sl.messages]
                 for r, sl in self.system.roles.items() if sl.messages}
         return RunResult(signals, self.system.provenance(), completed=error is None, error=error,
-                         ticks=n, step_size=Ts, timing=timing, messages=msgs)
+                         ticks=n, step_size=Ts, timing=timing, messages=msgs,
+                         stop_reason=getattr(self, "_stop", None),
+                         notes=list(getattr(self, "_notes", [])))
 
     # ----------------------------------------------------------------- codegen
-    def _generate(self, slaves, fmu_reads, fmu_end, stim_used, stim_end, ctrl_used, ctrl_end,
-                  attrs, slot, columns, rec, Ts):
-        """Source and namespace of the specialised tick loop ``_loop(k0, N)``."""
+    def _generate(self, slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec, srec, Ts, T0,
+                  wbufs):
+        """Source and namespace of the specialised tick loop ``_loop(k0, N)`` (and of
+        ``_steps(k, j0)``, the doSteps of tick k after FMU j0, to finish a tick in which
+        an FMU ended the simulation)."""
         import ctypes
         sys_ = self.system
         timing = self.timing
-        ns: dict = {"Ts": Ts, "_V": [0.0] * len(slot), "_rec_extend": rec.extend,
+        fmu_reads, stim_used, ctrl_used, attrs = (plan.fmu_reads, plan.stim_used,
+                                                  plan.ctrl_used, plan.attrs)
+        columns, num_cols, text_cols, _, _ = self._cols
+
+        def S(name):        # the slot of a name as written ("ss.y[ 2]" -> "ss.y[2]")
+            return slot[plan.alias.get(name, name)]
+
+        ns: dict = {"Ts": Ts, "T0": T0, "_V": [0.0] * len(slot), "_rec_extend": rec.extend,
+                    "_srec_append": srec.append,
                     "_tc": ctypes.c_double(0.0), "_h": ctypes.c_double(Ts),
-                    "_one": ctypes.c_int(1), "_true": ctypes.c_bool(True)}
+                    "_one": ctypes.c_int(1), "_true": ctypes.c_bool(True),
+                    "_string_at": ctypes.string_at}
         # raw ctypes calls take ctypes objects (see FMUSlave.raw): counts are c_size_t
         # constants, the communication point is _tc (set once per tick)
         labels: list[str] = []
@@ -600,11 +1060,23 @@ class Master:
             return ([indent + "_t0 = _pc()"] + [indent + b for b in body]
                     + [indent + f"_T[{i}] += _pc() - _t0"])
 
+        def every(d, body, end=False):
+            # an FMU stepped every d base steps (a macro step from t_k, k % d == 0, to
+            # t_{k+d}): its inputs are set at the macro step's start, its doStep is made
+            # in the macro step's last tick, so that its outputs read in between are its
+            # values at t_k (held), never values from the future
+            if d == 1:
+                return body
+            return [f"if not {'(k + 1)' if end else 'k'} % {d}:"] + ["    " + b for b in body]
+
         read_blocks = []       # (role, slave, names, first slot)
         L_read, L_write, L_step = [], [], []
+        step_blocks: list[list[str]] = []
+        conv_errs: list = []   # (connection, destination VarInfo) of checked conversions
         for j, (role, slave) in enumerate(slaves):
             io = slave.raw()
             ns[f"c_{j}"] = io.comp
+            d = getattr(slave, "step_mult", 1)
             extra = ""
             names = fmu_reads[role]
             if names:
@@ -621,8 +1093,42 @@ class Master:
                         f"V[{a}:{a + n}] = rb_{j}" if n > 1 else f"V[{a}] = rb_{j}[0]"]
                 L_read += timed(f"fmu:{role}:get", body, "        ")
                 read_blocks.append((role, slave, names, a))
+            # every other type with its own call (fmi2GetInteger, fmi3GetFloat32, ...),
+            # one call per type; arrays fill one slot per element
+            for q, (call, vs) in enumerate(_groups(slave, plan.typed_reads[role]
+                                                   + plan.text_reads[role])):
+                fn, ct, _ = slave.typed_io(vs[0], "Get")
+                m = sum(v.size for v in vs)
+                els = [e for v in vs for e in FMUSlave.element_names(v)]
+                a = slot[f"{role}.{els[0]}"]
+                g = f"{j}_{q}"
+                ns[f"tg_{g}"] = fn
+                ns[f"tgvr_{g}"] = (ctypes.c_uint32 * len(vs))(*[v.vr for v in vs])
+                ns[f"tgn_{g}"] = ctypes.c_size_t(len(vs))
+                ns[f"tgm_{g}"] = ctypes.c_size_t(m)
+                ns[f"tgb_{g}"] = (ct * m)()
+                ex = f", tgm_{g}" if io.fmi3 else ""
+                if call == "Binary":
+                    ns[f"tgz_{g}"] = (ctypes.c_size_t * m)()
+                    body = [f"if (st := tg_{g}(c_{j}, tgvr_{g}, tgn_{g}, tgz_{g}, tgb_{g}, tgm_{g})) > 1: "
+                            f"_fail_fmu({j}, 'get', t, st)",
+                            f"V[{a}:{a + m}] = [_string_at(p, z) if p else None "
+                            f"for p, z in zip(tgb_{g}, tgz_{g})]"]
+                elif call == "String":
+                    body = [f"if (st := tg_{g}(c_{j}, tgvr_{g}, tgn_{g}, tgb_{g}{ex})) > 1: "
+                            f"_fail_fmu({j}, 'get', t, st)",
+                            f"V[{a}:{a + m}] = [x.decode('utf-8', 'replace') if x is not None "
+                            f"else None for x in tgb_{g}]"]
+                else:
+                    body = [f"if (st := tg_{g}(c_{j}, tgvr_{g}, tgn_{g}, tgb_{g}{ex})) > 1: "
+                            f"_fail_fmu({j}, 'get', t, st)",
+                            f"V[{a}:{a + m}] = tgb_{g}"]
+                    read_blocks.append((role, slave, els, a))
+                L_read += timed(f"fmu:{role}:get{call}", body, "        ")
             ins = [c for c in sys_._connections
                    if c.dest.partition(".")[0] == role and not c.sequential]
+            fast = [c for c in ins if _fast_dest(slave, c.dest)]
+            typed = [c for c in ins if c not in fast]
             seq = [c for c in sys_._connections
                    if c.dest.partition(".")[0] == role and c.sequential]
             L_seq = []
@@ -645,50 +1151,94 @@ class Master:
                     ns[f"srvr_{j}_{q}"] = (ctypes.c_uint32 * 1)(src_slave.var(src_var).vr)
                     ns[f"srb_{j}_{q}"] = (ctypes.c_double * 1)()
                     ex = ", _n1" if sio.fmi3 else ""
-                    scale = "" if c.scale == 1.0 else f" * {c.scale!r}"
                     L_seq += [f"if (st := sget_{j}_{q}(sc_{j}_{q}, srvr_{j}_{q}, _n1, srb_{j}_{q}{ex})) > 1: "
                               f"_fail_fmu({si}, 'get', t, st)",
-                              f"swb_{j}[{q}] = srb_{j}_{q}[0]{scale}"]
+                              f"swb_{j}[{q}] = {_affine(f'srb_{j}_{q}[0]', c)}"]
                 ex = f", swn_{j}" if io.fmi3 else ""
                 L_seq += [f"if (st := sset_{j}(c_{j}, swvr_{j}, swn_{j}, swb_{j}{ex})) > 1: "
                           f"_fail_fmu({j}, 'set', t, st)"]
                 ns["_n1"] = ctypes.c_size_t(1)
-            if ins:
-                n = len(ins)
-                vrs = [slave.var(c.dest.partition(".")[2]).vr for c in ins]
+            W = []
+            if fast:
+                n = len(fast)
+                vrs = [slave.var(c.dest.partition(".")[2]).vr for c in fast]
                 ns[f"set_{j}"] = io.set
                 ns[f"wvr_{j}"] = (ctypes.c_uint32 * n)(*vrs)
                 ns[f"wb_{j}"] = (ctypes.c_double * n)()
                 ns[f"wn_{j}"] = ctypes.c_size_t(n)
-                terms = []
-                for c in ins:
-                    e = f"V[{slot[c.source]}]"
-                    if c.scale != 1.0:
-                        e = f"{e} * {c.scale!r}"
-                    terms.append(e)
+                terms = [_affine(f"V[{S(c.source)}]", c) for c in fast]
                 extra = f", wn_{j}" if io.fmi3 else ""
                 assign = (f"wb_{j}[:] = ({', '.join(terms)})" if n > 1 else f"wb_{j}[0] = {terms[0]}")
-                body = [assign,
-                        f"if (st := set_{j}(c_{j}, wvr_{j}, wn_{j}, wb_{j}{extra})) > 1: "
-                        f"_fail_fmu({j}, 'set', t, st)"]
-                L_write += timed(f"fmu:{role}:set", body, "        ")
+                W += [assign,
+                      f"if (st := set_{j}(c_{j}, wvr_{j}, wn_{j}, wb_{j}{extra})) > 1: "
+                      f"_fail_fmu({j}, 'set', t, st)"]
+            # other destinations (integers, Booleans, Float32, array elements): one
+            # buffer and one call per type; an array is set whole, its unwired
+            # elements keep their values from initialisation
+            dvars = []
+            for c in typed:
+                dv, _ = slave.element(c.dest.partition(".")[2])
+                if dv.name not in [x.name for x in dvars]:
+                    dvars.append(dv)
+            for q, (call, vs) in enumerate(_groups(slave, dvars)):
+                fn, ct, _ = slave.typed_io(vs[0], "Set")
+                g = f"{j}_{q}"
+                off, init = {}, []
+                for v in vs:
+                    off[v.name] = len(init)
+                    init += wbufs.get(role, {}).get(v.name) or [0] * v.size
+                m = len(init)
+                ns[f"ts_{g}"] = fn
+                ns[f"tsvr_{g}"] = (ctypes.c_uint32 * len(vs))(*[v.vr for v in vs])
+                ns[f"tsn_{g}"] = ctypes.c_size_t(len(vs))
+                ns[f"tsm_{g}"] = ctypes.c_size_t(m)
+                ns[f"tsb_{g}"] = (ct * m)(*init)
+                for c in typed:
+                    dv, el = slave.element(c.dest.partition(".")[2])
+                    if dv.name not in off:
+                        continue
+                    x = f"V[{S(c.source)}]"
+                    from_fmu = c.source.partition(".")[0] in sys_.roles
+                    if dv.kind == "real":
+                        x = _affine(x, c)
+                    elif not from_fmu:
+                        conv_errs.append((c, dv))
+                        x = (f"({x} != 0)" if dv.kind == "bool" else
+                             f"_toint({x}, {len(conv_errs) - 1}, t)")
+                    W.append(f"tsb_{g}[{off[dv.name] + (el or 0)}] = {x}")
+                ex = f", tsm_{g}" if io.fmi3 else ""
+                W.append(f"if (st := ts_{g}(c_{j}, tsvr_{g}, tsn_{g}, tsb_{g}{ex})) > 1: "
+                         f"_fail_fmu({j}, 'set', t, st)")
+            if W:
+                L_write += timed(f"fmu:{role}:set", every(d, W), "        ")
+            h, tc, pre = "_h", "_tc", []
+            if d > 1:
+                h, tc = f"_h{j}", f"_tc{j}"
+                ns[h] = ctypes.c_double(d * Ts)
+                ns[tc] = ctypes.c_double(0.0)
+                pre = [f"{tc}.value = t - {(d - 1) * Ts!r}"]
             if slave.kind == "me":
                 ns[f"me_{j}"] = slave.stepper()
-                body = ["try:", f"    me_{j}(t, Ts)", "except Exception as e:",
+                body = ["try:", f"    me_{j}(t - {(d - 1) * Ts!r}, {d * Ts!r})", "except Exception as e:",
                         f"    _fail_fmu({j}, 'step', t, None, e)"]
             elif io.fmi3:
                 ns[f"do_{j}"] = io.step
                 ns[f"term_{j}"] = io.terminate_flag
+                ns[f"early_{j}"] = io.early_flag
+                ns[f"last_{j}"] = io.last_time
                 for i, x in enumerate(io.step_extra):
                     ns[f"x{i}_{j}"] = x
-                body = [f"if (st := do_{j}(c_{j}, _tc, _h, _true, x0_{j}, x1_{j}, x2_{j}, x3_{j})) > 1 "
-                        f"or term_{j}.value: _fail_fmu({j}, 'step', t, st)"]
+                body = pre + [f"if (st := do_{j}(c_{j}, {tc}, {h}, _true, x0_{j}, x1_{j}, x2_{j}, x3_{j})) > 1 "
+                        f"or term_{j}.value or early_{j}.value: _fail_fmu({j}, 'step', t, st)"]
             else:
                 ns[f"do_{j}"] = io.step
-                body = [f"if (st := do_{j}(c_{j}, _tc, _h, _one)) > 1: _fail_fmu({j}, 'step', t, st)"]
+                body = pre + [f"if (st := do_{j}(c_{j}, {tc}, {h}, _one)) > 1: _fail_fmu({j}, 'step', t, st)"]
+            blk = []
             if L_seq:
-                L_step += timed(f"fmu:{role}:sequential-inputs", L_seq, "        ")
-            L_step += timed(f"fmu:{role}:doStep", body, "        ")
+                blk += timed(f"fmu:{role}:sequential-inputs", every(d, L_seq, True), "")
+            blk += timed(f"fmu:{role}:doStep", every(d, body, True), "")
+            step_blocks.append(blk)
+            L_step += ["        " + x for x in blk]
 
         # stimuli
         L_stim = []
@@ -703,7 +1253,7 @@ class Master:
         L_ctrl = []
         for i, c in enumerate(sys_.controllers):
             ns[f"step_{i}"] = c.block.step
-            args = ", ".join(f"{key!r}: V[{slot[src]}]" for key, src in c.wiring.items())
+            args = ", ".join(f"{key!r}: V[{S(src)}]" for key, src in c.wiring.items())
             body = ["try:", f"    o = step_{i}({{{args}}})",
                     "except Exception as e:", f"    _fail_ctrl({i}, t, e, None)"]
             if ctrl_used[c.name]:
@@ -721,8 +1271,10 @@ class Master:
             L_attr.append(f"    V[{slot[name]}] = float(blk_{ci}.{attr}{idx})")
         if L_attr:
             L_attr = ["try:"] + L_attr + ["except Exception as e:", "    _fail_attr(t, e)"]
-        rec_idx = [slot[c] for c in columns]
+        rec_idx = [slot[c] for c in num_cols]
         L_rec = [f"_rec_extend(({', '.join(f'V[{i}]' for i in rec_idx)},))"]
+        if text_cols:
+            L_rec.append(f"_srec_append(({', '.join(f'V[{slot[c]}]' for c in text_cols)},))")
 
         checks = []
         if stim_end > 1:
@@ -738,8 +1290,9 @@ class Master:
         lines = ["def _loop(k0, N):", "    V = _V"]
         if timing:
             lines.append("    _T = _T_list")
+        t_expr = "k * Ts" if T0 == 0.0 else "T0 + k * Ts"
         lines += ["    for k in range(k0, N + 1):",
-                  "        t = k * Ts",
+                  f"        t = {t_expr}",
                   "        V[0] = t"]
         lines += L_read
         lines += L_stim
@@ -753,7 +1306,15 @@ class Master:
         if any(s.kind == "cs" for _, s in slaves):
             lines.append("        _tc.value = t")
         lines += L_step
-        src = "\n".join(lines) + "\n"
+        # the rest of a tick after FMU j0 ended the simulation in its doStep
+        tail = ["def _steps(k, j0):", f"    t = {t_expr}"]
+        if any(s.kind == "cs" for _, s in slaves):
+            tail.append("    _tc.value = t")
+        for j, blk in enumerate(step_blocks):
+            tail += [f"    if j0 < {j}:"] + ["        " + x for x in blk]
+        if timing:
+            tail.insert(1, "    _T = _T_list")
+        src = "\n".join(lines) + "\n\n" + "\n".join(tail) + "\n"
 
         # ---- error reporting (cold paths)
         V = ns["_V"]
@@ -761,6 +1322,12 @@ class Master:
 
         def _fail_fmu(j, what, t, status=None, exc=None):
             role, slave = slaves[j]
+            if isinstance(exc, FMUTerminated):     # the FMU's own, normal end
+                raise _Terminated(j, int(round((t - T0) / Ts)),
+                                  f"role {role}: {slave.path.name} ended the simulation "
+                                  f"({exc})")
+            if exc is not None:           # e.g. FMPy's FMICallException (has .status)
+                slave.note_status(getattr(exc, "status", None))
             if isinstance(exc, FMUError):
                 raise exc
             if exc is not None:
@@ -771,12 +1338,35 @@ class Master:
                 raise slave.error("setting inputs " + ", ".join(
                     c.dest.partition('.')[2] for c in sys_._connections
                     if c.dest.partition('.')[0] == role), status, t)
+            d = getattr(slave, "step_mult", 1)
+            h = d * Ts
+            k = int(round((t - T0) / Ts))
+            t = t - (d - 1) * Ts        # the macro step's start (see every())
             term = ns.get(f"term_{j}")
-            if status is not None and status <= 1 and term is not None and term.value:
-                raise slave.error(f"fmi3DoStep from t = {t:.6f} s: the FMU requested "
-                                  f"termination", None, t)
+            if term is not None and (status is None or status <= 1):
+                early, last = ns[f"early_{j}"], ns[f"last_{j}"]
+                if early.value and last.value < t + h - 1e-9 * max(1.0, abs(t + h)):
+                    self._continue_early(j, slave, ns, t, h)
+                if term.value:
+                    tl = last.value if t < last.value <= t + h else t + h
+                    raise _Terminated(j, k, f"role {role}: {slave.path.name} ended the "
+                                      f"simulation (fmi3DoStep terminateSimulation = true) "
+                                      f"at t = {tl:.6f} s")
+                return
+            if not slave.fmi3 and slave.kind == "cs" and status == 2:
+                ended, tl = slave.terminated_status()
+                if ended:
+                    tl = t + h if tl is None else tl
+                    raise _Terminated(j, k, f"role {role}: {slave.path.name} ended the "
+                                      f"simulation (fmi2DoStep returned fmi2Discard, "
+                                      f"fmi2Terminated = true, fmi2LastSuccessfulTime = "
+                                      f"{tl:.6f} s)")
             raise slave.error(f"{'fmi3' if slave.fmi3 else 'fmi2'}DoStep from t = {t:.6f} s "
-                              f"to {t + Ts:.6f} s", status, t)
+                              f"to {t + h:.6f} s", status, t)
+
+        def _toint(x, i, t):
+            c, dv = conv_errs[i]
+            return _convert(x, dv, c, f"connection {c.source} -> {c.dest} at t = {t:.6f} s")
 
         def _nonfinite_in(t):
             for role, slave, names, a in read_blocks:
@@ -846,7 +1436,7 @@ class Master:
                                           f"{type(e).__name__}: {e}") from exc
             raise ControllerError(f"recording an attribute failed at t = {t:.6f} s: {exc}")
 
-        ns.update(_fail_fmu=_fail_fmu, _nonfinite_in=_nonfinite_in,
+        ns.update(_fail_fmu=_fail_fmu, _nonfinite_in=_nonfinite_in, _toint=_toint,
                   _nonfinite_ctrl=_nonfinite_ctrl, _fail_ctrl=_fail_ctrl,
                   _fail_stim=_fail_stim, _fail_attr=_fail_attr, math=math)
         if timing:
@@ -893,3 +1483,126 @@ def _check_attr(cname, blk, attr, index, name):
     except (TypeError, ValueError):
         if val is not None:          # None before the first step (e.g. a previous value)
             raise SystemError_(f"record: {name!r} is a {type(val).__name__}, not a number") from None
+
+
+def _int_range(slave, v):
+    if v.fmi_type == "Enumeration":
+        return INT_RANGE["Int64" if slave.fmi3 else "Integer"]
+    return INT_RANGE[v.fmi_type if slave.fmi3 else "Integer"]
+
+
+def _check_value(role, name, v, x):
+    """One value given for variable ``v``: of its type, in its type's range."""
+    where = f"role {role!r} ({v.fmi_type}): parameter {name}"
+    if v.kind == "real":
+        try:
+            f = float(x)
+        except (TypeError, ValueError):
+            raise SystemError_(f"{where} = {x!r} is not a number") from None
+        if not math.isfinite(f):
+            raise SystemError_(f"{where} = {x!r} is not finite")
+    elif v.kind == "int":
+        if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)) \
+                or x != int(x):
+            raise SystemError_(f"{where} = {x!r} is not a whole number")
+        lo, hi = INT_RANGE[v.fmi_type if v.fmi_type in INT_RANGE else "Int64"]
+        if not lo <= int(x) <= hi:
+            raise SystemError_(f"{where} = {x!r} is out of range [{lo}, {hi}]")
+        if v.items and int(x) not in [val for _, val in v.items]:
+            raise SystemError_(f"{where} = {x!r} is not one of its items {list(v.items)}")
+    elif v.kind == "bool":
+        if not (isinstance(x, (bool, np.bool_)) or x in (0, 1)):
+            raise SystemError_(f"{where} = {x!r} is not a Boolean (True/False or 0/1)")
+    elif v.kind == "str":
+        if not isinstance(x, str):
+            raise SystemError_(f"{where} = {x!r} is not a string")
+    elif v.kind == "bin":
+        if not isinstance(x, (bytes, bytearray)):
+            raise SystemError_(f"{where} = {x!r} is not bytes")
+
+
+def _unit_of(slave, unit: str):
+    """(exponents, factor, offset) of ``unit`` from the FMU's UnitDefinitions, or None."""
+    for u in slave.md.unitDefinitions:
+        if u.name == unit and u.baseUnit is not None:
+            b = u.baseUnit
+            return ((b.kg, b.m, b.s, b.A, b.K, b.mol, b.cd, b.rad), float(b.factor),
+                    float(b.offset))
+    return None
+
+
+def _norm(u: str) -> str:
+    return (u or "").replace(" ", "")
+
+
+def _unit_conversion(both, sslave, su, dslave, du):
+    """(gain, offset) taking a value in the source's unit to the destination's, or
+    SystemError_ when the units are of different dimensions (FMI 2.0 section 2.2.2,
+    FMI 3.0 section 2.4.3: value in base units = factor * value + offset)."""
+    if not su or not du or _norm(su) == _norm(du):
+        return 1.0, 0.0
+    a, b = _unit_of(sslave, su), _unit_of(dslave, du)
+    if a is None or b is None:
+        raise SystemError_(f"{both}: units differ ({su!r} -> {du!r}) and "
+                           f"{'the source' if a is None else 'the destination'} FMU defines "
+                           f"no BaseUnit for {su if a is None else du!r} to compare them; "
+                           f"connect(..., check_units=False) to connect them as they are")
+    names = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+    if a[0] != b[0]:
+        def dim(e):
+            return ".".join(f"{n}{x if x != 1 else ''}" for n, x in zip(names, e) if x) or "1"
+        raise SystemError_(f"{both}: units {su!r} ({dim(a[0])}) and {du!r} ({dim(b[0])}) "
+                           f"are of different dimensions")
+    return a[1] / b[1], (a[2] - b[2]) / b[1]
+
+
+def _fast_dest(slave, dest: str) -> bool:
+    """A scalar Real/Float64 destination: set with the tick's one fmi2SetReal /
+    fmi3SetFloat64 call."""
+    v, el = slave.element(dest.partition(".")[2])
+    return v.fmi_type in ("Real", "Float64") and not v.shape
+
+
+def _affine(x: str, c) -> str:
+    """The source expression ``x`` scaled and unit-converted for connection ``c``."""
+    if c.gain != 1.0:
+        x = f"{x} * {c.gain!r}"
+    if c.unit_offset != 0.0:
+        x = f"{x} + {c.unit_offset!r}"
+    return x
+
+
+def _groups(slave, vs) -> list:
+    """[(FMI call type, [VarInfo...])]: the variables of one call, in a fixed order
+    (the slots of a group's values are contiguous)."""
+    out: dict = {}
+    for v in vs:
+        call, _, _ = (_C3 if slave.fmi3 else _C2)[v.fmi_type]
+        out.setdefault(call, []).append(v)
+    return list(out.items())
+
+
+def _parse_start(v) -> list:
+    """The start values of an array variable, from its ``start`` attribute."""
+    parts = (v.start or "").split()
+    if len(parts) != v.size:
+        parts = (parts or ["0"]) * v.size if len(parts) <= 1 else parts
+    conv = {"real": float, "int": lambda x: int(float(x)),
+            "bool": lambda x: x.lower() in ("true", "1")}.get(v.kind, str)
+    return [conv(x) for x in parts[: v.size]]
+
+
+def _convert(x, dv, c, where):
+    """A connection's value for destination ``dv``: scaled and unit-converted for a
+    Real; a whole number in range for an integer; non-zero is true for a Boolean."""
+    if dv.kind == "real":
+        return x * c.gain + c.unit_offset
+    if dv.kind == "bool":
+        return bool(x)
+    if isinstance(x, (bool, np.bool_)) or not _finite(x) or x != int(x):
+        raise ControllerError(f"{where}: {x!r} is not a whole number for {dv.fmi_type} {c.dest}")
+    lo, hi = INT_RANGE.get(dv.fmi_type, INT_RANGE["Int64"])      # FMI 3 Enumeration: Int64
+    if not lo <= int(x) <= hi:
+        raise ControllerError(f"{where}: {x!r} is out of the range [{lo}, {hi}] of "
+                              f"{dv.fmi_type} {c.dest}")
+    return int(x)
