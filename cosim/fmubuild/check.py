@@ -16,7 +16,7 @@ import zipfile
 from pathlib import Path, PurePosixPath
 
 MAX_UNCOMPRESSED = 2 * 1024 ** 3   # zip-bomb guard
-SUPPORTED = ("2.0", "3.0")
+SUPPORTED = ("1.0", "2.0", "3.0")
 
 
 class FMUCheckError(Exception):

@@ -177,8 +177,10 @@ class FMUSlave:
             raise FMUError(f"role {role}: {self.path} has no Model Exchange interface")
         self.kind = kind
         self.fmi3 = version.startswith("3")
-        if not (self.fmi3 or version.startswith("2")):
-            raise FMUError(f"role {role}: {self.path.name} is FMI {version}; FMI 2.0 and 3.0 are supported")
+        self.fmi1 = version.startswith("1")
+        if not (self.fmi3 or self.fmi1 or version.startswith("2")):
+            raise FMUError(f"role {role}: {self.path.name} is FMI {version}; FMI 1.0, 2.0 and "
+                           f"3.0 are supported")
 
         def unit(v):
             if v.unit:
@@ -201,12 +203,16 @@ class FMUSlave:
             if self.fmi3:
                 from fmpy.fmi3 import FMU3Model, FMU3Slave
                 self._fmu = FMU3Slave(**args) if kind == "cs" else FMU3Model(**args)
+            elif self.fmi1:     # FMI 1.0 behind the FMI 2.0 calls (cosim.fmi.fmi1)
+                from ..fmi.fmi1 import FMI1Adapter
+                self._fmu = FMI1Adapter(kind, lambda *m: self._log(*m), **args)
             else:
                 from fmpy.fmi2 import FMU2Model, FMU2Slave
                 self._fmu = FMU2Slave(**args) if kind == "cs" else FMU2Model(**args)
         except Exception as exc:
             raise FMUError(f"role {role}: {self.path.name}: cannot load the binary: {exc}") from None
         self.rtol = rtol
+        self._me = None      # cosim.fmi.me.MEIntegrator of a Model Exchange run
         self.time = 0.0
         self._instantiated = False
         self._id = _NEXT_ID[0]
@@ -260,6 +266,7 @@ class FMUSlave:
         f = self._fmu
         self.messages.clear()
         self.time = start_time
+        self._me = None
         _LIVE[self._id] = self
         try:
             if self.fmi3:
@@ -324,7 +331,10 @@ class FMUSlave:
         try:
             f.exitInitializationMode()
             if self.kind == "me":
-                self._me_start()
+                from ..fmi.me import MEIntegrator
+                self._me = MEIntegrator(f, self.md, self.fmi3, self.error, self.time,
+                                        rtol=self.rtol, error_type=FMUError)
+                self._me.start()
         except FMUError:
             raise
         except Exception as exc:
@@ -343,20 +353,26 @@ class FMUSlave:
         f = self._fmu
         dll = f.dll
 
+        symbol = getattr(f, "symbol", None)     # FMI 1.0: <modelIdentifier>_fmi...
+
         def fn(name):
-            fp = dll._FuncPtr((name, dll))
+            fp = dll._FuncPtr((symbol(name) if symbol else name, dll))
             fp.restype = ctypes.c_int
             return fp
         comp = ctypes.c_void_p(f.component)
         if self.fmi3:
             from fmpy.fmi3 import fmi3Boolean, fmi3Float64
             ev, term, early, last = fmi3Boolean(), fmi3Boolean(), fmi3Boolean(), fmi3Float64()
-            return RawIO(fn("fmi3GetFloat64"), fn("fmi3SetFloat64"),
-                         fn("fmi3DoStep") if self.kind == "cs" else None, comp, True,
-                         (ctypes.byref(ev), ctypes.byref(term), ctypes.byref(early),
-                          ctypes.byref(last)), term)
-        return RawIO(fn("fmi2GetReal"), fn("fmi2SetReal"),
-                     fn("fmi2DoStep") if self.kind == "cs" else None, comp, False, (), None)
+            io = RawIO(fn("fmi3GetFloat64"), fn("fmi3SetFloat64"),
+                       fn("fmi3DoStep") if self.kind == "cs" else None, comp, True,
+                       (ctypes.byref(ev), ctypes.byref(term), ctypes.byref(early),
+                        ctypes.byref(last)), term)
+        else:
+            io = RawIO(fn("fmi2GetReal"), fn("fmi2SetReal"),
+                       fn("fmi2DoStep") if self.kind == "cs" else None, comp, False, (), None)
+        if self._me is not None:     # ME: input changes go through event handling
+            io.set = self._me.input_setter(io.get, io.set)
+        return io
 
     def _real_vrs(self, names: list[str], what: str):
         vrs = []
@@ -415,7 +431,7 @@ class FMUSlave:
     def stepper(self):
         """Return a function (t, h) -> None advancing the FMU from t to t+h."""
         if self.kind == "me":
-            return self._me_step
+            return self._me.step
         io = self.raw()
         do, comp = io.step, io.comp
         D = ctypes.c_double
@@ -438,72 +454,6 @@ class FMUSlave:
                     raise self.error("fmi2DoStep", st, t)
                 self.time = t + h
         return step
-
-    # ------------------------------------------------------------ Model Exchange
-    def _me_start(self):
-        from fmpy.sundials import CVodeSolver
-        f = self._fmu
-        md = self.md
-        upd = f.updateDiscreteStates if self.fmi3 else f.newDiscreteStates
-        need, term = True, False
-        while need and not term:
-            need, term, _, _, self._next_event_defined, self._next_event = upd()
-        if term:
-            raise self.error("the FMU requested termination during initialisation")
-        f.enterContinuousTimeMode()
-
-        class _NoInput:
-            def apply(self, *a, **k):
-                pass
-
-            def nextEvent(self, t):
-                return float("inf")
-        nx = md.numberOfContinuousStates or 0
-        nz = md.numberOfEventIndicators or 0
-        self._solver = CVodeSolver(      # nx = 0 is handled (dummy state)
-            nx=nx, nz=nz,
-            get_x=f.getContinuousStates, set_x=f.setContinuousStates,
-            get_dx=f.getContinuousStateDerivatives if self.fmi3 else f.getDerivatives,
-            get_z=f.getEventIndicators,
-            get_nominals=f.getNominalsOfContinuousStates, set_time=f.setTime,
-            input=_NoInput(), startTime=self.time, relativeTolerance=self.rtol, maxStep=1e-3)
-
-    def _me_step(self, t, h):
-        """Integrate a Model Exchange FMU from t to t + h with CVode, handling time
-        and state events (inputs are held constant over the interval)."""
-        f = self._fmu
-        tend = t + h
-        time = t
-        try:
-            # inputs were set in continuous-time mode at t: the solver must restart
-            self._solver.reset(time)
-            while time < tend - 1e-12 * max(1.0, abs(tend)):
-                target = tend
-                if self._next_event_defined and time < self._next_event < target:
-                    target = self._next_event
-                state_event, roots, time = self._solver.step(time, target)
-                f.setTime(time)
-                step_event = False
-                if self.fmi3 or self.md.modelExchange.needsCompletedIntegratorStep:
-                    step_event, term = f.completedIntegratorStep()
-                    if term:
-                        raise self.error("the FMU requested termination", None, time)
-                time_event = self._next_event_defined and abs(time - self._next_event) < 1e-12
-                if state_event or step_event or time_event:
-                    f.enterEventMode()
-                    upd = f.updateDiscreteStates if self.fmi3 else f.newDiscreteStates
-                    need = True
-                    while need:
-                        need, term, _, _, self._next_event_defined, self._next_event = upd()
-                        if term:
-                            raise self.error("the FMU requested termination", None, time)
-                    f.enterContinuousTimeMode()
-                    self._solver.reset(time)
-        except FMUError:
-            raise
-        except Exception as exc:
-            raise self.error(f"Model Exchange integration failed ({exc})", None, time) from None
-        self.time = tend
 
     # ------------------------------------------------------------ end
     def terminate(self):
