@@ -167,6 +167,9 @@ class FMUSlave:
         except Exception as exc:
             raise FMUError(f"role {role}: {self.path}: invalid modelDescription.xml: {exc}") from None
         self.md = md
+        from ..fmi.check import model_warnings, warn_once
+        #: deviations from the standard the FMU runs with (``cosim fmus check``'s warnings)
+        self.warnings = warn_once(self.path, role, model_warnings(md))
         if kind not in ("auto", "cs", "me"):
             raise FMUError(f"role {role}: kind must be 'auto', 'cs' or 'me', not {kind!r}")
         if kind == "auto":
