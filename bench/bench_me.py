@@ -1,0 +1,133 @@
+"""Model Exchange: cost per communication step and accuracy, this package's master
+(cosim.fmi.me, one CVode solver kept across steps) against FMPy's ME loop
+(``fmpy.simulate_fmu(..., fmi_type='ModelExchange')``), side by side.
+
+For each FMU: the same experiment on both sides (1 ms communication/output step,
+CVode BDF, the same relative tolerance, inputs at their start values, or an input
+that changes every step for ``BallScrewUnit+input``). Cost per step is the
+difference of two run lengths (T(long) - T(short)) / (steps(long) - steps(short)),
+best of ``--reps``, so loading, instantiation and set-up cancel. Accuracy: the largest
+deviation of each side from FMPy's ME at rtol 1e-9, relative to the signal's range.
+
+Run: ``.venv/bin/python bench/bench_me.py [--ref DIR] [--reps N]``; ``--ref`` adds the
+Model Exchange FMUs of a folder (e.g. the Reference-FMUs, built outside the repo).
+The last row is left out of the error: there FMPy records a direct-feedthrough output
+after applying the input of t_N, the master (row k = values at t_k before the inputs
+of tick k are written) before.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+import fmpy  # noqa: E402
+import numpy as np  # noqa: E402
+
+from cosim.master import Master, System  # noqa: E402
+
+H = 1e-3
+
+
+def _outputs(path):
+    md = fmpy.read_model_description(str(path), validate=False)
+    return [v.name for v in md.modelVariables if v.causality == "output"
+            and v.type in ("Real", "Float64")], md
+
+
+def _input_fn(name):
+    if name is None:
+        return None
+    return lambda t: 0.5 * np.sin(2 * np.pi * 2.0 * t)
+
+
+def _fmpy_input(name, stop):
+    if name is None:
+        return None
+    t = np.arange(0, stop + H / 2, H)
+    v = 0.5 * np.sin(2 * np.pi * 2.0 * t)
+    # a step at every tick (repeated times): held over each step, as the master does
+    tt = np.repeat(t, 2)[1:]
+    vv = np.repeat(v, 2)[:-1]
+    return np.array(list(zip(tt, vv)), dtype=[("time", float), (name, float)])
+
+
+def run_fmpy(path, stop, outs, rtol, inp=None):
+    t0 = time.perf_counter()
+    r = fmpy.simulate_fmu(str(path), fmi_type="ModelExchange", stop_time=stop,
+                          output_interval=H, step_size=H, relative_tolerance=rtol,
+                          record_events=False, output=outs, input=_fmpy_input(inp, stop),
+                          validate=False)
+    return time.perf_counter() - t0, r
+
+
+def run_ours(path, stop, outs, rtol, inp=None):
+    t0 = time.perf_counter()
+    s = System(H)
+    s.add_fmu("m", path, kind="me", rtol=rtol)
+    if inp is not None:
+        s.add_stimulus("u", _input_fn(inp))
+        s.connect("stim.u", f"m.{inp}")
+    res = Master(s, record=[f"m.{o}" for o in outs]).run(round(stop / H) * H)
+    return time.perf_counter() - t0, res
+
+
+def per_step(fn, path, outs, rtol, inp, reps, short=300, long_=2300):
+    """(T(long) - T(short)) / (long - short) steps; the best of reps of each length."""
+    ta = min(fn(path, short * H, outs, rtol, inp)[0] for _ in range(reps))
+    tb = min(fn(path, long_ * H, outs, rtol, inp)[0] for _ in range(reps))
+    return (tb - ta) / (long_ - short)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ref", help="folder of further ME FMUs (e.g. /tmp/reffmus/2.0)")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--rtol", type=float, default=1e-6)
+    a = ap.parse_args(argv)
+    cases = [("BallScrewUnit", REPO / "fmus" / "BallScrewUnit.fmu", None, 1.0),
+             ("BallScrewUnit+input", REPO / "fmus" / "BallScrewUnit.fmu", "i", 1.0),
+             ("BallScrewDevice", REPO / "fmus" / "BallScrewDevice.fmu", None, 1.0),
+             ("HumanArm1D", REPO / "fmus" / "HumanArm1D.fmu", None, 1.0)]
+    if a.ref:
+        for p in sorted(Path(a.ref).glob("*.fmu")):
+            md = fmpy.read_model_description(str(p), validate=False)
+            if md.modelExchange is not None and p.stem not in ("Clocks",):
+                stop = float(md.defaultExperiment.stopTime) if md.defaultExperiment and \
+                    md.defaultExperiment.stopTime else 1.0
+                cases.append((f"{p.parent.name}/{p.stem}", p, None, stop))
+    print(f"ME per communication step (h = 1 ms, rtol {a.rtol:g}); error = max |x - "
+          f"FMPy ME at rtol 1e-9| / range")
+    hdr = f"{'FMU':26s} {'FMPy us/step':>12s} {'ours us/step':>12s} {'ratio':>6s} " \
+          f"{'FMPy err':>9s} {'ours err':>9s}"
+    print(hdr)
+    print("-" * len(hdr))
+    for name, path, inp, stop in cases:
+        if not path.exists():
+            print(f"{name:26s} (missing: {path})")
+            continue
+        outs, md = _outputs(path)
+        try:
+            f_us = per_step(run_fmpy, path, outs, a.rtol, inp, a.reps) * 1e6
+            o_us = per_step(run_ours, path, outs, a.rtol, inp, a.reps) * 1e6
+            _, ref = run_fmpy(path, stop, outs, 1e-9, inp)
+            _, rf = run_fmpy(path, stop, outs, a.rtol, inp)
+            _, ro = run_ours(path, stop, outs, a.rtol, inp)
+        except Exception as exc:
+            print(f"{name:26s} failed: {str(exc)[:150]}")
+            continue
+        n = min(len(ref), len(ro["time"]), len(rf)) - 1
+        ef = eo = 0.0
+        for o in outs:
+            rng = max(np.ptp(ref[o][:n]), 1e-12)
+            ef = max(ef, np.max(np.abs(rf[o][:n] - ref[o][:n])) / rng)
+            eo = max(eo, np.max(np.abs(ro[f"m.{o}"][:n] - ref[o][:n])) / rng)
+        print(f"{name:26s} {f_us:12.1f} {o_us:12.1f} {o_us / f_us:6.2f} {ef:9.1e} {eo:9.1e}")
+
+
+if __name__ == "__main__":
+    main()
