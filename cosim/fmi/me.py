@@ -88,6 +88,8 @@ class MEIntegrator:
                           and v.type in ("Real", "Float64", "Float32")}
         self.next_event_defined = False
         self.next_event = math.inf
+        #: time at which the FMU requested termination (None: it did not)
+        self.terminated = None
         #: counts for tests and benchmarks: events handled, solver restarts
         self.n_events = 0
         self.n_resets = 0
@@ -110,12 +112,20 @@ class MEIntegrator:
             input=_NoInput(), startTime=self.time, relativeTolerance=self.rtol,
             maxStep=self.max_step if self.max_step is not None else math.inf)
 
+    def _terminated(self, t):
+        """The FMU's terminateSimulation: an exception marked ``terminated`` (with the
+        time) so that the master can end the run normally instead of as a failure."""
+        self.terminated = t
+        exc = self.error("the FMU requested termination", None, t)
+        exc.terminated, exc.time = True, t
+        return exc
+
     def _event_iteration(self, t):
         need = True
         while need:
             need, term, _, _, defined, nxt = self._upd()
             if term:
-                raise self.error("the FMU requested termination", None, t)
+                raise self._terminated(t)
         self.next_event_defined, self.next_event = bool(defined), float(nxt)
 
     def _event(self, t):
@@ -227,7 +237,7 @@ class MEIntegrator:
                     r = f.completedIntegratorStep()
                     step_event, term = r if isinstance(r, tuple) else (r, False)
                     if term:
-                        raise self.error("the FMU requested termination", None, time)
+                        raise self._terminated(time)
                 time_event = self.next_event_defined and abs(time - self.next_event) <= eps
                 if state_event or step_event or time_event:
                     self._event(time)
