@@ -33,12 +33,21 @@ sys.path.insert(0, str(REPO))
 import numpy as np  # noqa: E402
 
 
+MAX_STEPS = 100_000
+
+
 def _experiment(md):
+    """(stop, step, note): the default stop time (1 s if none), the FMU's step or 1 ms;
+    at most MAX_STEPS steps (Roberts declares stopTime 1e8 s: 1e11 steps of 1 ms)."""
     de = md.defaultExperiment
     stop = float(de.stopTime) if de is not None and de.stopTime else 1.0
     step = float(de.stepSize) if de is not None and de.stepSize else 1e-3
+    note = ""
+    if stop / step > MAX_STEPS:
+        note = f"stop time {stop:g} s capped at {MAX_STEPS * step:g} s. "
+        stop = MAX_STEPS * step
     n = max(1, int(np.ceil(stop / step - 1e-9)))
-    return n * step, step
+    return n * step, step, note
 
 
 def _numeric(values) -> np.ndarray | None:
@@ -56,11 +65,11 @@ def _case(path: str, iface: str, rtol: float, results: str | None) -> dict:
     from cosim.master.simulate import simulate_fmu
     warnings.simplefilter("ignore")
     md = fmpy.read_model_description(path, validate=False)
-    stop, step = _experiment(md)
+    stop, step, note = _experiment(md)
     outs = [v.name for v in md.modelVariables if v.causality == "output"]
     row = dict(fmu=Path(path).stem, version=md.fmiVersion, iface=iface, stop=stop, step=step,
-               fmpy_ok=False, ours_ok=False, err_fmpy=None, err_ref=None, ours_err_ref=None,
-               note="")
+               fmpy_ok=False, ours_ok=False, err_fmpy=None, err_ref=None, fmpy_err_ref=None,
+               note=note)
     fm = None
     try:
         kw = dict(fmi_type="CoSimulation" if iface == "cs" else "ModelExchange",
@@ -81,6 +90,18 @@ def _case(path: str, iface: str, rtol: float, results: str | None) -> dict:
         ours = res
     except Exception as exc:
         row["note"] += f"ours: {str(exc).splitlines()[0][:120]}. "
+        # for information: the run with the Float64/Real outputs only
+        reals = [v.name for v in md.modelVariables if v.causality == "output"
+                 and v.type in ("Real", "Float64") and not getattr(v, "dimensions", None)]
+        if reals:
+            try:
+                r2 = simulate_fmu(path, stop_time=stop, step=step, interface=iface, rtol=rtol,
+                                  record=reals)
+                row["note"] += ("with the Float64 outputs only it completes. " if r2.completed
+                                else f"with the Float64 outputs only: "
+                                     f"{str(r2.error).splitlines()[0][:100]}. ")
+            except Exception as exc2:
+                row["note"] += f"Float64 outputs only: {str(exc2).splitlines()[0][:80]}. "
     if fm is not None and ours is not None and ours.ticks > 1:
         errs = []
         n = min(len(fm), ours.ticks) - 1
@@ -105,13 +126,16 @@ def _case(path: str, iface: str, rtol: float, results: str | None) -> dict:
 
 
 def _reference(path, model, results):
+    """<name>_out.csv for the file's stem or the model name (they may differ: the
+    Reference-FMUs' VanDerPol is "Van der Pol oscillator")."""
     import pandas as pd
     cands = []
-    if results:
-        cands.append(Path(results) / f"{model}_out.csv")
     p = Path(path).parent
-    for d in (p, p.parent, p.parent.parent):
-        cands.append(d / "ref" / f"{model}_out.csv")
+    for name in dict.fromkeys((Path(path).stem, model)):
+        if results:
+            cands.append(Path(results) / f"{name}_out.csv")
+        for d in (p, p.parent, p.parent.parent):
+            cands.append(d / "ref" / f"{name}_out.csv")
     for c in cands:
         if c.exists():
             return pd.read_csv(c)
@@ -146,7 +170,7 @@ def main(argv=None):
     ap.add_argument("dir", help="folder of .fmu files (searched recursively)")
     ap.add_argument("--results", help="folder of reference results <Model>_out.csv")
     ap.add_argument("--rtol", type=float, default=1e-6)
-    ap.add_argument("--timeout", type=float, default=600, help="s per case")
+    ap.add_argument("--timeout", type=float, default=300, help="s per case")
     a = ap.parse_args(argv)
     import fmpy
     fmus = sorted(Path(a.dir).rglob("*.fmu"))
@@ -168,14 +192,19 @@ def main(argv=None):
                              ours_ok=False, err_fmpy=None, err_ref=None,
                              note="no CS or ME interface (e.g. Scheduled Execution only)"))
         for iface in ifaces:
-            with cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx) as ex:
-                fut = ex.submit(_case, str(p), iface, a.rtol, a.results)
-                try:
-                    rows.append(fut.result(timeout=a.timeout))
-                except Exception as exc:
-                    rows.append(dict(fmu=p.stem, version=md.fmiVersion, iface=iface,
-                                     fmpy_ok=False, ours_ok=False, err_fmpy=None, err_ref=None,
-                                     note=f"case crashed or timed out: {type(exc).__name__}"))
+            print(f"{p} {iface} ...", file=sys.stderr, flush=True)
+            ex = cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx)
+            fut = ex.submit(_case, str(p), iface, a.rtol, a.results)
+            try:
+                rows.append(fut.result(timeout=a.timeout))
+            except Exception as exc:
+                for proc in list(getattr(ex, "_processes", {}).values()):
+                    proc.kill()          # a hung or crashed binary: end the child
+                rows.append(dict(fmu=p.stem, version=md.fmiVersion, iface=iface,
+                                 fmpy_ok=False, ours_ok=False, err_fmpy=None, err_ref=None,
+                                 note=f"case crashed or timed out: {type(exc).__name__}"))
+            finally:
+                ex.shutdown(wait=False, cancel_futures=True)
     print(table(rows, a.rtol))
     return 0
 
