@@ -5,8 +5,8 @@
 Takes a folder of FMUs (searched recursively; nothing is built or downloaded) and runs
 every FMU in Co-Simulation and in Model Exchange, where it has the interface, with
 FMPy (``fmpy.simulate_fmu``) and with this package (``cosim.master.simulate``, the
-same master as every scenario), on the same experiment: the FMU's default stop time
-(1 s if none), inputs at their start values, a communication and output step equal to
+same master as every scenario), on the same experiment: start at 0 (the master's
+start; Roberts declares 1e-5), the FMU's default stop time (1 s if none), inputs at their start values, a communication and output step equal to
 the FMU's ``stepSize`` or 1 ms, relative tolerance ``--rtol`` (default 1e-6) for Model
 Exchange on both sides (CVode), events not recorded as extra rows.
 
@@ -73,7 +73,7 @@ def _case(path: str, iface: str, rtol: float, results: str | None) -> dict:
     fm = None
     try:
         kw = dict(fmi_type="CoSimulation" if iface == "cs" else "ModelExchange",
-                  stop_time=stop, output_interval=step, output=outs, validate=False)
+                  start_time=0.0, stop_time=stop, output_interval=step, output=outs, validate=False)
         if iface == "me":
             kw.update(step_size=step, relative_tolerance=rtol, record_events=False)
         fm = fmpy.simulate_fmu(path, **kw)
