@@ -214,8 +214,8 @@ def _fmt(x):
 
 
 def table(rows, rtol) -> str:
-    head = (f"| FMU | FMI | interface | FMPy ok | ours ok | max err vs FMPy (/range) "
-            f"| ours vs reference | FMPy vs reference | note |")
+    head = ("| FMU | FMI | interface | FMPy ok | ours ok | max err vs FMPy (/range) "
+            "| ours vs reference | FMPy vs reference | note |")
     lines = [head, "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['fmu']} | {r['version']} | {r['iface'].upper()} | "
