@@ -212,3 +212,86 @@ def test_fmi1_me_bouncing_ball_matches_fmpy_and_exact(bb1, monkeypatch, tmp_path
     n = min(len(ref), len(t))
     rng = np.ptp(ref["h"])
     assert np.max(np.abs(ref["h"][:n] - res["ball.h"][:n])) / rng < 1e-4
+
+
+CROSS1_C = "#include <stddef.h>\n" + TRACE_C + r"""
+#include "fmi1Functions.h"
+typedef struct { double t, u, x, n; int above; } M;
+fmi1Component x1_fmiInstantiateModel(fmi1String name, fmi1String guid,
+    fmi1CallbackFunctions functions, fmi1Boolean loggingOn) { return calloc(1, sizeof(M)); }
+void x1_fmiFreeModelInstance(fmi1Component c) { free(c); }
+fmi1Status x1_fmiSetTime(fmi1Component c, fmi1Real t) { ((M *)c)->t = t; return fmi1OK; }
+fmi1Status x1_fmiSetReal(fmi1Component c, const fmi1ValueReference vr[], size_t n, const fmi1Real v[]) {
+    M *m = c;
+    for (size_t i = 0; i < n; i++) { if (vr[i] == 0) m->u = v[i]; else return fmi1Error;
+        trace("fmiSetReal u=%g", v[i]); }
+    return fmi1OK; }
+fmi1Status x1_fmiGetReal(fmi1Component c, const fmi1ValueReference vr[], size_t n, fmi1Real v[]) {
+    M *m = c;
+    for (size_t i = 0; i < n; i++) {
+        switch (vr[i]) { case 0: v[i] = m->u; break; case 1: v[i] = m->n; break;
+        case 2: v[i] = m->x; break; default: return fmi1Error; } }
+    return fmi1OK; }
+static void info(fmi1EventInfo *ei) {
+    ei->iterationConverged = fmi1True; ei->stateValueReferencesChanged = fmi1False;
+    ei->stateValuesChanged = fmi1False; ei->terminateSimulation = fmi1False;
+    ei->upcomingTimeEvent = fmi1False; ei->nextEventTime = 0; }
+fmi1Status x1_fmiInitialize(fmi1Component c, fmi1Boolean tc, fmi1Real tol, fmi1EventInfo *ei) {
+    M *m = c; m->above = m->u > 0.5; info(ei); return fmi1OK; }
+fmi1Status x1_fmiEventUpdate(fmi1Component c, fmi1Boolean intermediate, fmi1EventInfo *ei) {
+    M *m = c; int a = m->u > 0.5; trace("fmiEventUpdate");
+    if (a != m->above) { m->n += 1; m->above = a; }
+    info(ei); return fmi1OK; }
+fmi1Status x1_fmiSetContinuousStates(fmi1Component c, const fmi1Real x[], size_t n) { ((M *)c)->x = x[0]; return fmi1OK; }
+fmi1Status x1_fmiGetContinuousStates(fmi1Component c, fmi1Real x[], size_t n) { x[0] = ((M *)c)->x; return fmi1OK; }
+fmi1Status x1_fmiGetNominalContinuousStates(fmi1Component c, fmi1Real x[], size_t n) { x[0] = 1; return fmi1OK; }
+fmi1Status x1_fmiGetDerivatives(fmi1Component c, fmi1Real dx[], size_t n) { dx[0] = ((M *)c)->u; return fmi1OK; }
+fmi1Status x1_fmiGetEventIndicators(fmi1Component c, fmi1Real z[], size_t n) { z[0] = ((M *)c)->u - 0.5; return fmi1OK; }
+fmi1Status x1_fmiCompletedIntegratorStep(fmi1Component c, fmi1Boolean *ev) { *ev = fmi1False; return fmi1OK; }
+fmi1Status x1_fmiTerminate(fmi1Component c) { return fmi1OK; }
+"""
+
+CROSS1_XML = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="1.0" modelName="x1" modelIdentifier="x1"
+  guid="{1d6a8c2e-3333-4e0a-9a41-x10000000001}" numberOfContinuousStates="1" numberOfEventIndicators="1">
+  <ModelVariables>
+    <ScalarVariable name="u" valueReference="0" causality="input"><Real start="0"/></ScalarVariable>
+    <ScalarVariable name="n" valueReference="1" causality="output" variability="discrete"><Real/></ScalarVariable>
+    <ScalarVariable name="x" valueReference="2" causality="output"><Real start="0"/></ScalarVariable>
+  </ModelVariables>
+</fmiModelDescription>
+"""
+
+
+def test_fmi1_me_input_crossings_through_event_update(tmp_path, monkeypatch):
+    """FMI 1.0 has no event mode: an input jump across an event indicator is handled
+    with fmiEventUpdate right after the fmiSetReal; a jump that crosses nothing calls
+    no fmiEventUpdate. Counts 2 like FMPy's ME."""
+    trace = traced(monkeypatch, tmp_path)
+    x1 = compile_fmu(tmp_path, "x1", CROSS1_C, CROSS1_XML, "1.0")
+    u = [(0.1, 0.3), (0.2, 1.0), (0.4, 0.0)]
+
+    def u_of(t):
+        v = 0.0
+        for t0, val in u:
+            if t >= t0 - 1e-9:
+                v = val
+        return v
+    s = System(1e-3)
+    s.add_fmu("p", x1)
+    s.add_stimulus("u", u_of)
+    s.connect("stim.u", "p.u")
+    res = Master(s, record=["p.n", "p.x"]).run(0.5)
+    assert res["p.n"][-1] == 2
+    assert res["p.x"][-1] == pytest.approx(0.3 * 0.1 + 1.0 * 0.2, abs=1e-7)
+    lines = read_trace(trace)
+    assert lines == ["fmiSetReal u=0.3", "fmiSetReal u=1", "fmiEventUpdate",
+                     "fmiSetReal u=0", "fmiEventUpdate"]
+    sig = np.array([(0, 0.0), (0.1, 0.0), (0.1, 0.3), (0.2, 0.3), (0.2, 1.0), (0.4, 1.0),
+                    (0.4, 0.0), (0.5, 0.0)], dtype=[("time", float), ("u", float)])
+    monkeypatch.delenv("PROBE_TRACE")
+    ref = fmpy.simulate_fmu(str(x1), stop_time=0.5, output_interval=1e-3, input=sig,
+                            output=["n", "x"], record_events=False)
+    assert ref["n"][-1] == 2
+    n = min(len(ref), len(res["time"]))
+    assert np.max(np.abs(ref["x"][:n] - res["p.x"][:n])) < 1e-6

@@ -47,6 +47,9 @@ class FMI1Adapter:
     guid, unzipDirectory, modelIdentifier, instanceName : as FMPy's classes.
     """
 
+    #: enterEventMode is a no-op: the ME integrator sets a changed input only once
+    has_event_mode = False
+
     def __init__(self, kind: str, log, guid, unzipDirectory, modelIdentifier, instanceName):
         from fmpy.fmi1 import FMU1Model, FMU1Slave
         cls = FMU1Slave if kind == "cs" else FMU1Model

@@ -77,6 +77,8 @@ class MEIntegrator:
         self.nx = md.numberOfContinuousStates or 0
         self.nz = md.numberOfEventIndicators or 0
         self._upd = fmu.updateDiscreteStates if fmi3 else fmu.newDiscreteStates
+        # FMI 1.0 has no event mode: an input set once is seen by fmiEventUpdate
+        self._event_mode = getattr(fmu, "has_event_mode", True)
         me = md.modelExchange
         self._needs_completed = bool(getattr(me, "needsCompletedIntegratorStep", True)) \
             or md.fmiVersion == "1.0"
@@ -186,9 +188,10 @@ class MEIntegrator:
                         event = any((z0[i] > 0) != (z1[i] > 0) for i in range(self.nz))
                 if event:      # set (again) in event mode, where the FMU updates relations
                     f.enterEventMode()
-                    st = raw_set(comp, vr, n, buf, *extra)
-                    if st > 1:
-                        return st
+                    if disc or self._event_mode:
+                        st = raw_set(comp, vr, n, buf, *extra)
+                        if st > 1:
+                            return st
                     self._event_iteration(t)
                     f.enterContinuousTimeMode()
                     self.n_events += 1
