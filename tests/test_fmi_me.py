@@ -392,3 +392,85 @@ def test_me_error_names_role_and_time(bb):
                                        r"from t = 0\.04[5-9]\d* s failed") as ei:
         Master(s, record=["ball.h"]).run(0.1)
     assert not ei.value.result.completed and 45 <= ei.value.result.ticks <= 52
+
+
+# ---------------------------------------------------------------- time and step events
+TEV_C = TRACE_C + r"""
+#include "fmi2Functions.h"
+typedef struct { double t, x, s, nstep; int want_step, step_done; } M;
+fmi2Component fmi2Instantiate(fmi2String n, fmi2Type ty, fmi2String guid, fmi2String res,
+    const fmi2CallbackFunctions *cb, fmi2Boolean vis, fmi2Boolean log) {
+    M *m = calloc(1, sizeof(M)); m->s = 1; return m; }
+void fmi2FreeInstance(fmi2Component c) { free(c); }
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean a, fmi2Real tol, fmi2Real t0,
+    fmi2Boolean b, fmi2Real t1) { ((M *)c)->t = t0; return fmi2OK; }
+fmi2Status fmi2EnterInitializationMode(fmi2Component c) { return fmi2OK; }
+fmi2Status fmi2ExitInitializationMode(fmi2Component c) { return fmi2OK; }
+fmi2Status fmi2Terminate(fmi2Component c) { return fmi2OK; }
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]) {
+    M *m = c;
+    for (size_t i = 0; i < n; i++) {
+        switch (vr[i]) { case 0: v[i] = m->x; break; case 1: v[i] = m->s; break;
+        case 2: v[i] = m->nstep; break; default: return fmi2Error; } }
+    return fmi2OK; }
+fmi2Status fmi2EnterEventMode(fmi2Component c) { return fmi2OK; }
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *ei) {
+    M *m = c;
+    trace("fmi2NewDiscreteStates t=%.6f", m->t);
+    if (m->s == 1 && m->t >= 0.2505 - 1e-12) m->s = -1;
+    if (m->want_step) { m->nstep += 1; m->want_step = 0; }
+    ei->newDiscreteStatesNeeded = fmi2False; ei->terminateSimulation = fmi2False;
+    ei->nominalsOfContinuousStatesChanged = fmi2False; ei->valuesOfContinuousStatesChanged = fmi2False;
+    ei->nextEventTimeDefined = m->s == 1; ei->nextEventTime = 0.2505; return fmi2OK; }
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return fmi2OK; }
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { ((M *)c)->t = t; return fmi2OK; }
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t n) { ((M *)c)->x = x[0]; return fmi2OK; }
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { x[0] = ((M *)c)->x; return fmi2OK; }
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real dx[], size_t n) { dx[0] = ((M *)c)->s; return fmi2OK; }
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real z[], size_t n) { return fmi2OK; }
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t n) { x[0] = 1; return fmi2OK; }
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean a, fmi2Boolean *ev, fmi2Boolean *term) {
+    M *m = c; *term = fmi2False; *ev = fmi2False;
+    if (m->t > 0.4 && !m->step_done) { m->step_done = 1; m->want_step = 1; *ev = fmi2True;
+        trace("fmi2CompletedIntegratorStep asks for an event t=%.6f", m->t); }
+    return fmi2OK; }
+"""
+
+TEV_XML = """<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="2.0" modelName="tev" guid="{5f0d1a4e-0000-4c2b-9d7e-000000000002}"
+  numberOfEventIndicators="0">
+  <ModelExchange modelIdentifier="tev"/>
+  <ModelVariables>
+    <ScalarVariable name="x" valueReference="0" causality="output" variability="continuous" initial="exact"><Real start="0"/></ScalarVariable>
+    <ScalarVariable name="der(x)" valueReference="1" causality="local" variability="continuous" initial="calculated"><Real derivative="1"/></ScalarVariable>
+    <ScalarVariable name="nstep" valueReference="2" causality="output" variability="discrete" initial="calculated"><Real/></ScalarVariable>
+  </ModelVariables>
+  <ModelStructure>
+    <Outputs><Unknown index="1"/><Unknown index="3"/></Outputs>
+    <Derivatives><Unknown index="2"/></Derivatives>
+    <InitialUnknowns><Unknown index="2"/><Unknown index="3"/></InitialUnknowns>
+  </ModelStructure>
+</fmiModelDescription>
+"""
+
+
+def test_time_and_step_events(tmp_path, monkeypatch):
+    """A time event between communication points (0.2505 s) is hit exactly (the solver
+    stops there, event iteration at that time), and completedIntegratorStep's
+    enterEventMode is honoured (one event iteration at that step)."""
+    trace = traced(monkeypatch, tmp_path)
+    tev = compile_fmu(tmp_path, "tev", TEV_C, TEV_XML, "2.0")
+    res, slave = _run(tev, 0.5, ["x", "nstep"])
+    t = res["time"]
+    x_exact = np.where(t <= 0.2505, t, 0.2505 - (t - 0.2505))
+    assert np.max(np.abs(res["p.x"] - x_exact)) < 1e-9
+    assert res["p.nstep"][-1] == 1
+    lines = read_trace(trace)
+    nds = [x for x in lines if x.startswith("fmi2NewDiscreteStates")]
+    assert nds[0] == "fmi2NewDiscreteStates t=0.000000"
+    assert nds[1] == "fmi2NewDiscreteStates t=0.250500"          # the time event, exactly
+    i = next(k for k, x in enumerate(lines) if x.startswith("fmi2CompletedIntegratorStep asks"))
+    t_step = float(lines[i].rsplit("=", 1)[1])
+    assert 0.4 < t_step <= 0.401 + 1e-9
+    assert lines[i + 1] == f"fmi2NewDiscreteStates t={t_step:.6f}"   # the step event
+    assert len(nds) == 3
