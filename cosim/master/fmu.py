@@ -238,6 +238,9 @@ class FMUSlave:
         except Exception as exc:
             raise FMUError(f"role {role}: {self.path}: invalid modelDescription.xml: {exc}") from None
         self.md = md
+        from ..fmi.check import model_warnings, warn_once
+        #: deviations from the standard the FMU runs with (``cosim fmus check``'s warnings)
+        self.warnings = warn_once(self.path, role, model_warnings(md))
         if kind not in ("auto", "cs", "me"):
             raise FMUError(f"role {role}: kind must be 'auto', 'cs' or 'me', not {kind!r}")
         if kind == "auto":
@@ -248,8 +251,10 @@ class FMUSlave:
             raise FMUError(f"role {role}: {self.path} has no Model Exchange interface")
         self.kind = kind
         self.fmi3 = version.startswith("3")
-        if not (self.fmi3 or version.startswith("2")):
-            raise FMUError(f"role {role}: {self.path.name} is FMI {version}; FMI 2.0 and 3.0 are supported")
+        self.fmi1 = version.startswith("1")
+        if not (self.fmi3 or self.fmi1 or version.startswith("2")):
+            raise FMUError(f"role {role}: {self.path.name} is FMI {version}; FMI 1.0, 2.0 and "
+                           f"3.0 are supported")
 
         def unit(v):
             if v.unit:
@@ -263,10 +268,17 @@ class FMUSlave:
                 return ()
             return tuple((it.name, int(it.value)) for it in dt.items)
 
+        def initial(v):
+            # FMI 1.0 has no `initial`: a start value is the exact one unless the
+            # variable says fixed="false" (FMI 1.0 section 2.10), then an approximation
+            if v.initial or not version.startswith("1") or v.start is None:
+                return v.initial or ""
+            return "approx" if str(getattr(v, "fixed", "true")).lower() == "false" else "exact"
+
         self.variables: dict[str, VarInfo] = {
             v.name: VarInfo(v.name, v.valueReference, _TYPE.get(v.type, v.type), v.causality,
                             v.variability, unit(v), v.description or "", v.type,
-                            v.initial or "", tuple(v.shape or ()), v.start, items(v))
+                            initial(v), tuple(v.shape or ()), v.start, items(v))
             for v in md.modelVariables}
         self.info = FMUInfo(str(self.path), sha256_file(self.path), version,
                             "CoSimulation" if kind == "cs" else "ModelExchange",
@@ -282,12 +294,16 @@ class FMUSlave:
             if self.fmi3:
                 from fmpy.fmi3 import FMU3Model, FMU3Slave
                 self._fmu = FMU3Slave(**args) if kind == "cs" else FMU3Model(**args)
+            elif self.fmi1:     # FMI 1.0 behind the FMI 2.0 calls (cosim.fmi.fmi1)
+                from ..fmi.fmi1 import FMI1Adapter
+                self._fmu = FMI1Adapter(kind, lambda *m: self._log(*m), **args)
             else:
                 from fmpy.fmi2 import FMU2Model, FMU2Slave
                 self._fmu = FMU2Slave(**args) if kind == "cs" else FMU2Model(**args)
         except Exception as exc:
             raise FMUError(f"role {role}: {self.path.name}: cannot load the binary: {exc}") from None
         self.rtol = rtol
+        self._me = None      # cosim.fmi.me.MEIntegrator of a Model Exchange run
         self.time = 0.0
         self._instantiated = False
         self._closed = False
@@ -494,6 +510,7 @@ class FMUSlave:
                 raise FMUError(f"role {self.role}: {self.path.name} declares "
                                f"canBeInstantiatedOnlyOncePerProcess and is already "
                                f"instantiated in this process (role {other})")
+        self._me = None
         _LIVE[self._id] = self
         tol = self.tolerance
         if tol is None and self.md.defaultExperiment is not None and \
@@ -595,7 +612,10 @@ class FMUSlave:
         try:
             f.exitInitializationMode()
             if self.kind == "me":
-                self._me_start()
+                from ..fmi.me import MEIntegrator
+                self._me = MEIntegrator(f, self.md, self.fmi3, self.error, self.time,
+                                        rtol=self.rtol, error_type=FMUError)
+                self._me.start()
         except FMUError:
             raise
         except Exception as exc:
@@ -604,7 +624,8 @@ class FMUSlave:
     # ------------------------------------------------------------ fast I/O
     def _fn(self, name: str):
         dll = self._fmu.dll
-        fp = dll._FuncPtr((name, dll))
+        symbol = getattr(self._fmu, "symbol", None)     # FMI 1.0: <modelIdentifier>_fmi...
+        fp = dll._FuncPtr((symbol(name) if symbol else name, dll))
         fp.restype = ctypes.c_int
         return fp
 
@@ -623,12 +644,16 @@ class FMUSlave:
         if self.fmi3:
             from fmpy.fmi3 import fmi3Boolean, fmi3Float64
             ev, term, early, last = fmi3Boolean(), fmi3Boolean(), fmi3Boolean(), fmi3Float64()
-            return RawIO(fn("fmi3GetFloat64"), fn("fmi3SetFloat64"),
-                         fn("fmi3DoStep") if self.kind == "cs" else None, comp, True,
-                         (ctypes.byref(ev), ctypes.byref(term), ctypes.byref(early),
-                          ctypes.byref(last)), term, early, last)
-        return RawIO(fn("fmi2GetReal"), fn("fmi2SetReal"),
-                     fn("fmi2DoStep") if self.kind == "cs" else None, comp, False, (), None)
+            io = RawIO(fn("fmi3GetFloat64"), fn("fmi3SetFloat64"),
+                       fn("fmi3DoStep") if self.kind == "cs" else None, comp, True,
+                       (ctypes.byref(ev), ctypes.byref(term), ctypes.byref(early),
+                        ctypes.byref(last)), term, early, last)
+        else:
+            io = RawIO(fn("fmi2GetReal"), fn("fmi2SetReal"),
+                       fn("fmi2DoStep") if self.kind == "cs" else None, comp, False, (), None)
+        if self._me is not None:     # ME: input changes go through event handling
+            io.set = self._me.input_setter(io.get, io.set)
+        return io
 
     def typed_io(self, v: VarInfo, direction: str):
         """(raw ctypes function fmi2{Get,Set}<T> / fmi3{Get,Set}<T>, C element type,
@@ -639,7 +664,10 @@ class FMUSlave:
             raise FMUError(f"role {self.role}: {v.name} is a {v.fmi_type}: not a value "
                            f"this master reads or writes")
         call, ct, dtype = table[v.fmi_type]
-        return self._fn(f"fmi{3 if self.fmi3 else 2}{direction}{call}"), ct, dtype
+        fn = self._fn(f"fmi{3 if self.fmi3 else 2}{direction}{call}")
+        if direction == "Set" and self._me is not None and v.type != "Real":
+            fn = self._me.discrete_setter(fn)     # ME: a discrete input changes in event mode
+        return fn, ct, dtype
 
     def dtype(self, v: VarInfo) -> str:
         """The numpy dtype a recorded column of ``v`` keeps (float32 for Float32, int8
@@ -703,7 +731,7 @@ class FMUSlave:
     def stepper(self):
         """Return a function (t, h) -> None advancing the FMU from t to t+h."""
         if self.kind == "me":
-            return self._me_step
+            return self._me.step
         io = self.raw()
         do, comp = io.step, io.comp
         D = ctypes.c_double
@@ -742,72 +770,6 @@ class FMUSlave:
         except Exception:
             last = None
         return term, last
-
-    # ------------------------------------------------------------ Model Exchange
-    def _me_start(self):
-        from fmpy.sundials import CVodeSolver
-        f = self._fmu
-        md = self.md
-        upd = f.updateDiscreteStates if self.fmi3 else f.newDiscreteStates
-        need, term = True, False
-        while need and not term:
-            need, term, _, _, self._next_event_defined, self._next_event = upd()
-        if term:
-            raise self.error("the FMU requested termination during initialisation")
-        f.enterContinuousTimeMode()
-
-        class _NoInput:
-            def apply(self, *a, **k):
-                pass
-
-            def nextEvent(self, t):
-                return float("inf")
-        nx = md.numberOfContinuousStates or 0
-        nz = md.numberOfEventIndicators or 0
-        self._solver = CVodeSolver(      # nx = 0 is handled (dummy state)
-            nx=nx, nz=nz,
-            get_x=f.getContinuousStates, set_x=f.setContinuousStates,
-            get_dx=f.getContinuousStateDerivatives if self.fmi3 else f.getDerivatives,
-            get_z=f.getEventIndicators,
-            get_nominals=f.getNominalsOfContinuousStates, set_time=f.setTime,
-            input=_NoInput(), startTime=self.time, relativeTolerance=self.rtol, maxStep=1e-3)
-
-    def _me_step(self, t, h):
-        """Integrate a Model Exchange FMU from t to t + h with CVode, handling time
-        and state events (inputs are held constant over the interval)."""
-        f = self._fmu
-        tend = t + h
-        time = t
-        try:
-            # inputs were set in continuous-time mode at t: the solver must restart
-            self._solver.reset(time)
-            while time < tend - 1e-12 * max(1.0, abs(tend)):
-                target = tend
-                if self._next_event_defined and time < self._next_event < target:
-                    target = self._next_event
-                state_event, roots, time = self._solver.step(time, target)
-                f.setTime(time)
-                step_event = False
-                if self.fmi3 or self.md.modelExchange.needsCompletedIntegratorStep:
-                    step_event, term = f.completedIntegratorStep()
-                    if term:
-                        raise self.error("the FMU requested termination", None, time)
-                time_event = self._next_event_defined and abs(time - self._next_event) < 1e-12
-                if state_event or step_event or time_event:
-                    f.enterEventMode()
-                    upd = f.updateDiscreteStates if self.fmi3 else f.newDiscreteStates
-                    need = True
-                    while need:
-                        need, term, _, _, self._next_event_defined, self._next_event = upd()
-                        if term:
-                            raise self.error("the FMU requested termination", None, time)
-                    f.enterContinuousTimeMode()
-                    self._solver.reset(time)
-        except FMUError:
-            raise
-        except Exception as exc:
-            raise self.error(f"Model Exchange integration failed ({exc})", None, time) from None
-        self.time = tend
 
     # ------------------------------------------------------------ end
     def terminate(self):

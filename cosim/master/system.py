@@ -1322,7 +1322,9 @@ class Master:
 
         def _fail_fmu(j, what, t, status=None, exc=None):
             role, slave = slaves[j]
-            if isinstance(exc, FMUTerminated):     # the FMU's own, normal end
+            # the FMU's own, normal end (a Model Exchange integrator marks its
+            # terminateSimulation exception `terminated`, cosim.fmi.me)
+            if isinstance(exc, FMUTerminated) or getattr(exc, "terminated", False):
                 raise _Terminated(j, int(round((t - T0) / Ts)),
                                   f"role {role}: {slave.path.name} ended the simulation "
                                   f"({exc})")

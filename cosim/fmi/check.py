@@ -1,0 +1,348 @@
+"""Inspect and validate any FMU (ours or a user's): ``cosim fmus check FMU``.
+
+Safety first: the archive is opened as a zip, every member path is checked
+(no absolute paths, no '..', no links, bounded size) before anything is
+extracted, and extraction only ever goes into a temporary folder that is removed
+afterwards.
+
+Errors are kept for what stops the FMU from running *here*: an unreadable or
+unsafe archive, an unsupported FMI version, a model description that cannot be
+read, no Co-Simulation or Model Exchange interface, no binary for this platform,
+an instantiation that fails. Everything else the standard asks and the FMU does not
+do (XML schema, ``ModelStructure/InitialUnknowns`` not the expected set, an
+Integer/Enumeration/Boolean variable declared continuous, a start value outside
+[min, max], an undefined unit, an illegal causality/variability/initial
+combination...) is a *warning* naming the rule and the variable: such FMUs are
+exported by Dymola, 20-sim, Simulink FMI Kit and run with every importer. ``strict``
+turns warnings into errors. Notes (no description, no unit) are never errors.
+
+:func:`model_warnings` is the same classification for an FMU bound to a role (the
+master calls it when it loads an FMU, see :class:`cosim.master.fmu.FMUSlave`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import stat
+import tempfile
+import zipfile
+from pathlib import Path, PurePosixPath
+
+MAX_UNCOMPRESSED = 2 * 1024 ** 3   # zip-bomb guard
+SUPPORTED = ("1.0", "2.0", "3.0")
+
+#: the rule a problem reported by FMPy's validation belongs to (first match)
+_RULES = (
+    ("InitialUnknowns", "ModelStructure/InitialUnknowns (FMI 2.0 2.2.8, FMI 3.0 2.4.8)"),
+    ("ModelStructure", "ModelStructure (FMI 2.0 2.2.8, FMI 3.0 2.4.8)"),
+    ("must have variability", "only Real/Float variables are continuous (FMI 2.0 2.2.7)"),
+    ("has no start value", "start value required (FMI 2.0 2.2.7: inputs, initial=exact/approx)"),
+    ("combination causality", "causality/variability/initial combination (FMI 2.0 2.2.7)"),
+    ("initial=\"calculated\" but provides a start", "no start with initial=calculated (FMI 2.0 2.2.7)"),
+    ("display unit", "units (FMI 2.0 2.2.2)"),
+    ("unit", "units (FMI 2.0 2.2.2)"),
+    ("same value reference", "value references (FMI 2.0 2.2.7)"),
+    ("not unique", "unique variable names (FMI 2.0 2.2.7)"),
+    ("naming convention", "variableNamingConvention (FMI 2.0 2.2.9)"),
+    ("illegal", "variable names (FMI 2.0 2.2.9)"),
+    ("independent", "one independent variable (FMI 2.0 2.2.7)"),
+    ("backslash", "archive paths (FMI 2.0 2.3)"),
+)
+
+
+class FMUCheckError(Exception):
+    """The FMU cannot be used at all (corrupt, unsafe, unsupported)."""
+
+    def __init__(self, path, message):
+        self.path = path
+        super().__init__(f"{path}: {message}")
+
+
+@dataclasses.dataclass
+class CheckReport:
+    path: Path
+    fmi_version: str = ""
+    model_name: str = ""
+    generation_tool: str = ""
+    interfaces: list = dataclasses.field(default_factory=list)   # ['CoSimulation', ...]
+    variables: list = dataclasses.field(default_factory=list)    # dicts
+    errors: list = dataclasses.field(default_factory=list)
+    warnings: list = dataclasses.field(default_factory=list)    # "[rule] variable: message"
+    notes: list = dataclasses.field(default_factory=list)       # never errors
+    runnable: list = dataclasses.field(default_factory=list)    # interfaces that instantiate here
+    simulated: bool = False
+    strict: bool = False
+
+    @property
+    def ok(self) -> bool:
+        """Runnable here (and, with ``strict``, without warnings)."""
+        return not self.errors and not (self.strict and self.warnings)
+
+
+def safe_members(path: Path) -> list[zipfile.ZipInfo]:
+    """Validate the archive's member list; raise FMUCheckError if unsafe/corrupt."""
+    if not path.exists():
+        raise FMUCheckError(path, "file not found")
+    if not zipfile.is_zipfile(path):
+        raise FMUCheckError(path, "not a zip archive (corrupt or not an FMU)")
+    try:
+        with zipfile.ZipFile(path) as z:
+            infos = z.infolist()
+            bad = z.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise FMUCheckError(path, f"corrupt zip archive: {exc}") from None
+    if bad is not None:
+        raise FMUCheckError(path, f"corrupt zip archive: CRC error in member {bad!r}")
+    total = 0
+    for info in infos:
+        name = info.filename
+        p = PurePosixPath(name.replace("\\", "/"))
+        if p.is_absolute() or name.startswith(("/", "\\")) or (len(name) > 1 and name[1] == ":"):
+            raise FMUCheckError(path, f"unsafe member {name!r}: absolute path")
+        if ".." in p.parts:
+            raise FMUCheckError(path, f"unsafe member {name!r}: escapes the FMU folder")
+        mode = info.external_attr >> 16
+        if stat.S_ISLNK(mode):
+            raise FMUCheckError(path, f"unsafe member {name!r}: symbolic link")
+        total += info.file_size
+    if total > MAX_UNCOMPRESSED:
+        raise FMUCheckError(path, f"uncompressed size {total} bytes exceeds {MAX_UNCOMPRESSED}")
+    names = {i.filename for i in infos}
+    if "modelDescription.xml" not in names:
+        raise FMUCheckError(path, "no modelDescription.xml at the archive root")
+    return infos
+
+
+def fmi_version(path: Path) -> str:
+    from lxml import etree
+    safe_members(path)
+    with zipfile.ZipFile(path) as z:
+        data = z.read("modelDescription.xml")
+    try:
+        root = etree.fromstring(data, etree.XMLParser(resolve_entities=False, no_network=True))
+    except etree.XMLSyntaxError as exc:
+        raise FMUCheckError(path, f"modelDescription.xml is not well-formed XML: {exc}") from None
+    v = root.get("fmiVersion")
+    if v is None:
+        raise FMUCheckError(path, "modelDescription.xml has no fmiVersion attribute")
+    if v not in SUPPORTED:
+        raise FMUCheckError(path, f"FMI version {v} is not supported (supported: "
+                            f"{', '.join(SUPPORTED)})")
+    return v
+
+
+def safe_extract(path: Path, dest: Path) -> Path:
+    """Extract after validating the member list; returns dest."""
+    infos = safe_members(path)
+    dest = Path(dest).resolve()
+    with zipfile.ZipFile(path) as z:
+        for info in infos:
+            target = (dest / info.filename).resolve()
+            if dest != target and dest not in target.parents:
+                raise FMUCheckError(path, f"unsafe member {info.filename!r}")
+            z.extract(info, dest)
+    return dest
+
+
+def _binary(md, unzipdir: Path, kind: str) -> Path:
+    from fmpy import platform_tuple, platform as fmpy_platform, sharedLibraryExtension
+    ident = getattr(md, kind).modelIdentifier
+    folder = platform_tuple if md.fmiVersion.startswith("3") else fmpy_platform
+    return unzipdir / "binaries" / folder / (ident + sharedLibraryExtension)
+
+
+def _rule_of(problem: str) -> str:
+    for key, rule in _RULES:
+        if key in problem:
+            return rule
+    return "FMI standard (FMPy validation)"
+
+
+def _variable_of(problem: str) -> str:
+    import re
+    m = re.search(r'[Vv]ariable (?:name )?"([^"]+)"', problem)
+    return m.group(1) if m else ""
+
+
+def _warning(rule: str, variable: str, message: str) -> str:
+    return f"[{rule}] " + (f"{variable}: " if variable else "") + message
+
+
+def model_warnings(md, names: bool = False) -> list[str]:
+    """Deviations from the standard that an importer can tolerate, each
+    ``"[rule] variable: message"`` (no schema validation: see :func:`check_fmu`).
+    ``names``: also the variable-naming grammar (FMPy's parser: about 0.4 s for 100
+    variables, so :func:`check_fmu` does it and binding an FMU does not)."""
+    from fmpy.validation import validate_model_description
+    try:
+        problems = validate_model_description(md, validate_variable_names=names,
+                                              validate_model_structure=True)
+    except Exception as exc:         # FMPy's checks themselves failed on this FMU
+        problems = [f"FMPy validation could not complete: {exc}"]
+    out = [_warning(_rule_of(p), _variable_of(p), p) for p in problems]
+    for v in md.modelVariables:
+        try:
+            s = float(v.start) if v.start is not None else None
+            lo = float(v.min) if v.min is not None else None
+            hi = float(v.max) if v.max is not None else None
+        except (TypeError, ValueError):
+            continue
+        if s is not None and ((lo is not None and s < lo) or (hi is not None and s > hi)):
+            out.append(_warning("start within [min, max] (FMI 2.0 2.2.7)", v.name,
+                                f"start {s} outside [{lo}, {hi}]"))
+    return out
+
+
+_WARNED: set = set()
+
+
+def warn_once(path, role: str, warnings: list[str]) -> list[str]:
+    """Print an FMU's warnings to stderr once per file and process; returns them."""
+    import sys
+    key = str(Path(path).resolve())
+    if warnings and key not in _WARNED:
+        _WARNED.add(key)
+        for w in warnings:
+            print(f"[WARNING] role {role}: {Path(path).name}: {w} (it runs; `cosim fmus "
+                  f"check --strict` refuses it)", file=sys.stderr)
+    return warnings
+
+
+def _instantiate(md, unzipdir: Path, kind: str) -> None:
+    """Load the binary and instantiate the interface once (then free it); raises."""
+    ident = getattr(md, kind).modelIdentifier
+    cs = kind == "coSimulation"
+    v = md.fmiVersion
+    if v.startswith("3"):
+        from fmpy.fmi3 import FMU3Model, FMU3Slave
+        cls, guid = (FMU3Slave if cs else FMU3Model), md.instantiationToken
+    elif v.startswith("2"):
+        from fmpy.fmi2 import FMU2Model, FMU2Slave
+        cls, guid = (FMU2Slave if cs else FMU2Model), md.guid
+    else:
+        from fmpy.fmi1 import FMU1Model, FMU1Slave
+        cls, guid = (FMU1Slave if cs else FMU1Model), md.guid
+    fmu = cls(guid=guid, unzipDirectory=str(unzipdir), modelIdentifier=ident,
+              instanceName="check")
+    fmu.instantiate()
+    if not fmu.component:
+        raise RuntimeError("the instantiate function returned NULL")
+    fmu.freeInstance()
+
+
+def check_fmu(path, simulate: bool = False, strict: bool = False,
+              instantiate: bool = True) -> CheckReport:
+    """Validate an FMU and describe its interface. Never extracts outside a temp dir.
+
+    ``simulate``: a 10 ms smoke simulation with FMPy when the FMU is runnable (warnings
+    do not prevent it); ``strict``: warnings count as errors (:attr:`CheckReport.ok`);
+    ``instantiate``: load each interface's binary and instantiate it once.
+    """
+    import fmpy
+    from fmpy.model_description import ValidationError
+
+    path = Path(path)
+    rep = CheckReport(path=path, strict=strict)
+    rep.fmi_version = fmi_version(path)      # raises for corrupt/unsafe/unsupported
+    with tempfile.TemporaryDirectory(prefix="fmucheck-") as td:
+        unzipdir = safe_extract(path, Path(td))
+        try:
+            md = fmpy.read_model_description(str(unzipdir), validate=True)
+        except ValidationError as exc:
+            rep.warnings += [_warning("XML schema of modelDescription.xml", _variable_of(p), p)
+                             for p in exc.problems]
+            try:
+                md = fmpy.read_model_description(str(unzipdir), validate=False)
+            except Exception as exc2:
+                rep.errors.append(f"model description unreadable: {exc2}")
+                return rep
+        except Exception as exc:
+            rep.errors.append(f"model description unreadable: {exc}")
+            return rep
+        rep.model_name = md.modelName
+        rep.generation_tool = md.generationTool or ""
+        kinds = [(n, k) for n, k in (("CoSimulation", "coSimulation"),
+                                     ("ModelExchange", "modelExchange")) if getattr(md, k)]
+        rep.interfaces = [n for n, _ in kinds]
+        if not kinds:
+            rep.errors.append("neither a Co-Simulation nor a Model Exchange interface declared"
+                              + (" (Scheduled Execution is not supported)"
+                                 if getattr(md, "scheduledExecution", None) else ""))
+        rep.warnings += model_warnings(md, names=True)
+        with zipfile.ZipFile(path) as z:
+            if any("\\" in i.orig_filename for i in z.infolist()):
+                rep.warnings.append(_warning("archive paths (FMI 2.0 2.3)", "",
+                                             "a member path contains a backslash"))
+        cannot = []
+        for name, kind in kinds:
+            so = _binary(md, unzipdir, kind)
+            if not so.exists():
+                cannot.append(f"{name}: no binary for this platform "
+                              f"({so.relative_to(unzipdir)})")
+                continue
+            if instantiate:
+                try:
+                    _instantiate(md, unzipdir, kind)
+                except Exception as exc:
+                    cannot.append(f"{name}: instantiation failed: {exc}")
+                    continue
+            rep.runnable.append(name)
+        if kinds and not rep.runnable:
+            rep.errors += cannot
+        else:        # another interface runs: the FMU runs here
+            rep.warnings += [_warning("interface", "", c) for c in cannot]
+        for v in md.modelVariables:
+            row = dict(name=v.name, vr=v.valueReference, type=v.type, causality=v.causality,
+                       variability=v.variability, unit=v.unit or "", start=v.start,
+                       min=v.min, max=v.max, description=v.description or "")
+            rep.variables.append(row)
+            if not v.description and v.causality in ("input", "output", "parameter"):
+                rep.notes.append(f"variable {v.name}: no description")
+            if v.type in ("Real", "Float64") and v.causality in ("input", "output") and not v.unit:
+                rep.notes.append(f"variable {v.name}: no unit")
+        if simulate and not rep.errors:
+            try:
+                fmpy.simulate_fmu(str(unzipdir), stop_time=0.01, step_size=1e-3,
+                                  output_interval=1e-3, model_description=md, validate=False)
+                rep.simulated = True
+            except Exception as exc:
+                rep.errors.append(f"smoke simulation (10 ms, FMPy) failed: {exc}")
+    return rep
+
+
+def format_report(rep: CheckReport) -> str:
+    lines = [f"FMU          {rep.path}",
+             f"model        {rep.model_name}",
+             f"FMI version  {rep.fmi_version}   interfaces: {', '.join(rep.interfaces) or '-'}"
+             f"   runnable here: {', '.join(rep.runnable) or '-'}",
+             f"generated by {rep.generation_tool or '-'}", ""]
+    cols = ("name", "causality", "variability", "type", "unit", "start", "description")
+    rows = [[str(v.get(c) if v.get(c) is not None else "") for c in cols]
+            for v in rep.variables if v["causality"] in ("input", "output", "parameter",
+                                                         "calculatedParameter")]
+    if rows:
+        w = [min(max(len(c), *(len(r[i]) for r in rows)), 40) for i, c in enumerate(cols)]
+        lines.append("  ".join(c.ljust(w[i]) for i, c in enumerate(cols)))
+        for r in rows:
+            lines.append("  ".join(r[i][:60].ljust(w[i]) for i in range(len(cols))))
+    n_local = sum(v["causality"] == "local" for v in rep.variables)
+    lines.append(f"({len(rep.variables)} variables, {n_local} local not shown)")
+    lines.append("")
+    for n in rep.notes:
+        lines.append(f"note: {n}")
+    label = "ERROR (--strict)" if rep.strict else "warning"
+    for w_ in rep.warnings:
+        lines.append(f"{label}: {w_}")
+    for e in rep.errors:
+        lines.append(f"ERROR: {e}")
+    if rep.simulated:
+        lines.append("smoke simulation: ok (10 ms)")
+    n_err = len(rep.errors) + (len(rep.warnings) if rep.strict else 0)
+    if n_err:
+        lines.append(f"RESULT: {n_err} error(s): "
+                     + ("cannot run here" if rep.errors else "runs, but --strict refuses warnings"))
+    elif rep.warnings:
+        lines.append(f"RESULT: runs here, {len(rep.warnings)} warning(s) "
+                     f"(deviations from the standard; --strict makes them errors)")
+    else:
+        lines.append("RESULT: valid")
+    return "\n".join(lines)
