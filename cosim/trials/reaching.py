@@ -612,6 +612,9 @@ def _reaching_session(run, build, ctx):
         raise ValueError(f"parameters.weeks must be >= 1, got {n_weeks}")
     motors = tuple(bool(m) for m in pr.get("motors", SESSION_MOTORS))
     dec = int(pr.get("decimate", 10))
+    # a negative control's ``duration`` override reaches run.overrides but not
+    # run.duration (scenarios/verdict.py control_runs): read it from the overrides
+    duration = float(run.overrides.get("duration", run.duration))
     out = ProcedureResult()
     system, record = build()
     x0 = float(system.params["table"].get("x0", 0.0)); y0 = float(system.params["table"].get("y0", 0.0))
@@ -649,7 +652,7 @@ def _reaching_session(run, build, ctx):
                                     "controllers": {"ac": {"params": {"motors_on": on}}}})
             block = ctx.state["controller"]
             path = ctx.state.get("reaching_path") or path
-            res = Master(system, record).run(run.duration)
+            res = Master(system, record).run(duration)
             sig = res.signals
             ex = sig["stim.rx"] - sig["table.x_enc"]; ey = sig["stim.ry"] - sig["table.y_enc"]
             (mx, sx), (my, sy) = mae_sde(ex), mae_sde(ey)
@@ -721,7 +724,8 @@ def _session_values(v: dict, W: str, motors, on_idx, off_idx, t6_on, t6_off, map
 
     def mean(key, idx):
         return float(np.mean([v[f"{W}t{i}_{key}"] for i in idx]))
-    v[f"{W}on_total_MAE_mm"] = mean("total_MAE_mm", on_idx) if on_idx else float("nan")
+    if on_idx:                     # (the store refuses NaN: no value without ON trainings)
+        v[f"{W}on_total_MAE_mm"] = mean("total_MAE_mm", on_idx)
     if on_idx and off_idx:         # (a session with every driver on has no ON/OFF ratio)
         v[f"{W}on_over_off_total_MAE"] = mean("total_MAE_mm", on_idx) / mean("total_MAE_mm", off_idx)
         if all(f"{W}t{i}_MAE_impaired_mm" in v for i in range(1, len(motors) + 1)):
