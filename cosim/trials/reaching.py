@@ -7,8 +7,10 @@ forth along three directions at 1.8 cm/s, three repetitions, about 150 s a train
 k = 500, alpha0 = 10 N/m) computes its stiffness map at every 1 ms tick; a weekly
 session is 5 trainings with the motor drivers OFF/ON/ON/ON/OFF (Table 6). Outputs:
 MAE and SDE per axis per training (Tables 7-8), the stiffness map at the end of every
-training (Fig. 49), pre/post total MAE over four weekly sessions (Fig. 51), and the
-eq. 90-91 check of (k, tau) per axis (Sec. 3.3.2.2).
+training (Fig. 49) and its ON/OFF contrast (Fig. 50), pre/post total MAE over four
+weekly sessions (Fig. 51), and the eq. 90-91 check of (k, tau) per axis (Sec. 3.3.2.2).
+The scenario runs the effective k = 1500 (3x the printed 500, calibrated on Table 7:
+cosim/devices/assumptions.py); the functions here take k as a parameter.
 
 Decisions (the thesis does not give these; each is a modelling choice)
 -----------------------------------------------------------------------
@@ -34,6 +36,14 @@ Decisions (the thesis does not give these; each is a modelling choice)
   of a training (not measured).
 * **Damping.** Physical form of the digest (Kd = 2 xi sqrt(Kp m)) with m the moving
   mass of each axis (x: 1.5 kg, y: 0.5 kg, XYTable), xi = 0.7.
+* **Course.** The reaching procedure runs a subject's four weekly sessions in one run
+  (phases w<n>t<i>): the patient of week n depends on the assistance the controller
+  delivered in weeks 1..n-1 (:class:`cosim.trials.patients.Course`; the dose of a
+  training is :func:`assistance_dose_Ns`, the motors' assistive impulse).
+* **Map peak (Fig. 49).** Per axis, the stiffness along the path over its median along
+  the path, the larger of the two axes (:func:`map_peak`): Fig. 49 shows one map per
+  axis; a sum of the axes lets an axis raised all along the path (friction at every
+  turnaround) move the peak.
 * **Stability check.** Eq. 90-91 per axis with the worst (largest) human stiffness
   K_h the patient model reaches in the workspace, x_max = 0.2 m (the end stops),
   r'_max = target speed, nu_max = the largest end-effector speed recorded. As
