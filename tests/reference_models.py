@@ -185,7 +185,7 @@ def ballscrew_outputs(t, x, u, p=None):
 # ----------------------------------------------------------------------------------
 # XYTable (thesis Sec. 3.4, Table 4)
 # ----------------------------------------------------------------------------------
-XYTABLE_PARAMS = dict(m_up=0.5, m_low=1.0, Kf=33.0, fc_x=1.0, fs_x=1.0, b_x=2.0,
+XYTABLE_PARAMS = dict(m_up=0.5, m_low=1.0, Kf=33.0, fc_x=0.5, fs_x=0.5, b_x=1.0,
                       fc_y=0.5, fs_y=0.5, b_y=1.0, vs=0.01, sigma0_x=1e6,
                       sigma1_x=2450.0, sigma0_y=5e5, sigma1_y=1000.0, vd=1e-3,
                       x_min=-0.2, x_max=0.2, y_min=-0.2, y_max=0.2, k_stop=1e5,

@@ -40,8 +40,8 @@ def _info(subject, week, values, label=None):
     motors = ["OFF", "ON", "ON", "ON", "OFF"]
     table = [{"trial": i + 1, "motors": motors[i], **dict(zip(COLUMNS, v))}
              for i, v in enumerate(values)]
-    return {"label": label or f"{subject}/week={week}", "status": "ok",
-            "artifacts": {"subject": subject, "week": week, "table": table}}
+    return {"label": label or subject, "status": "ok",
+            "artifacts": {"subject": subject, "sessions": [{"week": week, "table": table}]}}
 
 
 def test_comparison_differences_and_ratios():
@@ -50,8 +50,8 @@ def test_comparison_differences_and_ratios():
     wk0 = [[v + 1.0 for v in r[1:]] for r in t7]
     wk1 = [[v + 2.0 for v in r[1:]] for r in t7]
     infos = [_info("S1", 0, wk0), _info("S1", 1, wk1), _info("S2", 0, wk0),
-             _info("S3", 0, wk0, label="nc.map_frozen/S3/week=0"),
-             {"label": "S3/week=0", "status": "error", "error": "x"}]
+             _info("S3", 0, wk0, label="nc.map_frozen/S3"),
+             {"label": "S3", "status": "error", "error": "x"}]
     comps = comparison(infos)
     assert [c["subject"] for c in comps] == ["S1"]          # S2: no table; S3: control/error
     c = comps[0]
@@ -101,10 +101,10 @@ def test_reaching_page_rerendered_from_the_store_alone(tmp_path):
     from cosim.report.render import render_scenario
     repo = Path(__file__).resolve().parents[1]
     t8 = [[v + 3.0 for v in r[1:]] for r in THESIS_TABLES["S3"]["rows"]]
-    for label, subj, rows in (("S3_week=0", "S3", t8),):
+    for label, subj, rows in (("S3", "S3", t8),):
         d = tmp_path / "runs" / label
         d.mkdir(parents=True)
-        info = _info(subj, 0, rows, label=f"{subj}/week=0")
+        info = _info(subj, 0, rows, label=subj)
         info["phases"] = []
         (d / "run.json").write_text(json.dumps(info))
     (tmp_path / "verdict.json").write_text(json.dumps(

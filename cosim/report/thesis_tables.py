@@ -9,7 +9,8 @@ the comparison takes the stored session of week 1 (``week = 0``) and reports the
 range over the four stored weeks beside it. Subjects 2 and 4 have no table.
 
 This module reads the values the reaching procedure stored (``run.json`` artifacts
-``table``, ``subject``, ``week``); it runs nothing. It lives in ``report/`` (not in
+``subject`` and ``sessions``: per weekly session its ``week`` and ``table``); it runs
+nothing. It lives in ``report/`` (not in
 the trial) because it formats published numbers against stored ones, and
 ``report/`` is outside the run cache key: changing a page does not invalidate runs.
 """
@@ -37,14 +38,16 @@ COLUMNS = ("MAE_x_mm", "SDE_x_mm", "MAE_y_mm", "SDE_y_mm")
 
 
 def _sessions(infos) -> dict:
-    """(subject, week) -> stored per-training rows, from finished session runs."""
+    """(subject, week) -> stored per-training rows, from finished course runs (artifact
+    ``sessions``: one entry per weekly session, cosim/trials/reaching.py)."""
     out = {}
     for info in infos:
-        if info.get("status") != "ok":
+        if info.get("status") != "ok" or str(info.get("label", "")).startswith("nc."):
             continue
         a = info.get("artifacts") or {}
-        if a.get("table") and a.get("subject") and not str(info.get("label", "")).startswith("nc."):
-            out[(a["subject"], int(a.get("week", 0)))] = a["table"]
+        for se in a.get("sessions") or []:
+            if se.get("table") and a.get("subject"):
+                out[(a["subject"], int(se.get("week", 0)))] = se["table"]
     return out
 
 

@@ -7,8 +7,10 @@ forth along three directions at 1.8 cm/s, three repetitions, about 150 s a train
 k = 500, alpha0 = 10 N/m) computes its stiffness map at every 1 ms tick; a weekly
 session is 5 trainings with the motor drivers OFF/ON/ON/ON/OFF (Table 6). Outputs:
 MAE and SDE per axis per training (Tables 7-8), the stiffness map at the end of every
-training (Fig. 49), pre/post total MAE over four weekly sessions (Fig. 51), and the
-eq. 90-91 check of (k, tau) per axis (Sec. 3.3.2.2).
+training (Fig. 49) and its ON/OFF contrast (Fig. 50), pre/post total MAE over four
+weekly sessions (Fig. 51), and the eq. 90-91 check of (k, tau) per axis (Sec. 3.3.2.2).
+The scenario runs the effective k = 1500 (3x the printed 500, calibrated on Table 7:
+cosim/devices/assumptions.py); the functions here take k as a parameter.
 
 Decisions (the thesis does not give these; each is a modelling choice)
 -----------------------------------------------------------------------
@@ -34,6 +36,14 @@ Decisions (the thesis does not give these; each is a modelling choice)
   of a training (not measured).
 * **Damping.** Physical form of the digest (Kd = 2 xi sqrt(Kp m)) with m the moving
   mass of each axis (x: 1.5 kg, y: 0.5 kg, XYTable), xi = 0.7.
+* **Course.** The reaching procedure runs a subject's four weekly sessions in one run
+  (phases w<n>t<i>): the patient of week n depends on the assistance the controller
+  delivered in weeks 1..n-1 (:class:`cosim.trials.patients.Course`; the dose of a
+  training is :func:`assistance_dose_Ns`, the motors' assistive impulse).
+* **Map peak (Fig. 49).** Per axis, the stiffness along the path over its median along
+  the path, the larger of the two axes (:func:`map_peak`): Fig. 49 shows one map per
+  axis; a sum of the axes lets an axis raised all along the path (friction at every
+  turnaround) move the peak.
 * **Stability check.** Eq. 90-91 per axis with the worst (largest) human stiffness
   K_h the patient model reaches in the workspace, x_max = 0.2 m (the end stops),
   r'_max = target speed, nu_max = the largest end-effector speed recorded. As
@@ -261,6 +271,38 @@ def stiffness_map_of(params: AdaptiveComplianceParams, a: np.ndarray, n: int = 4
     return c.stiffness_map([g, g])
 
 
+def assistance_dose_Ns(sig: Mapping[str, np.ndarray], kf_N_per_A: float,
+                       mask: np.ndarray | None = None) -> float:
+    """Assistive impulse the table's motors delivered, integral of |F_motor| dt [N s]
+    (the dose of cosim.trials.patients' progression model): F_motor = Kf (ix, iy), the
+    force of the FMU's motor currents (zero with the drivers off); ``mask``: count only
+    these samples (e.g. inside the impaired region). Rectangle rule on the sample times."""
+    t = np.asarray(sig["time"], float)
+    if "table.ix" in sig and "table.iy" in sig:
+        f = kf_N_per_A * np.hypot(sig["table.ix"], sig["table.iy"])
+    else:
+        f = np.hypot(sig["ac.f_x"], sig["ac.f_y"])
+    dt = np.diff(t, append=t[-1])
+    w = dt if mask is None else dt * np.asarray(mask, bool)
+    return float(np.sum(f * w))
+
+
+def map_on_path(maps: Sequence, pts: np.ndarray) -> np.ndarray:
+    """k_p (both axes) of each map along the path points, shape (n_maps, n_pts, 2) [N/m]."""
+    cp = AdaptiveComplianceController(compliance_params(1.0, 1.0))
+    G = cp.grid.evaluate(pts)
+    return np.stack([G @ np.asarray(m).T for m in maps])
+
+
+def map_peak(kp: np.ndarray) -> int:
+    """Index of the path point where the map is red in Fig. 49's sense: per axis the
+    stiffness over its median along the path (an axis whose map is raised all along
+    the path -- e.g. by friction at every turnaround -- has no red spot), and the
+    largest of the two axes. kp: (n_pts, 2) [N/m]."""
+    rel = kp / np.maximum(np.median(kp, axis=0), 1e-12)
+    return int(np.argmax(rel.max(axis=1)))
+
+
 @dataclasses.dataclass
 class TrainingResult:
     """One training: motor state, Table 7-8 figures, the map at its end (Fig. 49)."""
@@ -276,6 +318,8 @@ class TrainingResult:
     max_speed_m_per_s: float       # largest end-effector speed (nu_max of eq. 89)
     wall_s: float
     signals: dict                  # decimated recording for plots (every 10 ms)
+    dose_Ns: float = 0.0           # assistive impulse, whole training (assistance_dose_Ns)
+    dose_region_Ns: float = 0.0    # assistive impulse inside the impaired region
 
     @property
     def total_mae_mm(self) -> float:
@@ -313,7 +357,9 @@ def run_training(human_params: Mapping[str, float], params: AdaptiveCompliancePa
     dec = {k: v[::decimate].copy() for k, v in sig.items()}
     out = TrainingResult(index, motors_on, dur, (1e3 * mx, 1e3 * my), (1e3 * sx, 1e3 * sy),
                          ctrl.a.copy(), a0, float(np.max(np.abs(np.r_[sig["ac.f_x"], sig["ac.f_y"]]))),
-                         float(np.max(np.hypot(sig["table.vx"], sig["table.vy"]))), wall, dec)
+                         float(np.max(np.hypot(sig["table.vx"], sig["table.vy"]))), wall, dec,
+                         assistance_dose_Ns(sig, XY_TABLE_KF_N_PER_A),
+                         assistance_dose_Ns(sig, XY_TABLE_KF_N_PER_A, sig["human.impairment"] > 0.5))
     out.timing = res.timing
     return out
 
@@ -337,22 +383,29 @@ class SessionResult:
         return [t.row() for t in self.trainings]
 
 
-def run_session(subject, week: int, params: AdaptiveComplianceParams, *,
-                path: ReachingPath = ReachingPath(), motors: Sequence[bool] = SESSION_MOTORS,
-                carry_map: bool = False, fmus_dir: Path | None = None,
-                fmu_overrides: Mapping[str, Path] | None = None, decimate: int = 10) -> SessionResult:
-    """A weekly session (Table 6): one training per entry of ``motors``; the patient
-    model's parameters for (week, training) come from ``subject.human_parameters``."""
-    trainings = []
-    a = None
-    for i, on in enumerate(motors):
-        hp = subject.human_parameters(week, i)
-        tr = run_training(hp, params, motors_on=on, path=path, initial_a=a if carry_map else None,
-                          index=i + 1, fmus_dir=fmus_dir, fmu_overrides=fmu_overrides,
-                          decimate=decimate)
-        trainings.append(tr)
-        a = tr.a_final
-    return SessionResult(subject.key, week, trainings, carry_map)
+def run_course(subject, weeks: int, params: AdaptiveComplianceParams, *,
+               path: ReachingPath = ReachingPath(), motors: Sequence[bool] = SESSION_MOTORS,
+               carry_map: bool = False, fmus_dir: Path | None = None,
+               fmu_overrides: Mapping[str, Path] | None = None, decimate: int = 10) -> list[SessionResult]:
+    """``weeks`` weekly sessions (Table 6: one training per entry of ``motors``) outside
+    the scenario framework, the patient progressing with the assistance delivered
+    (:class:`cosim.trials.patients.Course`, the same model as the reaching procedure)."""
+    from .patients import Course
+    course = Course(subject)
+    out = []
+    for w in range(weeks):
+        trainings = []
+        a = None
+        for i, on in enumerate(motors):
+            tr = run_training(course.parameters(), params, motors_on=on, path=path,
+                              initial_a=a if carry_map else None, index=i + 1,
+                              fmus_dir=fmus_dir, fmu_overrides=fmu_overrides, decimate=decimate)
+            course.practice(tr.dose_region_Ns if subject.dose_in_region else tr.dose_Ns)
+            trainings.append(tr)
+            a = tr.a_final
+        course.end_session()
+        out.append(SessionResult(subject.key, w, trainings, carry_map))
+    return out
 
 
 # =========================================================================== stability
@@ -551,22 +604,34 @@ def _path_points(path: ReachingPath, n: int = 600) -> np.ndarray:
 
 @procedure("reaching-session", uses=("cosim.trials.patients",))
 def _reaching_session(run, build, ctx):
-    """A weekly session (Table 6): 5 trainings of ``duration`` with the motor drivers
-    OFF/ON/ON/ON/OFF, the patient model of ``parameters.subject`` at
-    ``parameters.week``; phases t1..t5 (decimated 10x), values per training."""
+    """A subject's course of weekly sessions (Table 6: 5 trainings, motor drivers
+    OFF/ON/ON/ON/OFF), the patient of ``parameters.subject`` progressing with the
+    assistance delivered (cosim.trials.patients.Course); ``parameters.weeks`` sessions
+    (default 4, Sec. 3.6). Phases w<n>t<i> (decimated 10x); values per session with the
+    prefix ``w<n>_`` (n = 1..weeks), the course-level values without prefix."""
     from ..master import Master
-    from .patients import subject as get_subject
+    from .patients import Course, subject as get_subject
     pr = dict(ctx.parameters or run.overrides.get("parameters") or {})
+    if "week" in pr:
+        raise ValueError("parameters.week: a run is a course of weekly sessions now "
+                         "(the patient of week n depends on the assistance of weeks 1..n-1); "
+                         "use parameters.weeks (number of sessions)")
     subj = get_subject(pr.get("subject", "S1"))
-    week = int(pr.get("week", 0))
+    n_weeks = int(pr.get("weeks", 4))
+    if n_weeks < 1:
+        raise ValueError(f"parameters.weeks must be >= 1, got {n_weeks}")
     motors = tuple(bool(m) for m in pr.get("motors", SESSION_MOTORS))
     dec = int(pr.get("decimate", 10))
+    # a negative control's ``duration`` override reaches run.overrides but not
+    # run.duration (scenarios/verdict.py control_runs): read it from the overrides
+    duration = float(run.overrides.get("duration", run.duration))
     out = ProcedureResult()
     system, record = build()
     x0 = float(system.params["table"].get("x0", 0.0)); y0 = float(system.params["table"].get("y0", 0.0))
+    kf = float(system.params["table"].get("Kf", XY_TABLE_KF_N_PER_A))
     for s in system.roles.values():
         s.terminate()
-    maps, rows = [], []
+    v = out.values
     v_max = 0.0
     ctx.state.pop("a", None)
     hp0 = None
@@ -574,71 +639,69 @@ def _reaching_session(run, build, ctx):
     # (e.g. a negative control removing the impairment); the metrics keep the patient's
     # stated impairment centre and the stability check the patient's impedance
     extra = dict(pr.get("human_overrides") or {})
-    for i, on in enumerate(motors):
-        hp = subj.human_parameters(week, i, motors)
-        hp0 = hp0 or hp
-        unknown = sorted(set(extra) - set(hp))
-        if unknown:
-            raise ValueError(f"human_overrides: unknown HumanArm2D parameter(s) {unknown}")
-        hp_all = dict(hp, **extra, x_hand0=x0, y_hand0=y0, x_dev=x0, y_dev=y0)
-        ctx.phase = f"t{i + 1}"
-        system, record = build({"system": {"fmus": {"human": {"parameters": hp_all}}},
-                                "controllers": {"ac": {"params": {"motors_on": on}}}})
-        block = ctx.state["controller"]
-        res = Master(system, record).run(run.duration)
-        sig = res.signals
-        ex = sig["stim.rx"] - sig["table.x_enc"]; ey = sig["stim.ry"] - sig["table.y_enc"]
-        (mx, sx), (my, sy) = mae_sde(ex), mae_sde(ey)
-        tag = f"t{i + 1}"
-        fmax = float(np.max(np.abs(np.r_[sig["ac.f_x"], sig["ac.f_y"]])))
-        if "table.ix" in sig and "table.iy" in sig:   # the force the table's motors apply
-            kf = float(system.params["table"].get("Kf", XY_TABLE_KF_N_PER_A))
-            out.values[f"{tag}_table_force_N"] = kf * float(
-                np.max(np.abs(np.r_[sig["table.ix"], sig["table.iy"]])))
-        out.values.update({f"{tag}_MAE_x_mm": 1e3 * mx, f"{tag}_SDE_x_mm": 1e3 * sx,
-                           f"{tag}_MAE_y_mm": 1e3 * my, f"{tag}_SDE_y_mm": 1e3 * sy,
-                           f"{tag}_total_MAE_mm": 500.0 * (mx + my), f"{tag}_motors_on": float(on),
-                           f"{tag}_max_force_N": fmax})
-        if "human.impairment" in sig:                    # error inside the impaired region
-            imp = sig["human.impairment"] > 0.5
-            out.values[f"{tag}_impaired_frac"] = float(np.mean(imp))
-            if imp.any():
-                out.values[f"{tag}_MAE_impaired_mm"] = 1e3 * float(np.mean(np.hypot(ex[imp], ey[imp])))
-        maps.append(block.a.tolist())
-        rows.append({"trial": i + 1, "motors": "ON" if on else "OFF",
-                     "MAE_x_mm": 1e3 * mx, "SDE_x_mm": 1e3 * sx, "MAE_y_mm": 1e3 * my,
-                     "SDE_y_mm": 1e3 * sy})
-        v_max = max(v_max, float(np.max(np.hypot(sig["table.vx"], sig["table.vy"]))))
-        ctx.state["a"] = block.a.copy()                  # for carry_map
-        out.runs[tag] = _decimated(res, dec)
-    v = out.values
-    v["pre_total_MAE_mm"] = v["t1_total_MAE_mm"]
-    v["post_total_MAE_mm"] = v[f"t{len(motors)}_total_MAE_mm"]
+    course = Course(subj)
+    path = None
+    sessions = []
     on_idx = [i + 1 for i, m in enumerate(motors) if m]
     off_idx = [i + 1 for i, m in enumerate(motors) if not m]
-    v["on_total_MAE_mm"] = float(np.mean([v[f"t{i}_total_MAE_mm"] for i in on_idx])) if on_idx else float("nan")
-    if on_idx and off_idx:         # (a session with every driver on has no ON/OFF ratio)
-        v["on_over_off_total_MAE"] = (np.mean([v[f"t{i}_total_MAE_mm"] for i in on_idx])
-                                      / np.mean([v[f"t{i}_total_MAE_mm"] for i in off_idx]))
-    if on_idx and off_idx and all(f"t{i}_MAE_impaired_mm" in v for i in range(1, len(motors) + 1)):
-        v["on_over_off_impaired_MAE"] = (np.mean([v[f"t{i}_MAE_impaired_mm"] for i in on_idx])
-                                         / np.mean([v[f"t{i}_MAE_impaired_mm"] for i in off_idx]))
-    v["off_max_force_N"] = max(v[f"t{i}_max_force_N"] for i in off_idx) if off_idx else 0.0
-    # RE-1: the motor force measured at the table (Kf times the FMU's motor currents) in
-    # the trainings Table 6 has OFF (1 and 5), whatever the drivers were told
+    t6_on = [i + 1 for i, m in enumerate(SESSION_MOTORS) if m]
     t6_off = [i + 1 for i, m in enumerate(SESSION_MOTORS) if not m]
-    if all(f"t{i}_table_force_N" in v for i in t6_off):
-        v["table6_off_force_N"] = max(v[f"t{i}_table_force_N"] for i in t6_off)
-    # Fig. 49: where is the stiffness highest (motors-OFF pre assessment map, on the path)?
-    cp = AdaptiveComplianceController(compliance_params(1.0, 1.0))
-    path = ctx.state.get("reaching_path") or ReachingTargetParams().path()
-    pts = _path_points(path)
-    kp = cp.grid.evaluate(pts) @ np.asarray(maps[0]).T
-    ipk = int(np.argmax(kp.sum(axis=1)))
-    v["map_peak_x_m"], v["map_peak_y_m"] = float(pts[ipk, 0]), float(pts[ipk, 1])
-    if "imp_cx" in hp0:                                  # (meaningful if imp_depth > 0)
-        v["map_peak_to_impairment_m"] = float(np.hypot(pts[ipk, 0] - hp0["imp_cx"],
-                                                       pts[ipk, 1] - hp0["imp_cy"]))
+    for w in range(n_weeks):
+        W = f"w{w + 1}_"
+        maps, rows, doses = [], [], []
+        for i, on in enumerate(motors):
+            hp = course.parameters()
+            hp0 = hp0 or hp
+            unknown = sorted(set(extra) - set(hp))
+            if unknown:
+                raise ValueError(f"human_overrides: unknown HumanArm2D parameter(s) {unknown}")
+            hp_all = dict(hp, **extra, x_hand0=x0, y_hand0=y0, x_dev=x0, y_dev=y0)
+            tag = f"t{i + 1}"
+            ctx.phase = f"w{w + 1}{tag}"
+            system, record = build({"system": {"fmus": {"human": {"parameters": hp_all}}},
+                                    "controllers": {"ac": {"params": {"motors_on": on}}}})
+            block = ctx.state["controller"]
+            path = ctx.state.get("reaching_path") or path
+            res = Master(system, record).run(duration)
+            sig = res.signals
+            ex = sig["stim.rx"] - sig["table.x_enc"]; ey = sig["stim.ry"] - sig["table.y_enc"]
+            (mx, sx), (my, sy) = mae_sde(ex), mae_sde(ey)
+            fmax = float(np.max(np.abs(np.r_[sig["ac.f_x"], sig["ac.f_y"]])))
+            if "table.ix" in sig and "table.iy" in sig:   # the force the table's motors apply
+                v[f"{W}{tag}_table_force_N"] = kf * float(
+                    np.max(np.abs(np.r_[sig["table.ix"], sig["table.iy"]])))
+            v.update({f"{W}{tag}_MAE_x_mm": 1e3 * mx, f"{W}{tag}_SDE_x_mm": 1e3 * sx,
+                      f"{W}{tag}_MAE_y_mm": 1e3 * my, f"{W}{tag}_SDE_y_mm": 1e3 * sy,
+                      f"{W}{tag}_total_MAE_mm": 500.0 * (mx + my),
+                      f"{W}{tag}_motors_on": float(on), f"{W}{tag}_max_force_N": fmax})
+            imp = sig["human.impairment"] > 0.5 if "human.impairment" in sig else None
+            if imp is not None:                          # error inside the impaired region
+                v[f"{W}{tag}_impaired_frac"] = float(np.mean(imp))
+                if imp.any():
+                    v[f"{W}{tag}_MAE_impaired_mm"] = 1e3 * float(np.mean(np.hypot(ex[imp], ey[imp])))
+            # the assistance delivered drives the patient's progress (patients.Course)
+            dose = assistance_dose_Ns(sig, kf, imp if subj.dose_in_region else None)
+            v[f"{W}{tag}_dose_Ns"] = dose
+            v[f"{W}{tag}_response"] = course.practice(dose)
+            doses.append(dose)
+            maps.append(block.a.tolist())
+            rows.append({"trial": i + 1, "motors": "ON" if on else "OFF",
+                         "MAE_x_mm": 1e3 * mx, "SDE_x_mm": 1e3 * sx, "MAE_y_mm": 1e3 * my,
+                         "SDE_y_mm": 1e3 * sy})
+            v_max = max(v_max, float(np.max(np.hypot(sig["table.vx"], sig["table.vy"]))))
+            ctx.state["a"] = block.a.copy()              # for carry_map
+            out.runs[ctx.phase] = _decimated(res, dec)
+        prog = course.end_session()
+        path = path or ReachingTargetParams().path()
+        _session_values(v, W, motors, on_idx, off_idx, t6_on, t6_off, maps, path, hp0)
+        sessions.append({"week": w, "table": rows, "maps": maps, "motors": list(motors),
+                         "doses_Ns": doses, "progression": prog})
+    # course-level values: RE-1 over every session; the week-1 session's without prefix
+    # would be ambiguous, so requirements name the week (session_value's ``week``)
+    if all(f"w1_t{i}_table_force_N" in v for i in t6_off):
+        v["table6_off_force_N"] = max(v[f"w{w + 1}_t{i}_table_force_N"]
+                                      for w in range(n_weeks) for i in t6_off)
+    v["weeks"] = float(n_weeks)
     # eq. 90-91 per axis (Sec. 3.3.2.2) for this patient, plus a direct simulation
     xyp = ctx.state["controller"].params
     st = stability_check(xyp, hp0, r_dot_max=path.speed_m_per_s, v_max=v_max,
@@ -655,45 +718,105 @@ def _reaching_session(run, build, ctx):
             v[key] = float(x)
     if "simulation_stable" in st:
         v["sim_1dof_stable"] = float(st["simulation_stable"])
-    out.artifacts = {"subject": subj.key, "week": week, "table5": subj.table5(),
-                     "motors": list(motors), "maps": maps, "table": rows, "stability": st,
+    out.artifacts = {"subject": subj.key, "table5": subj.table5(), "sessions": sessions,
+                     "motors": list(motors), "stability": st,
                      "human_parameters_week_pre": hp0,
                      "note": "patient model and its progression are a MODEL, not data "
                              "(cosim/trials/patients.py)"}
     return out
 
 
+def _session_values(v: dict, W: str, motors, on_idx, off_idx, t6_on, t6_off, maps,
+                    path: ReachingPath, hp0: Mapping[str, float]) -> None:
+    """The per-session values (prefix ``W``) from the per-training ones already in ``v``."""
+    v[f"{W}pre_total_MAE_mm"] = v[f"{W}t1_total_MAE_mm"]
+    v[f"{W}post_total_MAE_mm"] = v[f"{W}t{len(motors)}_total_MAE_mm"]
+
+    def mean(key, idx):
+        return float(np.mean([v[f"{W}t{i}_{key}"] for i in idx]))
+    if on_idx:                     # (the store refuses NaN: no value without ON trainings)
+        v[f"{W}on_total_MAE_mm"] = mean("total_MAE_mm", on_idx)
+    if on_idx and off_idx:         # (a session with every driver on has no ON/OFF ratio)
+        v[f"{W}on_over_off_total_MAE"] = mean("total_MAE_mm", on_idx) / mean("total_MAE_mm", off_idx)
+        if all(f"{W}t{i}_MAE_impaired_mm" in v for i in range(1, len(motors) + 1)):
+            v[f"{W}on_over_off_impaired_MAE"] = (mean("MAE_impaired_mm", on_idx)
+                                                 / mean("MAE_impaired_mm", off_idx))
+    v[f"{W}off_max_force_N"] = max(v[f"{W}t{i}_max_force_N"] for i in off_idx) if off_idx else 0.0
+    v[f"{W}dose_Ns"] = float(sum(v[f"{W}t{i}_dose_Ns"] for i in range(1, len(motors) + 1)))
+    # Fig. 49: where is the map red (pre assessment map, on the path)?
+    pts = _path_points(path)
+    kp = map_on_path(maps, pts)
+    ipk = map_peak(kp[0])
+    v[f"{W}map_peak_x_m"], v[f"{W}map_peak_y_m"] = float(pts[ipk, 0]), float(pts[ipk, 1])
+    if "imp_cx" in hp0:                                  # (meaningful if imp_depth > 0)
+        v[f"{W}map_peak_to_impairment_m"] = float(np.hypot(pts[ipk, 0] - hp0["imp_cx"],
+                                                           pts[ipk, 1] - hp0["imp_cy"]))
+    # Fig. 49-50: the map at the end of Table 6's motors-ON trainings against the
+    # motors-OFF ones (mean stiffness along the path, both axes), by Table 6's schedule
+    # whatever the drivers did (a control that leaves them on must lose the contrast)
+    mk = kp.mean(axis=(1, 2))
+    if len(maps) == len(SESSION_MOTORS):
+        v[f"{W}map_on_over_off"] = (float(np.mean(mk[[i - 1 for i in t6_on]]))
+                                    / float(np.mean(mk[[i - 1 for i in t6_off]])))
+
+
 @dataclasses.dataclass(frozen=True)
 class SessionValueParams:
-    """``key``: a value the procedure returned; ``case``: only that case's runs carry it
-    (other runs give NaN, which the framework drops for a requirement restricted to
-    ``case``; the framework computes a metric on every run before filtering)."""
+    """``key``: a per-session value the procedure returned (without its ``w<n>_``
+    prefix); ``case``: only that case's runs carry it (other runs give NaN, which the
+    framework drops for a requirement restricted to ``case``; the framework computes a
+    metric on every run before filtering); ``week``: which session (1..weeks), 0: every
+    session of the run reduced by ``reduce`` (max, min or mean)."""
     key: str = ""
     case: str = ""
+    week: int = 1
+    reduce: str = "max"
+
+    def validate(self):
+        if self.week < 0:
+            raise ValueError(f"week must be >= 0 (0: every session), got {self.week}")
+        if self.reduce not in ("max", "min", "mean"):
+            raise ValueError(f"reduce must be max, min or mean, got {self.reduce!r}")
 
 
 @metric("session_value", params=SessionValueParams)
 def _session_value(params, ctx):
-    """A scalar the session procedure returned, for the runs of one case."""
+    """A per-session scalar the course procedure returned, for the runs of one case:
+    of one session (``week``) or reduced over the run's sessions (``week: 0``)."""
     case = params.get("case") or ""
     if case and ctx.run is not None and ctx.run.case != case:
         return float("nan")
     key = params.get("key", "")
-    if key not in ctx.values:
-        raise KeyError(f"run {ctx.run.label if ctx.run else '?'}: the procedure returned no "
-                       f"value {key!r} (e.g. the path never entered the impaired region)")
-    return float(ctx.values[key])
+    week = int(params.get("week", 1))
+    n = int(ctx.values.get("weeks", 1))
+    weeks = range(1, n + 1) if week == 0 else [week]
+    vals = []
+    for w in weeks:
+        k = f"w{w}_{key}"
+        if k not in ctx.values:
+            raise KeyError(f"run {ctx.run.label if ctx.run else '?'}: the procedure returned no "
+                           f"value {k!r} (e.g. the path never entered the impaired region, or "
+                           f"the run has {n} session(s))")
+        vals.append(float(ctx.values[k]))
+    red = params.get("reduce", "max")
+    return float(max(vals) if red == "max" else min(vals) if red == "min" else np.mean(vals))
 
 
 # ---------------------------------------------------------------- scenario-scope metrics
 def _sessions(ctx):
-    """(subject, week) -> values of one session run (phase t1 views carry the values)."""
+    """(subject, week) -> values of one session (prefix removed), from the course runs
+    (one view per run: the values are the run's, whatever the phase)."""
     out = {}
+    seen = set()
     for r in ctx.runs:
-        if r.phase not in ("t1", "main", ""):
+        if r.label in seen:
             continue
+        seen.add(r.label)
         a = r.artifacts or {}
-        out[(a.get("subject", r.case), int(a.get("week", 0)))] = r.values
+        subj = a.get("subject", r.case)
+        for w in range(int(r.values.get("weeks", 0))):
+            pre = f"w{w + 1}_"
+            out[(subj, w)] = {k[len(pre):]: x for k, x in r.values.items() if k.startswith(pre)}
     if not out:
         raise ValueError("no reaching session runs")
     return out
@@ -714,6 +837,13 @@ def _post_better_fraction(params, ctx):
     return float(np.mean([v["post_total_MAE_mm"] < v["pre_total_MAE_mm"] for v in ss.values()]))
 
 
+def _slope(x, y) -> float:
+    """Least-squares slope, exactly 0 for a constant y (np.polyfit leaves ~1e-16)."""
+    x = np.asarray(x, float); y = np.asarray(y, float)
+    dx, dy = x - x.mean(), y - y.mean()
+    return float(np.sum(dx * dy) / np.sum(dx * dx))
+
+
 @metric("worst_weekly_slope", params=TrendParams, scope="scenario")
 def _worst_weekly_slope(params, ctx):
     """Largest (least negative) least-squares slope of the pre-assessment total MAE over
@@ -726,8 +856,7 @@ def _worst_weekly_slope(params, ctx):
         wk = weeks[s]
         if len(wk) < 2:          # (a negative control may hold one session of a subject)
             continue
-        y = [ss[(s, w)]["pre_total_MAE_mm"] for w in wk]
-        slopes.append(float(np.polyfit(wk, y, 1)[0]))
+        slopes.append(_slope(wk, [ss[(s, w)]["pre_total_MAE_mm"] for w in wk]))
     if not slopes:
         raise ValueError(f"no subject with >= 2 weeks: a trend needs two (weeks: {weeks})")
     return max(slopes)
@@ -738,10 +867,14 @@ def _worst_weekly_slope(params, ctx):
 def _reaching_figures(runs, info):
     """Fig. 49 (maps per training), Tables 7-8 (MAE/SDE), Fig. 51 (pre/post trends)."""
     import matplotlib.pyplot as plt
-    sess = {}
+    sess = {}                    # (subject, week) -> session artifacts and values
     for r in runs:
-        if r.phase == "t1" and r.artifacts:
-            sess[(r.artifacts["subject"], int(r.artifacts["week"]))] = r
+        a = r.artifacts or {}
+        if a.get("sessions") and not r.label.startswith("nc."):
+            for se in a["sessions"]:
+                W = f"w{se['week'] + 1}_"
+                sess[(a["subject"], int(se["week"]))] = dict(
+                    se, values={k[len(W):]: x for k, x in r.values.items() if k.startswith(W)})
     figs = []
     if not sess:
         return figs
@@ -754,8 +887,8 @@ def _reaching_figures(runs, info):
     for s in subs:
         w0 = min(w for (k, w) in sess if k == s)
         r = sess[(s, w0)]
-        maps = r.artifacts["maps"]
-        motors = r.artifacts["motors"]
+        maps = r["maps"]
+        motors = r["motors"]
         fig, axs = plt.subplots(2, len(maps), figsize=(3.0 * len(maps), 5.6), squeeze=False)
         vmax = max(float((G @ np.asarray(m).T).max()) for m in maps)
         for j, m in enumerate(maps):
@@ -771,7 +904,7 @@ def _reaching_figures(runs, info):
         fig.colorbar(im, ax=axs, shrink=0.8, label="stiffness [N/m]")
         fig.suptitle(f"{s} week {w0 + 1}: stiffness map at the end of each training (Fig. 49 form)")
         figs.append((f"{s}: stiffness maps per training (Fig. 49)", fig))
-        rows = r.artifacts["table"]
+        rows = r["table"]
         fig, ax = plt.subplots(figsize=(7, 0.5 + 0.35 * len(rows)))
         ax.axis("off")
         cells = [[str(x["trial"]), x["motors"]] + [f"{x[k]:.2f}" for k in
@@ -783,8 +916,8 @@ def _reaching_figures(runs, info):
     fig, axs = plt.subplots(1, len(subs), figsize=(3.2 * len(subs), 3.2), squeeze=False)
     for j, s in enumerate(subs):
         wk = sorted(w for (k, w) in sess if k == s)
-        pre = [sess[(s, w)].values["pre_total_MAE_mm"] for w in wk]
-        post = [sess[(s, w)].values["post_total_MAE_mm"] for w in wk]
+        pre = [sess[(s, w)]["values"]["pre_total_MAE_mm"] for w in wk]
+        post = [sess[(s, w)]["values"]["post_total_MAE_mm"] for w in wk]
         ax = axs[0, j]
         x = np.array(wk) + 1
         ax.plot(x, pre, "bo", label="pre (trial 1)")
@@ -796,8 +929,8 @@ def _reaching_figures(runs, info):
         ax.set_title(s); ax.set_xlabel("session (week)"); ax.set_ylabel("total MAE [mm]")
         ax.set_xticks(x)
     axs[0, 0].legend(fontsize=7)
-    fig.suptitle("Pre/post total MAE over the weekly sessions (Fig. 51 form; patient "
-                 "progression is a model)", fontsize=9)
+    fig.suptitle("Pre/post total MAE over the weekly sessions (Fig. 51 form; the patient's "
+                 "progression is a model driven by the assistance delivered)", fontsize=9)
     fig.tight_layout()
     figs.append(("pre/post MAE trends (Fig. 51)", fig))
     return figs

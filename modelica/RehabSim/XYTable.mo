@@ -3,14 +3,14 @@ model XYTable "Two-DOF X-Y table with direct-drive linear motors, force commande
   parameter Real m_up(unit = "kg", min = 0) = 0.5 "moving mass of the upper (y) axis (Table 4, M_up)";
   parameter Real m_low(unit = "kg", min = 0) = 1.0 "moving mass of the lower (x) axis carriage, which also carries the upper axis (Table 4, M_low)";
   parameter Real Kf(unit = "N/A", min = 0) = 33.0 "linear motor force constant (Table 4), used only for the current outputs";
-  parameter Real fc_x(unit = "N", min = 0) = 1.0 "Coulomb friction force of the x axis (not in the thesis: assumed)";
-  parameter Real fs_x(unit = "N", min = 0) = 1.0 "static friction force of the x axis (= fc_x: no Stribeck effect)";
-  parameter Real b_x(unit = "N.s/m", min = 0) = 2.0 "viscous friction of the x axis (not in the thesis: assumed)";
+  parameter Real fc_x(unit = "N", min = 0) = 0.5 "Coulomb friction force of the x axis (not in the thesis: calibrated on Table 7 motors OFF, = fc_y)";
+  parameter Real fs_x(unit = "N", min = 0) = 0.5 "static friction force of the x axis (= fc_x: no Stribeck effect)";
+  parameter Real b_x(unit = "N.s/m", min = 0) = 1.0 "viscous friction of the x axis (not in the thesis: calibrated on Table 7 motors OFF, = b_y)";
   parameter Real fc_y(unit = "N", min = 0) = 0.5 "Coulomb friction force of the y axis (not in the thesis: assumed)";
   parameter Real fs_y(unit = "N", min = 0) = 0.5 "static friction force of the y axis (= fc_y: no Stribeck effect)";
   parameter Real b_y(unit = "N.s/m", min = 0) = 1.0 "viscous friction of the y axis (not in the thesis: assumed)";
   parameter Real vs(unit = "m/s", min = 1e-12) = 0.01 "Stribeck speed of both axes";
-  parameter Real sigma0_x(unit = "N/m", min = 0) = 1e6 "LuGre bristle stiffness, x axis: presliding fs_x/sigma0_x = 1 um, 0.1 encoder count";
+  parameter Real sigma0_x(unit = "N/m", min = 0) = 1e6 "LuGre bristle stiffness, x axis: presliding fs_x/sigma0_x = 0.5 um, 0.05 encoder count";
   parameter Real sigma1_x(unit = "N.s/m", min = 0) = 2450 "LuGre bristle damping at rest, x axis, about 2 sqrt(sigma0_x (m_low + m_up))";
   parameter Real sigma0_y(unit = "N/m", min = 0) = 5e5 "LuGre bristle stiffness, y axis: presliding fs_y/sigma0_y = 1 um, 0.1 encoder count";
   parameter Real sigma1_y(unit = "N.s/m", min = 0) = 1000 "LuGre bristle damping at rest, y axis, about 2 sqrt(sigma0_y m_up)";
