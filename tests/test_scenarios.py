@@ -500,3 +500,23 @@ def test_unknown_named_control_on_a_thesis_inconsistent_requirement(tmp_path):
                         "    thesis_inconsistent: {reason: \"eq. 90 as printed (test)\"}\n")
     msg = error_of(tmp_path, text)
     assert f":{line_of(text, 'half_curent')}:" in msg and "did you mean 'half_current'" in msg
+
+
+def test_negative_control_duration_override_reaches_the_run(tmp_path):
+    """A control that shortens the run: its run lasts the control's duration (the
+    recorded time ends there), not the scenario's."""
+    import pandas as pd
+
+    from cosim.scenarios import expand, load
+    from cosim.scenarios.runner import run_scenario
+    from cosim.scenarios.verdict import control_runs
+    text = BASE.replace("override: {stimuli: {i: {params: {value: 0.05}}}}",
+                        "override: {duration: 0.05, stimuli: {i: {params: {value: 0.05}}}}")
+    p = write(tmp_path, text, "short.yaml")
+    sc = load(p)
+    (ctrl,) = control_runs(sc)
+    assert ctrl.duration == pytest.approx(0.05) and expand(sc)[0].duration != ctrl.duration
+    run_scenario(p, tmp_path / "out")
+    t = pd.read_parquet(tmp_path / "out" / "runs" / "nc.half_current_default_seed1"
+                        / "main.parquet")["time"]
+    assert t.iloc[-1] == pytest.approx(0.05)

@@ -107,9 +107,12 @@ def control_runs(sc: Scenario, only: str | None = None) -> list[reg.RunSpec]:
         for r in base:
             if not c.selects(r.label):
                 continue
+            # a control may change the duration too (OVERRIDE_HEADS): the run's own
+            # duration follows it, as a case's does in expand()
+            duration = float(c.override.get("duration", r.duration))
             out.append(dataclasses.replace(r, label=f"nc.{c.name}/{r.label}",
                                            overrides=deep_merge(r.overrides, c.override),
-                                           control=c.name))
+                                           duration=duration, control=c.name))
     return out
 
 
