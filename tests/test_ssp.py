@@ -231,3 +231,64 @@ def test_not_an_ssp_archive_is_refused(tmp_path):
     f.write_text("not a zip")
     with pytest.raises(SSPError, match="not an SSP archive"):
         read_ssp(f, tmp_path / "out")
+
+
+def test_fmpy_simulates_the_exported_system_through_its_system_connectors(exported):
+    """FMPy 0.3.32 ``simulate_ssp`` on the archive with the system's own connectors: the
+    current is given on the ``stim_i`` connector. Its loop steps the FMUs first and
+    then moves the connector values, so its row k is the state at t_{k+1} with the
+    input one step late: it equals the master's row k + 1 with the current starting
+    at t_1. (FMPy's loop does not apply ssc:LinearTransformation, so the scaled
+    ``stim_f`` stays 0 here.)"""
+    from types import SimpleNamespace as NS_
+
+    from fmpy.ssp.simulation import simulate_ssp
+    from fmpy.ssp.ssd import read_ssd
+    td, _, info, _ = exported
+    n = 200
+    # simulate_ssp applies only a parameter set given to it, not the SSD's bindings:
+    # hand it the bindings as FMPy itself parsed them from the archive
+    cast = {"Real": float, "Integer": int, "Boolean": lambda v: v == "true"}
+    params = [NS_(name=f"{c.name}.{p.name}", value=cast[p.type](p.value))
+              for c in read_ssd(info["path"]).system.elements
+              for pb in c.parameterBindings for ps in pb.parameterValues for p in ps.parameters]
+    assert {p.name: p.value for p in params} == {"plant.b": 2.0e-5, "acc.seed": 7}
+    r = simulate_ssp(info["path"], stop_time=n * STEP, step_size=STEP,
+                     parameter_set=NS_(parameters=params),
+                     input={"stim_i": lambda t: 0.2, "stim_f": lambda t: 0.0})
+    d = read_ssp(info["path"], td / "extracted_fmpy")
+    s = System(STEP)
+    for role, spec in d["fmus"].items():
+        s.add_fmu(role, spec["fmu"], parameters=spec["parameters"])
+    for c in d["connections"]:
+        s.connect(c["from"], c["to"], c.get("scale", 1.0))
+    s.add_stimulus("i", lambda t: 0.2 if t >= 0.5 * STEP else 0.0)
+    s.connect("stim.i", "plant.i")
+    try:
+        ref = Master(s, ["plant.w", "plant.theta", "acc.acc_meas"]).run((n + 1) * STEP)
+    finally:
+        for x in s.roles.values():
+            x.terminate()
+    assert len(r) == n
+    for name in ("plant.w", "plant.theta", "acc.acc_meas"):
+        a, b = np.asarray(r[name]), ref[name][1:n + 1]
+        scale = np.max(np.abs(b))
+        err = np.max(np.abs(a - b))
+        print(f"SSPFMPY {name}: max|fmpy - master| = {err:.3g} (max|x| {scale:.4g})")
+        assert scale > 0 and err <= 1e-9 * scale, name
+        # negative control: without the one-step shift they differ
+        assert np.max(np.abs(a - ref[name][:n])) > 1e-3 * scale, name
+
+
+def test_cli_export_and_bad_case(exported, tmp_path, capsys):
+    from cosim.cli import main
+    td, src, *_ = exported
+    out = tmp_path / "cli.ssp"
+    assert main(["ssp", "export", str(src), "--out", str(out), "--no-build"]) == 0
+    assert "2 components (plant, acc)" in capsys.readouterr().out
+    assert read_ssp(out, tmp_path / "x")["fmus"]["plant"]["parameters"] == {"b": 2.0e-5}
+    assert main(["ssp", "export", str(src), "--case", "nope", "--out", str(tmp_path / "n.ssp"),
+                 "--no-build"]) == 2
+    err = capsys.readouterr().err
+    assert "no case 'nope'" in err and str(src) in err
+    assert not (tmp_path / "n.ssp").exists()
