@@ -10,7 +10,8 @@ def _cmd_export(a) -> int:
     from .fmubuild.build import build_all
     from .paths import fmus_dir, modelica_package
     from .scenarios.schema import ScenarioError
-    from .scenarios.ssp import SSPError, export_ssp
+    from .scenarios.ssp import SSPError
+    from .scenarios.ssp_export import export_ssp
     if not a.fmus and not a.no_build:
         build_all(modelica_package(), fmus_dir(), log=lambda *_: None)
     try:

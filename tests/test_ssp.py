@@ -25,7 +25,8 @@ from cosim.scenarios.build import make_builder
 from cosim.scenarios.expand import expand
 from cosim.scenarios.registry import BuildContext
 from cosim.scenarios.schema import ScenarioError, load
-from cosim.scenarios.ssp import NS, export_ssp, read_ssp
+from cosim.scenarios.ssp import NS, read_ssp
+from cosim.scenarios.ssp_export import export_ssp
 
 FMUS = fmus_dir()
 needs_fmus = pytest.mark.skipif(not (FMUS / "BallScrewUnit.fmu").exists()
