@@ -142,10 +142,10 @@ def test_libcosim_runs_the_exported_plant_like_this_master(exported):
     sig = ["plant.theta", "plant.w", "plant.x", "plant.v", "plant.theta_enc", "acc.acc_meas"]
     d = read_ssp(flat["path"], td / "extracted")
 
-    def master(shift=0):
+    def master(shift=0, bindings=True):
         s = System(STEP)
         for role, spec in d["fmus"].items():
-            s.add_fmu(role, spec["fmu"], parameters=spec["parameters"])
+            s.add_fmu(role, spec["fmu"], parameters=spec["parameters"] if bindings else {})
         for c in d["connections"]:
             s.connect(c["from"], c["to"], c.get("scale", 1.0))
         s.add_stimulus("i", lambda t: i_of(t, shift))
@@ -182,6 +182,11 @@ def test_libcosim_runs_the_exported_plant_like_this_master(exported):
     assert m >= N                                      # ticks 0 .. N-1 at least
     np.testing.assert_allclose(np.asarray(t_ns[:m]) * 1e-9, ref["time"][:m], atol=1e-12)
     shifted = master(shift=1)
+    # libcosim applied the SSP's parameter bindings (b = 2e-5, seed = 7; the FMUs'
+    # defaults are 1.6e-5 and 1): without them the master differs
+    unbound = master(bindings=False)
+    assert np.max(np.abs(unbound["plant.w"][:m] - got["plant.w"])) > 1.0
+    assert np.max(np.abs(unbound["acc.acc_meas"][:m] - got["acc.acc_meas"])) > 1e-3
     for n in sig:
         scale = np.max(np.abs(ref[n][:m]))
         err = np.max(np.abs(got[n] - ref[n][:m]))
@@ -293,3 +298,34 @@ def test_cli_export_and_bad_case(exported, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "no case 'nope'" in err and str(src) in err
     assert not (tmp_path / "n.ssp").exists()
+
+
+def test_libcosim_loads_and_runs_the_bilateral_export(tmp_path):
+    """Five components (two ball-screw units in a wall rig, the 1-D arm with its
+    profile's parameters, two accelerometers), 11 connections."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+    if not (FMUS / "WallUnitRig.fmu").exists() or not (FMUS / "HumanArm1D.fmu").exists():
+        pytest.skip("FMUs not built")
+    repo = Path(__file__).resolve().parent.parent
+    info = export_ssp(repo / "scenarios" / "bilateral.yaml", tmp_path / "b.ssp",
+                      case="encoder", port_connections=False)
+    assert info["roles"] == ["master", "slave", "human", "acc_m", "acc_s"]
+    ex = CosimExecution.from_ssp_file(info["path"], step_size=1_000_000)
+    idx = {si.name.decode(): si.index for si in ex.slave_infos()}
+    assert set(idx) == set(info["roles"])
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(obs)
+    assert ex.simulate_until(100_000_000)                 # 0.1 s
+    d = read_ssp(info["path"], tmp_path / "x")
+    hp = d["fmus"]["human"]["parameters"]
+    assert hp                                             # the profile's values travel
+    vars_ = {v.name.decode(): v.reference for v in ex.slave_variables(idx["human"])}
+    from fmpy import read_model_description
+    start = {v.name: v.start for v in read_model_description(d["fmus"]["human"]["fmu"]).modelVariables}
+    differ = sorted(k for k, v in hp.items()
+                    if isinstance(v, float) and float(start[k]) != pytest.approx(v, rel=1e-6))
+    assert differ, "no profile value differs from the FMU's default: nothing shown"
+    name = differ[0]
+    (val,) = obs.last_real_values(idx["human"], [vars_[name]])
+    assert val == pytest.approx(hp[name], rel=1e-12), name
