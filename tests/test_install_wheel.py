@@ -19,7 +19,32 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parent.parent
-pytestmark = pytest.mark.slow
+
+
+def test_paths_resolve_checkout_cache_and_overrides(monkeypatch, tmp_path):
+    from cosim import paths
+    for k in ("COSIM_FMU_DIR", "COSIM_CACHE_DIR", "COSIM_MODELICA_DIR", "XDG_CACHE_HOME"):
+        monkeypatch.delenv(k, raising=False)
+    assert paths.source_checkout() == REPO
+    assert paths.fmus_dir() == REPO / "fmus"
+    assert paths.modelica_package() == REPO / "modelica" / "RehabSim"
+    assert paths.cache_dir() == Path.home() / ".cache" / "rehab-cosim"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert paths.cache_dir() == tmp_path / "xdg" / "rehab-cosim"
+    monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path / "c"))
+    assert paths.cache_dir() == tmp_path / "c"
+    monkeypatch.setenv("COSIM_FMU_DIR", str(tmp_path / "f"))
+    monkeypatch.setenv("COSIM_MODELICA_DIR", str(tmp_path / "m"))
+    assert paths.fmus_dir() == tmp_path / "f"
+    assert paths.modelica_package() == tmp_path / "m" / "RehabSim"
+    # outside a checkout (an installed wheel): package data and the user cache
+    monkeypatch.delenv("COSIM_FMU_DIR")
+    monkeypatch.delenv("COSIM_MODELICA_DIR")
+    monkeypatch.setattr(paths, "REPO", tmp_path / "site-packages")
+    monkeypatch.setattr(paths, "PACKAGE", tmp_path / "site-packages" / "cosim")
+    assert paths.source_checkout() is None
+    assert paths.fmus_dir() == tmp_path / "c" / "fmus"
+    assert paths.modelica_package() == tmp_path / "site-packages" / "cosim" / "_modelica" / "RehabSim"
 
 
 def _run(cmd, cwd, env, timeout=240):
@@ -49,6 +74,7 @@ def _build_wheel(src: Path, dist: Path) -> Path:
                 f"{setuptools.__version__} < 77 and no package index): {errs[-1]}")
 
 
+@pytest.mark.slow
 def test_wheel_installs_builds_fmus_in_user_cache_and_runs_a_scenario(tmp_path):
     src = tmp_path / "src"
     src.mkdir()

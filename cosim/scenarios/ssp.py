@@ -191,6 +191,9 @@ def build_ssd(system, *, name: str, duration: float, description: str = "",
 def write_ssp(root: ET.Element, resources: dict, out) -> Path:
     """Zip the .ssd and the FMUs into ``out`` (written to a temporary name, then moved)."""
     out = Path(out)
+    if out.is_dir():
+        raise SSPError(f"--out {out} is a folder; give the .ssp file to write")
+    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
     ET.indent(root)
     ssd = ET.tostring(root, encoding="utf-8", xml_declaration=True)
