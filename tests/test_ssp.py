@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import zipfile
+from xml.etree import ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -329,3 +330,24 @@ def test_libcosim_loads_and_runs_the_bilateral_export(tmp_path):
     name = differ[0]
     (val,) = obs.last_real_values(idx["human"], [vars_[name]])
     assert val == pytest.approx(hp[name], rel=1e-12), name
+
+
+def test_units_have_the_dimensions_of_their_names(exported):
+    """Every ssc:Unit written agrees with the project's unit parser (the FMUs'
+    UnitDefinitions and cosim.fmubuild.units must not disagree); a unit nobody defines
+    is not given a dimension (mm and deg are, with their factors)."""
+    from cosim.fmubuild.units import parse_unit
+    from cosim.scenarios.ssp import _base_unit
+    _, _, info, _ = exported
+    doc = ET.fromstring(zipfile.ZipFile(info["path"]).read("SystemStructure.ssd"))
+    units = doc.find("{%s}Units" % NS["ssd"])
+    assert len(units) >= 8
+    for u in units:
+        b = u.find("{%s}BaseUnit" % NS["ssc"])
+        f, off, dims = parse_unit(u.get("name"))
+        assert {k: int(v) for k, v in b.attrib.items() if k not in ("factor", "offset")} == \
+            {k: v for k, v in dims.items() if v}, u.get("name")
+        assert float(b.get("factor", 1.0)) == pytest.approx(f)
+    assert _base_unit("mm", {}) == (1e-3, 0.0, {"m": 1})
+    assert _base_unit("deg", {})[0] == pytest.approx(np.pi / 180)
+    assert _base_unit("furlong", {}) is None

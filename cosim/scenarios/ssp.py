@@ -48,12 +48,31 @@ def _num(x) -> str:
     return repr(float(x))
 
 
+def _unit(var) -> str | None:
+    """The variable's unit, or its declared type's (FMI 2.0 allows either)."""
+    return var.unit or getattr(getattr(var, "declaredType", None), "unit", None) or None
+
+
 def _connector(parent, name, kind, var):
     c = ET.SubElement(parent, _q("ssd", "Connector"), name=name, kind=kind)
     t = ET.SubElement(c, _q("ssc", var.type))
-    if var.type == "Real" and var.unit:
-        t.set("unit", var.unit)
+    if var.type == "Real" and _unit(var):
+        t.set("unit", _unit(var))
     return c
+
+
+def _base_unit(name: str, units: dict):
+    """(factor, offset, {base: exponent}) of a unit: the FMUs' UnitDefinitions, else the
+    project's unit parser (cosim.fmubuild.units); None if neither knows it."""
+    bu = getattr(units.get(name), "baseUnit", None)
+    if bu is not None:
+        return (float(getattr(bu, "factor", 1.0) or 1.0), float(getattr(bu, "offset", 0.0) or 0.0),
+                {k: int(getattr(bu, k, 0) or 0) for k in _BASE})
+    from cosim.fmubuild.units import UnitError, parse_unit
+    try:
+        return parse_unit(name)
+    except UnitError:
+        return None
 
 
 def _units(slaves) -> dict:
@@ -101,8 +120,8 @@ def build_ssd(system, *, name: str, duration: float, description: str = "",
                 _connector(conns, v.name, "parameter", v)
             else:
                 continue
-            if v.unit:
-                used_units.add(v.unit)
+            if v.type == "Real" and _unit(v):
+                used_units.add(_unit(v))
         if params:
             pb = ET.SubElement(ET.SubElement(comp, _q("ssd", "ParameterBindings")),
                                _q("ssd", "ParameterBinding"))
@@ -114,8 +133,8 @@ def build_ssd(system, *, name: str, duration: float, description: str = "",
                 p = ET.SubElement(plist, _q("ssv", "Parameter"), name=pname)
                 if v.type == "Real":
                     e = ET.SubElement(p, _q("ssv", "Real"), value=_num(value))
-                    if v.unit:
-                        e.set("unit", v.unit)
+                    if _unit(v):
+                        e.set("unit", _unit(v))
                 elif v.type == "Integer":
                     ET.SubElement(p, _q("ssv", "Integer"), value=str(int(value)))
                 else:
@@ -168,17 +187,20 @@ def build_ssd(system, *, name: str, duration: float, description: str = "",
     if used_units:
         uel = ET.SubElement(root, _q("ssd", "Units"))
         for un in sorted(used_units):
-            u = ET.SubElement(uel, _q("ssc", "Unit"), name=un)
-            b = ET.SubElement(u, _q("ssc", "BaseUnit"))
-            bu = getattr(units.get(un), "baseUnit", None)
-            if bu is not None:
-                for k in _BASE:
-                    if getattr(bu, k, 0):
-                        b.set(k, str(int(getattr(bu, k))))
-                if getattr(bu, "factor", 1.0) != 1.0:
-                    b.set("factor", _num(bu.factor))
-                if getattr(bu, "offset", 0.0):
-                    b.set("offset", _num(bu.offset))
+            base = _base_unit(un, units)
+            if base is None:        # a unit nobody defines: named on the connectors only,
+                continue            # never given a dimension it may not have
+            factor, offset, dims = base
+            b = ET.SubElement(ET.SubElement(uel, _q("ssc", "Unit"), name=un), _q("ssc", "BaseUnit"))
+            for k in _BASE:
+                if dims.get(k):
+                    b.set(k, str(int(dims[k])))
+            if factor != 1.0:
+                b.set("factor", _num(factor))
+            if offset:
+                b.set("offset", _num(offset))
+        if not len(uel):
+            root.remove(uel)
     de = ET.SubElement(root, _q("ssd", "DefaultExperiment"), startTime="0.0", stopTime=_num(duration))
     # the fixed step, where libcosim (OSP) reads it
     ann = ET.SubElement(ET.SubElement(de, _q("ssd", "Annotations")), _q("ssc", "Annotation"),
