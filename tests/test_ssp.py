@@ -351,3 +351,58 @@ def test_units_have_the_dimensions_of_their_names(exported):
     assert _base_unit("mm", {}) == (1e-3, 0.0, {"m": 1})
     assert _base_unit("deg", {})[0] == pytest.approx(np.pi / 180)
     assert _base_unit("furlong", {}) is None
+
+
+def _rewrite(src: str, dst: Path, edit, extra: dict | None = None) -> Path:
+    """A copy of an .ssp whose SystemStructure.ssd went through ``edit(root)``."""
+    with zipfile.ZipFile(src) as z:
+        items = {n: z.read(n) for n in z.namelist()}
+    root = ET.fromstring(items["SystemStructure.ssd"])
+    edit(root)
+    items["SystemStructure.ssd"] = ET.tostring(root, encoding="utf-8", xml_declaration=True)
+    items.update(extra or {})
+    with zipfile.ZipFile(dst, "w") as z:
+        for n, b in items.items():
+            z.writestr(n, b)
+    return dst
+
+
+def test_read_ssp_external_ssv_system_bindings_and_refusals(exported, tmp_path):
+    """Parameter sources other tools write: an .ssv file in the archive, and a
+    system-level binding with ``prefix="plant."`` (it takes precedence over the
+    component's, SSP 1.0); a nested system is refused, not skipped."""
+    _, _, info, _ = exported
+    q = lambda p, t: "{%s}%s" % (NS[p], t)
+    ssv = (f'<ssv:ParameterSet xmlns:ssv="{NS["ssv"]}" version="1.0" name="p"><ssv:Parameters>'
+           '<ssv:Parameter name="b"><ssv:Real value="3e-5"/></ssv:Parameter>'
+           '<ssv:Parameter name="J"><ssv:Real value="2.5e-5"/></ssv:Parameter>'
+           '</ssv:Parameters></ssv:ParameterSet>').encode()
+
+    def external(root):
+        sysel = root.find(q("ssd", "System"))
+        pbs = ET.Element(q("ssd", "ParameterBindings"))
+        ET.SubElement(pbs, q("ssd", "ParameterBinding"), source="resources/plant.ssv", prefix="plant.")
+        sysel.insert(list(sysel).index(sysel.find(q("ssd", "Elements"))), pbs)
+
+    f = _rewrite(info["path"], tmp_path / "ext.ssp", external, {"resources/plant.ssv": ssv})
+    d = read_ssp(f, tmp_path / "x")
+    assert d["fmus"]["plant"]["parameters"] == {"b": 3e-5, "J": 2.5e-5}   # b: system wins
+    assert d["fmus"]["acc"]["parameters"] == {"seed": 7}
+
+    def nested(root):
+        el = root.find(q("ssd", "System")).find(q("ssd", "Elements"))
+        ET.SubElement(el, q("ssd", "System"), name="sub")
+
+    from cosim.scenarios.ssp import SSPError
+    with pytest.raises(SSPError, match="'sub' is a System: only a flat system"):
+        read_ssp(_rewrite(info["path"], tmp_path / "n.ssp", nested), tmp_path / "y")
+
+    def typo(root):
+        sysel = root.find(q("ssd", "System"))
+        pbs = ET.Element(q("ssd", "ParameterBindings"))
+        ET.SubElement(pbs, q("ssd", "ParameterBinding"), source="resources/plant.ssv", prefix="plnt.")
+        sysel.insert(0 if sysel.find(q("ssd", "Connectors")) is None else 1, pbs)
+
+    with pytest.raises(SSPError, match="'plnt.b' names no component"):
+        read_ssp(_rewrite(info["path"], tmp_path / "t.ssp", typo, {"resources/plant.ssv": ssv}),
+                 tmp_path / "z")

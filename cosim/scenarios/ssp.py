@@ -228,6 +228,49 @@ def write_ssp(root: ET.Element, resources: dict, out) -> Path:
 
 
 # =========================================================================== import
+def _member(src: str) -> str:
+    """An archive member from an SSP URI relative to the archive's root."""
+    return src[2:] if src.startswith("./") else src
+
+
+def _binding(pb, z, path, where) -> dict:
+    """{name: value} of one ssd:ParameterBinding (inline or an .ssv in the archive;
+    the binding's ``prefix`` prepended)."""
+    if pb.find(_q("ssd", "ParameterMapping")) is not None:
+        raise SSPError(f"{path}: {where}: parameter mappings are not supported")
+    src = pb.get("source")
+    if src:
+        member = _member(src)
+        if member not in z.namelist():
+            raise SSPError(f"{path}: {where}: parameter source {src!r} not in the archive")
+        try:
+            ps = ET.fromstring(z.read(member))
+        except ET.ParseError as exc:
+            raise SSPError(f"{path}: {member}: {exc}") from None
+    else:
+        ps = pb.find(f"{_q('ssd', 'ParameterValues')}/{_q('ssv', 'ParameterSet')}")
+        if ps is None:
+            return {}
+    prefix = pb.get("prefix", "")
+    out = {}
+    for p in ps.iterfind(f"{_q('ssv', 'Parameters')}/{_q('ssv', 'Parameter')}"):
+        for t in _TYPES:
+            e = p.find(_q("ssv", t))
+            if e is not None:
+                v = e.get("value")
+                try:
+                    out[prefix + p.get("name")] = (float(v) if t == "Real" else int(v)
+                                                   if t == "Integer" else v in ("true", "1"))
+                except (TypeError, ValueError):
+                    raise SSPError(f"{path}: {where}: parameter {p.get('name')!r} = {v!r} is "
+                                   f"not a {t}") from None
+                break
+        else:
+            raise SSPError(f"{path}: {where}: parameter {p.get('name')!r} is not Real, "
+                           f"Integer or Boolean")
+    return out
+
+
 def read_ssp(path, extract_to) -> dict:
     """Roles, parameters and connections of an ``.ssp`` (its FMUs extracted under
     ``extract_to``), as the ``system`` part of a scenario:
@@ -254,27 +297,37 @@ def read_ssp(path, extract_to) -> dict:
             raise SSPError(f"{path}: SystemStructure.ssd has no ssd:System")
         dest = Path(extract_to)
         dest.mkdir(parents=True, exist_ok=True)
+        names = set(z.namelist())
+        elements = sysel.find(_q("ssd", "Elements"))
+        for e in (elements if elements is not None else []):
+            if e.tag != _q("ssd", "Component"):
+                raise SSPError(f"{path}: element {e.get('name')!r} is a {e.tag.split('}')[-1]}: "
+                               f"only a flat system of FMU components is read (no nested systems)")
         fmus = {}
         for comp in sysel.iterfind(f"{_q('ssd', 'Elements')}/{_q('ssd', 'Component')}"):
-            role, src = comp.get("name"), comp.get("source", "")
+            role, src = comp.get("name"), _member(comp.get("source", ""))
             if comp.get("type", "application/x-fmu-sharedlibrary") != "application/x-fmu-sharedlibrary":
                 raise SSPError(f"{path}: component {role!r} is not an FMU ({comp.get('type')})")
-            if src not in z.namelist() or ".." in Path(src).parts:
+            if src not in names or ".." in Path(src).parts:
                 raise SSPError(f"{path}: component {role!r}: resource {src!r} not in the archive")
-            target = dest / Path(src).name
+            target = dest.joinpath(*Path(src).parts)
             if not target.exists():                 # atomic: parallel loaders share it
+                target.parent.mkdir(parents=True, exist_ok=True)
                 tmp = target.with_name(f"{target.name}.{os.getpid()}.tmp")
                 tmp.write_bytes(z.read(src))
                 os.replace(tmp, target)
             params = {}
-            for p in comp.iterfind(f".//{_q('ssv', 'Parameter')}"):
-                for t in _TYPES:
-                    e = p.find(_q("ssv", t))
-                    if e is not None:
-                        v = e.get("value")
-                        params[p.get("name")] = (float(v) if t == "Real" else int(v) if t == "Integer"
-                                                 else v == "true")
+            for pb in comp.iterfind(f"{_q('ssd', 'ParameterBindings')}/{_q('ssd', 'ParameterBinding')}"):
+                params.update(_binding(pb, z, path, f"component {role!r}"))
             fmus[role] = {"fmu": str(target), "parameters": params}
+        # system-level bindings take precedence (SSP 1.0); names are role.parameter
+        for pb in sysel.iterfind(f"{_q('ssd', 'ParameterBindings')}/{_q('ssd', 'ParameterBinding')}"):
+            for name, value in _binding(pb, z, path, "the system").items():
+                role, dot, var = name.partition(".")
+                if not dot or role not in fmus:
+                    raise SSPError(f"{path}: system parameter binding {name!r} names no "
+                                   f"component's variable (components: {list(fmus)})")
+                fmus[role]["parameters"][var] = value
     conns = []
     for c in sysel.iterfind(f"{_q('ssd', 'Connections')}/{_q('ssd', 'Connection')}"):
         if not c.get("startElement") or not c.get("endElement"):
