@@ -20,9 +20,10 @@ from pathlib import Path
 
 from . import exitcodes as ec
 
-REPO = Path(__file__).resolve().parent.parent
-DEFAULT_MODELICA = REPO / "modelica" / "RehabSim"
-DEFAULT_FMUS = REPO / "fmus"
+from . import paths
+
+DEFAULT_MODELICA = paths.modelica_package()     # checkout or package data (cosim/paths.py)
+DEFAULT_FMUS = paths.fmus_dir()                # checkout, $COSIM_FMU_DIR or the user cache
 
 
 # Modules that define ``add_commands(subparsers)``; their handlers return an exit code
@@ -32,6 +33,7 @@ COMMAND_MODULES = (
     ".scenario_cli",     # cosim run / cosim suite (scenario files, Dask, reports)
     ".data_cli",
     ".gap.cli",
+    ".ssp_cli",          # cosim ssp export (SSP 1.0 archives)
 )
 
 
@@ -42,9 +44,9 @@ class CliError(Exception):
 def _cmd_fmus_build(a) -> int:
     from .fileio import ensure_out_dir
     from .fmubuild.build import build_all
-    paths = build_all(Path(a.modelica), ensure_out_dir(a.out), a.models or None, force=a.force,
+    built = build_all(Path(a.modelica), ensure_out_dir(a.out), a.models or None, force=a.force,
                       fmi_version=a.fmi_version)
-    print(f"{len(paths)} FMU(s) in {a.out}")
+    print(f"{len(built)} FMU(s) in {a.out}")
     return 0
 
 

@@ -482,9 +482,10 @@ def emps_axis_fmu(fmus_dir: str | os.PathLike | None = None) -> Path:
     """Build (or take from the cache) the EmpsAxis FMU with the normal build; return its path."""
     from .fmubuild.build import build_fmu
 
-    repo = Path(__file__).resolve().parent.parent
-    out = Path(fmus_dir) if fmus_dir else repo / "fmus"
-    return build_fmu(repo / "modelica" / "RehabSim", EMPS_AXIS_MODEL, out, log=lambda *_: None)
+    from . import paths
+
+    out = Path(fmus_dir) if fmus_dir else paths.fmus_dir()
+    return build_fmu(paths.modelica_package(), EMPS_AXIS_MODEL, out, log=lambda *_: None)
 
 
 def closed_loop_replay(log: Any, axis_params: Mapping[str, float] | None = None, *,

@@ -1,12 +1,28 @@
 """Where the project's files and the shared data live: the one place that knows.
 
-* ``REPO``: the source checkout (Modelica sources, scenarios, built FMUs).
-* :func:`shared_dir`: the ``shared`` folder beside the clone (specs, thesis, data),
-  overridable with ``$COSIM_SHARED_DIR``.
-* :func:`emps_dir`: the real EMPS data, ``$COSIM_EMPS_DIR`` or ``<shared>/data/real/emps``.
-* :func:`independent_dir`: the independent simulator's development data,
-  ``$COSIM_INDEPENDENT_DIR`` or ``<shared>/data/independent``.
+Two layouts are served:
 
+* a source checkout (``pyproject.toml`` and ``modelica/`` beside the ``cosim``
+  package, editable install or ``PYTHONPATH``): Modelica sources in ``modelica/``,
+  built FMUs in ``fmus/``;
+* an installed wheel: the Modelica sources and the ``*fmus.txt`` lists are package
+  data (``cosim/_modelica``, see ``setup.py``), built FMUs and caches go to the user
+  cache folder (never into ``site-packages``).
+
+Functions (each overridable by an environment variable, read at call time):
+
+* :func:`modelica_dir`: folder holding ``fmus.txt`` and the ``RehabSim`` package,
+  ``$COSIM_MODELICA_DIR``; :func:`modelica_package` is its ``RehabSim``.
+* :func:`cache_dir`: ``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rehab-cosim``, else
+  ``~/.cache/rehab-cosim``.
+* :func:`fmus_dir`: built FMUs, ``$COSIM_FMU_DIR``, else ``<checkout>/fmus``, else
+  ``<cache>/fmus`` (the FMU build cache is ``<fmus>/build/cache``).
+* :func:`shared_dir`: the ``shared`` folder beside the clone (specs, thesis, data),
+  ``$COSIM_SHARED_DIR``; :func:`emps_dir` (``$COSIM_EMPS_DIR``) and
+  :func:`independent_dir` (``$COSIM_INDEPENDENT_DIR``) below it.
+
+``REPO`` is the folder above the ``cosim`` package (the checkout, or
+``site-packages`` when installed); use :func:`source_checkout` to know which.
 Data in ``shared`` is read from there, never copied into the repository.
 """
 from __future__ import annotations
@@ -14,24 +30,72 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["REPO", "shared_dir", "emps_dir", "independent_dir"]
+__all__ = ["REPO", "PACKAGE", "source_checkout", "modelica_dir", "modelica_package",
+           "cache_dir", "fmus_dir", "shared_dir", "emps_dir", "independent_dir"]
 
-REPO = Path(__file__).resolve().parent.parent
+PACKAGE = Path(__file__).resolve().parent          # .../cosim
+REPO = PACKAGE.parent
+APP = "rehab-cosim"
+MODELICA_PACKAGE = "RehabSim"
+
+
+def _env(name: str) -> Path | None:
+    v = os.environ.get(name)
+    return Path(v).expanduser() if v else None
+
+
+def source_checkout() -> Path | None:
+    """The checkout's root if ``cosim`` is imported from one, else None."""
+    if (REPO / "pyproject.toml").is_file() and (REPO / "modelica" / "fmus.txt").is_file():
+        return REPO
+    return None
+
+
+def modelica_dir() -> Path:
+    """``$COSIM_MODELICA_DIR``, else ``<checkout>/modelica``, else the package data."""
+    env = _env("COSIM_MODELICA_DIR")
+    if env:
+        return env
+    root = source_checkout()
+    return root / "modelica" if root else PACKAGE / "_modelica"
+
+
+def modelica_package() -> Path:
+    """The ``RehabSim`` Modelica package folder (its parent holds ``fmus.txt``)."""
+    return modelica_dir() / MODELICA_PACKAGE
+
+
+def cache_dir() -> Path:
+    """``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rehab-cosim``, else ``~/.cache/rehab-cosim``."""
+    env = _env("COSIM_CACHE_DIR")
+    if env:
+        return env
+    xdg = _env("XDG_CACHE_HOME")
+    return (xdg if xdg else Path.home() / ".cache") / APP
+
+
+def fmus_dir() -> Path:
+    """``$COSIM_FMU_DIR``, else ``<checkout>/fmus``, else ``<cache>/fmus``."""
+    env = _env("COSIM_FMU_DIR")
+    if env:
+        return env
+    root = source_checkout()
+    return root / "fmus" if root else cache_dir() / "fmus"
 
 
 def shared_dir() -> Path:
     """``$COSIM_SHARED_DIR`` or ``<repo>/../shared``."""
-    env = os.environ.get("COSIM_SHARED_DIR")
-    return Path(env) if env else REPO.parent / "shared"
+    env = _env("COSIM_SHARED_DIR")
+    return env if env else REPO.parent / "shared"
 
 
 def emps_dir() -> Path:
     """``$COSIM_EMPS_DIR`` or ``<shared>/data/real/emps``."""
-    env = os.environ.get("COSIM_EMPS_DIR")
-    return Path(env) if env else shared_dir() / "data" / "real" / "emps"
+    env = _env("COSIM_EMPS_DIR")
+    return env if env else shared_dir() / "data" / "real" / "emps"
 
 
 def independent_dir() -> Path:
     """``$COSIM_INDEPENDENT_DIR`` or ``<shared>/data/independent`` (``gap-dev/``, ``estimation-dev/``)."""
-    env = os.environ.get("COSIM_INDEPENDENT_DIR")
-    return Path(env) if env else shared_dir() / "data" / "independent"
+    env = _env("COSIM_INDEPENDENT_DIR")
+    return env if env else shared_dir() / "data" / "independent"

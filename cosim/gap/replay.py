@@ -74,11 +74,11 @@ from ..trial_log import TrialLog, TrialLogError, require_columns
 __all__ = ["NOMINAL_MODEL", "NOMINAL_PARAMS",
            "OUTPUTS", "effect_fmu", "replay", "replay_many", "Replayer", "close_all"]
 
-from ..paths import REPO
+from .. import paths
 from .effects import CATALOGUE, Effect
 
-PACKAGE_DIR = REPO / "modelica" / "RehabSim"
-DEFAULT_FMUS_DIR = REPO / "fmus"
+PACKAGE_DIR = paths.modelica_package()
+DEFAULT_FMUS_DIR = paths.fmus_dir()
 DEVICE = "ballscrew-1dof"
 
 #: qualified Modelica name of the nominal device (all effects off by default)

@@ -11,21 +11,24 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from cosim.paths import REPO
+from cosim import paths
 
 from . import registry as reg
 from .expand import Relative, deep_merge, expand
 from .schema import HUMAN_ARM_MODELS, Scenario, ScenarioError
 
-DEFAULT_FMU_DIR = REPO / "fmus"
+DEFAULT_FMU_DIR = paths.fmus_dir()
 
 
 def fmu_file(spec_fmu: str, fmu_dir) -> Path:
-    """An FMU by name (``BallScrewUnit`` -> ``fmus/BallScrewUnit.fmu``) or by path."""
+    """An FMU by name (``BallScrewUnit`` -> ``<fmus>/BallScrewUnit.fmu``, see
+    :func:`cosim.paths.fmus_dir`) or by path (relative: to the working folder, else to
+    the checkout)."""
     p = Path(spec_fmu)
     if p.suffix == ".fmu" or "/" in spec_fmu:
-        return p if p.is_absolute() else (REPO / p if not p.exists() else p)
-    return Path(fmu_dir or DEFAULT_FMU_DIR) / f"{spec_fmu}.fmu"
+        root = paths.source_checkout()
+        return p if p.is_absolute() or p.exists() or root is None else root / p
+    return Path(fmu_dir or paths.fmus_dir()) / f"{spec_fmu}.fmu"
 
 
 def make_builder(sc: Scenario, run: reg.RunSpec, ctx: reg.BuildContext,

@@ -158,6 +158,7 @@ class Scenario:
     data: dict                     # the file's content (plain data)
     lines: dict                    # path tuple -> line
     text: str                      # the file's text (hashed for the cache)
+    included: str = ""             # hash of files it includes (system: {ssp: ...})
 
     @property
     def trial(self) -> str:
@@ -182,7 +183,7 @@ class Scenario:
         return f"{self.path}:{self.lines.get(p, 1)}"
 
     def content_hash(self) -> str:
-        return hashlib.sha256(self.text.encode()).hexdigest()
+        return hashlib.sha256((self.text + self.included).encode()).hexdigest()
 
 
 class _Checker:
@@ -235,6 +236,7 @@ def load(path, fmu_dir=None) -> Scenario:
     d = m.data
     c.keys(d, TOP, (), "scenario")
     sc.name = d["scenario"]
+    _include_ssp(c, d)
     c.positive(d["duration"], ("duration",), "duration [s]")
     step = d.get("step", 1e-3)
     c.positive(step, ("step",), "step [s]")
@@ -484,6 +486,48 @@ def _check_signal_head(c, d, name, path, cases_merged=None):
         c.err(path, f"unknown role or controller {head!r} in {name!r}"
               + (f"; did you mean {close!r}?" if close else
                  f" (roles: {list(roles)}, controllers: {list(ctrls)})"))
+
+
+def _include_ssp(c: _Checker, d: dict):
+    """``system: {ssp: FILE.ssp, fmus: {...}, connections: [...]}``: the SSP's
+    components become roles (FMUs extracted to ``<cache>/ssp/<sha>/``, parameters from
+    its parameter bindings) and its component-to-component connections come first;
+    the file's own ``fmus`` entries are merged over them (e.g. to add a contract) and
+    its ``connections`` appended (e.g. a stimulus on a component input). Controllers
+    wire to the components' connectors as ``role.connector``."""
+    sysd = d.get("system")
+    if not isinstance(sysd, dict) or "ssp" not in sysd:
+        return
+    from cosim.paths import cache_dir
+
+    from .ssp import SSPError, read_ssp
+    ref = sysd["ssp"]
+    if not isinstance(ref, str) or not ref.endswith(".ssp"):
+        c.err(("system", "ssp"), f"system.ssp must be the path of an .ssp file, got {ref!r}")
+    f = Path(ref).expanduser()
+    if not f.is_absolute():
+        f = Path(c.sc.path).parent / f
+    if not f.is_file():
+        c.err(("system", "ssp"), f"SSP file {f} not found (relative paths are read from the "
+              f"scenario file's folder)")
+    sha = hashlib.sha256(f.read_bytes()).hexdigest()
+    try:
+        got = read_ssp(f, cache_dir() / "ssp" / sha[:16])
+    except SSPError as exc:
+        c.err(("system", "ssp"), str(exc))
+    own = sysd.get("fmus") or {}
+    if not isinstance(own, dict):
+        c.err(("system", "fmus"), "system.fmus must be a mapping")
+    for role in own:
+        if role not in got["fmus"] and not (isinstance(own[role], dict) and "fmu" in own[role]):
+            close = reg.suggest(role, got["fmus"])
+            c.err(("system", "fmus", role), f"role {role!r} is not a component of {f.name}"
+                  + (f"; did you mean {close!r}?" if close else f" (components: {list(got['fmus'])})"))
+    conns = sysd.get("connections") or []
+    if not isinstance(conns, list):
+        c.err(("system", "connections"), "system.connections must be a list")
+    d["system"] = {"fmus": deep_merge(got["fmus"], own), "connections": got["connections"] + conns}
+    c.sc.included = f"ssp:{sha}"
 
 
 def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):

@@ -197,7 +197,8 @@ class ReachingPath:
 
 # =========================================================================== system
 def default_fmus_dir() -> Path:
-    return Path(__file__).resolve().parents[2] / "fmus"
+    from ..paths import fmus_dir
+    return fmus_dir()
 
 
 def build_table_system(human_params: Mapping[str, float], controller, target: Mapping[str, Callable],
