@@ -132,8 +132,11 @@ BUGS: list[tuple[str, str, str, str, str]] = [
      "        return min(values)", T_VERDICT),
     # ---- the master's tick
     ("master-connection-scale-ignored", "cosim/master/system.py",
-     "                    if c.scale != 1.0:\n                        e = f\"{e} * {c.scale!r}\"",
-     "                    if False:\n                        e = f\"{e} * {c.scale!r}\"", "tests/test_master.py"),
+     "        return self.scale * self.unit_gain", "        return self.unit_gain",
+     "tests/test_master.py"),
+    ("master-unit-offset-sign", "cosim/master/system.py",
+     "        x = f\"{x} + {c.unit_offset!r}\"", "        x = f\"{x} - {c.unit_offset!r}\"",
+     "tests/test_fmi_types.py tests/test_master.py"),
     ("master-step-time-shifted", "cosim/master/system.py",
      "            lines.append(\"        _tc.value = t\")",
      "            lines.append(\"        _tc.value = t + 0.5 * Ts\")", "tests/test_master.py"),

@@ -181,7 +181,8 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
 
 
 def probe2_md(y_unit: str = "m", u_causality: str = "input", extra_cs: str = "",
-              default_experiment: str = "", variable_step: bool = True) -> str:
+              default_experiment: str = "", variable_step: bool = True,
+              u_unit: str = "m") -> str:
     """modelDescription.xml of probe2; the unit of y, the causality of u and extra
     CoSimulation attributes are parameters of the tests (a replacement whose u is an
     output, a unit mismatch, capability flags)."""
@@ -197,13 +198,15 @@ def probe2_md(y_unit: str = "m", u_causality: str = "input", extra_cs: str = "",
     <Unit name="m"><BaseUnit m="1"/></Unit>
     <Unit name="mm"><BaseUnit m="1" factor="0.001"/></Unit>
     <Unit name="N"><BaseUnit kg="1" m="1" s="-2"/></Unit>
+    <Unit name="K"><BaseUnit K="1"/></Unit>
+    <Unit name="degC"><BaseUnit K="1" offset="273.15"/></Unit>
   </UnitDefinitions>
   <TypeDefinitions>
     <SimpleType name="Mode"><Enumeration><Item name="off" value="1"/><Item name="on" value="2"/><Item name="auto" value="3"/></Enumeration></SimpleType>
   </TypeDefinitions>
   <ModelVariables>
     <ScalarVariable name="p" valueReference="0" causality="parameter" variability="fixed"><Real start="1"/></ScalarVariable>
-    <ScalarVariable name="u" valueReference="1" causality="{u_causality}" variability="{u_var}"{u_init}><Real unit="m"{u_start}/></ScalarVariable>
+    <ScalarVariable name="u" valueReference="1" causality="{u_causality}" variability="{u_var}"{u_init}><Real unit="{u_unit}"{u_start}/></ScalarVariable>
     <ScalarVariable name="y" valueReference="2" causality="output"><Real unit="{y_unit}"/></ScalarVariable>
     <ScalarVariable name="x" valueReference="3" causality="local" initial="exact"><Real start="0"/></ScalarVariable>
     <ScalarVariable name="c" valueReference="4" causality="calculatedParameter" variability="tunable"><Real/></ScalarVariable>
