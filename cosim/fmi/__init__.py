@@ -1,5 +1,7 @@
 """The FMI import layer: what the standard asks of an importer, below the master.
 
-``unpack`` extracts each FMU once per process and FMU hash and tracks the shared
-library handles its users open, so nothing is left mapped or on disk afterwards.
+``me`` integrates Model Exchange FMUs across communication steps (events by the
+standard), ``fmi1`` adapts FMI 1.0 FMUs to the FMI 2.0 calls the master makes,
+``check`` tells an FMU that cannot run here (errors) from one that deviates from the
+standard in ways an importer can tolerate (warnings).
 """
