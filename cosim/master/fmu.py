@@ -85,8 +85,6 @@ class FMUInfo:
     generation_tool: str
 
 
-
-
 _TYPE = {"Float64": "Real", "Float32": "Real", "Int32": "Integer", "Int64": "Integer",
          "Int16": "Integer", "Int8": "Integer", "UInt32": "Integer", "UInt64": "Integer",
          "UInt16": "Integer", "UInt8": "Integer", "Enumeration": "Integer",
