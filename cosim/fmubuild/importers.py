@@ -48,9 +48,15 @@ def run_fmpy(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, objec
     h_ns = int(round(h * 1e9))
     t = np.arange(n + 1) * h
     ins = _input_array(inputs or {}, n + 1, t)
-    s = (FMU3Slave if fmi3 else FMU2Slave)(
-        guid=md.guid, unzipDirectory=fmpy.extract(str(fmu)),
-        modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmpy")
+    from ..fmi import unpack
+    hold = unpack.acquire(fmu)       # shared extraction, deleted with its last user
+    try:
+        s = (FMU3Slave if fmi3 else FMU2Slave)(
+            guid=md.guid, unzipDirectory=str(hold.dir),
+            modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmpy")
+    except BaseException:
+        hold.release()
+        raise
     set_real, get_real = (s.setFloat64, s.getFloat64) if fmi3 else (s.setReal, s.getReal)
     try:
         s.instantiate()
@@ -77,7 +83,10 @@ def run_fmpy(fmu: str | Path, t_end: float, h: float, inputs: Mapping[str, objec
             res[k + 1] = get_real(out_vr)
         s.terminate()
     finally:
-        s.freeInstance()
+        try:
+            s.freeInstance()       # FMPy also dlcloses the library here
+        finally:
+            hold.release()
     out = {"time": t}
     out.update({name: res[:, i] for i, name in enumerate(outputs)})
     return out

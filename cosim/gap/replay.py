@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import weakref
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -199,7 +200,11 @@ class Replayer:
         for n in ("i_cmd", "f_ext", "theta0", "w0", "i0", *OUTPUTS):
             if n not in self.vars:
                 raise ValueError(f"{self.path}: not a BallScrewDevice FMU (no variable {n!r})")
-        self._unzip = fmpy.extract(str(self.path))
+        from ..fmi import unpack
+        # the process's one extraction of this FMU, shared and removed with its last user
+        self._hold = unpack.acquire(self.path)
+        self._free = weakref.finalize(self, self._hold.release)
+        self._unzip = str(self._hold.dir)
         self.messages: list[str] = []
 
         def logger(env, name, status, category, message):  # keep the FMU's own words
@@ -219,6 +224,7 @@ class Replayer:
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzip,
                              modelIdentifier=self.md.coSimulation.modelIdentifier,
                              instanceName="gap-replay")
+        self._hold.add_library(self.fmu.dll._handle)
         self.fmu.instantiate(callbacks=self._cb, loggingOn=False)
         self._fresh = True
         dll = self.fmu.dll
@@ -295,11 +301,14 @@ class Replayer:
         f.terminate()
 
     def close(self) -> None:
+        """Free the instance, unload the library and (with the last user of this FMU in
+        the process) delete its extracted files."""
         if self.fmu is not None:
-            try:
-                self.fmu.freeInstance()
+            try:       # not freeInstance(): the hold closes the library it opened
+                self.fmu.fmi2FreeInstance(self.fmu.component)
             finally:
                 self.fmu = None
+                self._free()
 
 
 _REPLAYERS: dict[str, Replayer] = {}

@@ -16,14 +16,16 @@ import collections
 import ctypes
 import dataclasses
 import difflib
-import hashlib
 import re
 import sys
-import tempfile
+import weakref
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import numpy as np
+
+from ..fmi import unpack
+from ..fmi.unpack import sha256_file  # noqa: F401  (re-exported: scenarios.store)
 
 _ELEMENT = re.compile(r"^(.+)\[\s*(\d+(?:\s*,\s*\d+)*)\s*\]$")
 
@@ -81,14 +83,6 @@ class FMUInfo:
     kind: str            # CoSimulation | ModelExchange
     model_name: str
     generation_tool: str
-
-
-def sha256_file(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 _TYPE = {"Float64": "Real", "Float32": "Real", "Int32": "Integer", "Int64": "Integer",
@@ -221,7 +215,7 @@ class FMUSlave:
 
     def __init__(self, path, role: str = "fmu", kind: str = "auto", rtol: float = 1e-6):
         import fmpy
-        from ..fmubuild.check import fmi_version, safe_extract
+        from ..fmubuild.check import fmi_version
 
         self.path = Path(path)
         self.role = role
@@ -231,8 +225,14 @@ class FMUSlave:
             version = fmi_version(self.path)
         except Exception as exc:
             raise FMUError(f"role {role}: {exc}") from None
-        self._tmp = tempfile.TemporaryDirectory(prefix=f"cosim-{role}-")
-        unzip = safe_extract(self.path, Path(self._tmp.name))
+        sha = sha256_file(self.path)
+        try:    # one extraction per process and FMU hash, shared (cosim.fmi.unpack)
+            self._hold = unpack.acquire(self.path, sha)
+        except Exception as exc:
+            raise FMUError(f"role {role}: {self.path}: cannot extract: {exc}") from None
+        # frees what this instance opened when it is dropped (the hold, not self)
+        self._free = weakref.finalize(self, self._hold.release)
+        unzip = self._hold.dir
         try:
             md = fmpy.read_model_description(str(unzip), validate=False)
         except Exception as exc:
@@ -280,7 +280,7 @@ class FMUSlave:
                             v.variability, unit(v), v.description or "", v.type,
                             initial(v), tuple(v.shape or ()), v.start, items(v))
             for v in md.modelVariables}
-        self.info = FMUInfo(str(self.path), sha256_file(self.path), version,
+        self.info = FMUInfo(str(self.path), sha, version,
                             "CoSimulation" if kind == "cs" else "ModelExchange",
                             md.modelName, md.generationTool or "")
         iface = md.coSimulation if kind == "cs" else md.modelExchange
@@ -302,6 +302,7 @@ class FMUSlave:
                 self._fmu = FMU2Slave(**args) if kind == "cs" else FMU2Model(**args)
         except Exception as exc:
             raise FMUError(f"role {role}: {self.path.name}: cannot load the binary: {exc}") from None
+        self._hold.add_library(self._fmu.dll._handle)     # dlclosed by self._free
         self.rtol = rtol
         self._me = None      # cosim.fmi.me.MEIntegrator of a Model Exchange run
         self.time = 0.0
@@ -802,15 +803,8 @@ class FMUSlave:
         if self._closed:
             return
         self.terminate()
-        try:
-            self._fmu.freeLibrary()
-        except Exception:
-            pass
         self._closed = True
-        try:
-            self._tmp.cleanup()
-        except Exception:
-            pass
+        self._free()       # dlclose this instance's load; the folder goes with the last
 
     @property
     def closed(self) -> bool:

@@ -139,6 +139,21 @@ class System:
         self.controllers: list[_Controller] = []
         self.stimuli: dict[str, Callable[[float], float]] = {}
 
+    # ----------------------------------------------------------- lifetime
+    def close(self) -> None:
+        """Free every FMU of the system: terminate, unload its library (once per load)
+        and, with the last user of that FMU in the process, delete its extracted files
+        (:mod:`cosim.fmi.unpack`). Idempotent; the system cannot run afterwards. A
+        system that is simply dropped is freed the same way when collected."""
+        for slave in self.roles.values():
+            slave.close()
+
+    def __enter__(self) -> "System":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
     # ----------------------------------------------------------- building
     def add_fmu(self, role: str, path, contract: str | RoleContract | None = None,
                 parameters: Mapping[str, float] | None = None, kind: str = "auto",
@@ -772,6 +787,10 @@ class Master:
                                f"(nearest: {n_ticks} steps = {n_ticks * Ts} s)")
         if not sys_.roles and not sys_.controllers:
             raise SystemError_("the system is empty")
+        closed = [r for r, sl in sys_.roles.items() if sl.closed]
+        if closed:
+            raise SystemError_(f"the system was closed (System.close()): role(s) {closed} "
+                               f"have no FMU loaded any more; build a new System")
         for role, slave in sys_.roles.items():
             d = getattr(slave, "step_mult", 1)
             if n_ticks % d:
