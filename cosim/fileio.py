@@ -96,6 +96,24 @@ def ensure_out_dir(path: str | os.PathLike, what: str = "--out") -> Path:
     return p
 
 
+def check_out_dir(path: str | os.PathLike, what: str = "--out") -> Path:
+    """Check, before any work, that ``path`` can become the output folder (not a
+    regular file or under one; it, or its nearest existing parent, writable) without
+    creating anything, so that a command refusing its input leaves no folder behind;
+    else :class:`OutputPathError`."""
+    p = Path(path)
+    bad = _blocking_file(p)
+    if bad is not None:
+        where = "is" if bad == p else f"is under {bad}, which is"
+        raise OutputPathError(f"{what} {p}: {where} a regular file, not a folder")
+    q = p
+    while not q.exists() and q != q.parent:
+        q = q.parent
+    if not os.access(q, os.W_OK | os.X_OK):
+        raise OutputPathError(f"{what} {p}: {q} is not writable")
+    return p
+
+
 def check_out_file(path: str | os.PathLike, what: str = "--out") -> Path:
     """Check, before any work, that the output file ``path`` can be written: not a
     folder, not under a regular file (nothing is created); else

@@ -11,10 +11,10 @@ __all__ = ["add_commands"]
 
 
 def _cmd_diagnose(a: Any) -> int:
-    from ..fileio import OutputPathError, ensure_out_dir
+    from ..fileio import OutputPathError, check_out_dir
     from .diagnose import diagnose
     try:
-        ensure_out_dir(a.out)
+        check_out_dir(a.out)        # created by diagnose once the inputs are read
         res = diagnose(a.device, a.fit, a.test, a.out, report=not a.no_report, margin=a.margin)
     except (GapInputError, OutputPathError) as e:
         print(f"cosim: error: {e}", file=sys.stderr)
