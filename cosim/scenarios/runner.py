@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 import time
 import traceback
 from pathlib import Path
@@ -29,8 +27,8 @@ from . import registry as reg
 from .build import check_build, make_builder
 from .expand import deep_merge, expand
 from .schema import Scenario, ScenarioError, load
-from .store import (clean_run_tmp, run_done, run_key, run_tmp_dir, safe_name, versions,
-                    write_verdict)
+from .store import (clean_run_tmp, publish_run, run_done, run_key, run_tmp_dir, safe_name,
+                    versions, write_verdict)
 from .verdict import all_runs, evaluate
 
 
@@ -104,10 +102,7 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
         info["traceback"] = traceback.format_exc(limit=6)
     info["wall_s"] = time.perf_counter() - t0
     (tmp / "run.json").write_text(json.dumps(jsonable(info), indent=1))
-    final = runs_dir / safe_name(run_label)
-    if final.exists():
-        shutil.rmtree(final)
-    os.replace(tmp, final)              # atomic: the run appears complete or not at all
+    publish_run(runs_dir, tmp, run_label)  # atomic: the run appears complete or not at all
     return info
 
 
