@@ -29,6 +29,7 @@ from .expand import deep_merge, expand
 from .schema import Scenario, ScenarioError, load
 from .store import (clean_run_tmp, publish_run, run_done, run_key, run_tmp_dir, safe_name,
                     versions, write_verdict)
+from .units import signal_units
 from .verdict import all_runs, evaluate
 
 
@@ -55,7 +56,13 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
                                fmu_dir=str(fmu_dir or ""),
                                parameters=dict(deep_merge(sc.data, run.overrides)
                                                .get("parameters") or {}))
-        build = make_builder(sc, run, ctx, fmu_swaps)
+        make = make_builder(sc, run, ctx, fmu_swaps)
+        systems = []                  # what the procedure built: the recorded units
+
+        def build(overrides: dict | None = None):
+            system, record = make(overrides)
+            systems.append(system)
+            return system, record
         proc = reg.get("procedure", sc.procedure)
         result = None
         try:
@@ -75,7 +82,8 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
         if result is not None:
             phases = []
             for phase, rr in result.runs.items():
-                rr.to_parquet(tmp / f"{safe_name(phase)}.parquet")
+                rr.to_parquet(tmp / f"{safe_name(phase)}.parquet",
+                              units=signal_units(rr.signals, systems[::-1]))
                 phases.append({"phase": phase, "file": f"{safe_name(phase)}.parquet",
                                "completed": bool(rr.completed), "error": rr.error,
                                "ticks": int(rr.ticks), "wall_s": float(rr.wall_time or 0.0)})
