@@ -31,6 +31,7 @@ COMMAND_MODULES = (
     ".scenario_cli",     # cosim run / cosim suite (scenario files, Dask, reports)
     ".data_cli",
     ".gap.cli",
+    ".results_cli",      # cosim results export / cosim report (stored results, PDF)
 )
 
 

@@ -111,7 +111,8 @@ def read_runs(sc: Scenario, out_dir: Path, runs: list | None = None
             views.append(reg.RunView(label=run.label, case=run.case, phase=ph["phase"],
                                      seed=run.seed, signals=rr.signals,
                                      values=info.get("values", {}),
-                                     artifacts=info.get("artifacts", {}), point=run.point))
+                                     artifacts=info.get("artifacts", {}), point=run.point,
+                                     units=rr.units))
     return views, infos
 
 
