@@ -52,7 +52,7 @@ def _can_sandbox() -> str | None:
     return None
 
 
-pytestmark = pytest.mark.skipif(_can_sandbox() is not None, reason=str(_can_sandbox()))
+needs_sandbox = pytest.mark.skipif(_can_sandbox() is not None, reason=str(_can_sandbox()))
 
 
 def setup_module(module):
@@ -141,6 +141,7 @@ def _worker_cache():
     return sorted(p.name for p in fmu_cache_dir().iterdir())
 
 
+@needs_sandbox
 def test_setup_separates_filesystems(cluster, client_dir):
     from distributed import Client
     address, wdir = cluster
@@ -154,6 +155,7 @@ def test_setup_separates_filesystems(cluster, client_dir):
     assert probe["fmu_visible"] is False
 
 
+@needs_sandbox
 def test_path_based_runs_fail_on_that_worker(cluster, client_dir):
     """Negative control: submitting paths (the old way) cannot work there."""
     from cosim.scenarios.suite import run_suite
@@ -168,6 +170,7 @@ def test_path_based_runs_fail_on_that_worker(cluster, client_dir):
     assert any("Permission" in i["error"] or "cannot read" in i["error"] for i in infos)
 
 
+@needs_sandbox
 def test_shipped_runs_on_worker_without_client_fs(cluster, client_dir):
     from distributed import Client
 
@@ -214,3 +217,44 @@ def test_shipped_runs_on_worker_without_client_fs(cluster, client_dir):
     # a rerun reuses every stored run (the cache keys are the client's)
     s2 = run_suite([scen], out, scheduler=address, fmu_dir=client_dir / "fmus", progress=False)
     assert s2["runs_executed"] == 0 and s2["runs_cached"] == 12
+
+
+def test_shipped_run_in_process_with_swap(tmp_path):
+    """execute_shipped from values only (no Dask): a --fmu swap and a scenario whose
+    files exist only as bytes give the same stored run as execute_run on the paths,
+    with the client's paths (not the worker's copies) in run.json and the Parquet."""
+    import textwrap
+
+    from test_scenarios import BASE
+
+    from cosim.master.system import RunResult
+    from cosim.scenarios.runner import execute_run
+    from cosim.scenarios.schema import load
+    from cosim.scenarios.ship import execute_shipped, run_fmus
+    from cosim.scenarios.store import run_key, store_run_files
+    from cosim.scenarios.verdict import all_runs
+    scen = tmp_path / "s.yaml"
+    scen.write_text(textwrap.dedent(BASE))
+    swap = tmp_path / "MyUnit.fmu"
+    shutil.copy(REPO / "fmus" / "BallScrewUnit.fmu", swap)
+    sc = load(scen)
+    run = all_runs(sc)[0]
+    swaps = {"plant": str(swap)}
+    by_spec, by_swap = run_fmus(sc, run, None, swaps)
+    assert by_spec == {} and list(by_swap) == ["plant"]
+    key = run_key(sc, run, None, swaps)
+    vals = lambda t: {k: (sha, Path(p).read_bytes(), p) for k, (sha, p) in t.items()}
+    out = execute_shipped(str(scen), sc.text, run.label, vals(by_spec), vals(by_swap), key)
+    d = store_run_files(tmp_path / "shipped", run.label, out["files"])
+    execute_run(str(scen), run.label, str(tmp_path / "local"), swaps, None, key)
+    info = json.loads((d / "run.json").read_text())
+    assert info["status"] == "ok" and info["key"] == key
+    assert info["provenance"][0]["path"] == str(swap)
+    a = RunResult.read_parquet(d / "main.parquet")
+    b = RunResult.read_parquet(tmp_path / "local" / "runs" / d.name / "main.parquet")
+    assert a.provenance == b.provenance and a.units == b.units == {
+        "time": "s", "plant.w": "rad/s", "plant.i": "A"}
+    for k in b.names:
+        np.testing.assert_array_equal(a[k], b[k])
+    with pytest.raises(ValueError, match="unexpected file name"):
+        store_run_files(tmp_path / "bad", "r", {"run.json": b"{}", "../x.parquet": b""})
