@@ -34,6 +34,7 @@ COMMAND_MODULES = (
     ".data_cli",
     ".gap.cli",
     ".ssp_cli",          # cosim ssp export (SSP 1.0 archives)
+    ".results_cli",      # cosim results export / cosim report (stored results, PDF)
 )
 
 

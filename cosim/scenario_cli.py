@@ -124,7 +124,8 @@ def _cmd_suite(a) -> int:
         swaps = parse_fmu_swaps(a.fmu)
         s = run_suite(a.paths, out, scheduler=a.scheduler, workers=a.workers,
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
-                      progress=not a.no_progress)
+                      progress=not a.no_progress,
+                      ship=False if a.shared_fs else None)
         render_suite(out)
     except (ScenarioError, RegistryError, SystemError_, FMUError, SuiteError) as exc:
         return _err(str(exc))
@@ -154,6 +155,10 @@ def add_commands(sub) -> None:
     s.add_argument("--out", required=True, help="output folder")
     s.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler (e.g. tcp://host:8786); default: a local cluster")
+    s.add_argument("--shared-fs", action="store_true",
+                   help="with --scheduler: the workers see this machine's files; submit "
+                        "paths (default with --scheduler: ship the scenario text and the "
+                        "FMU bytes, and write the returned results here)")
     s.add_argument("--workers", type=int, default=None,
                    help="local cluster worker processes (default: the machine's cores)")
     s.add_argument("--fmu", action="append", metavar="ROLE=PATH",

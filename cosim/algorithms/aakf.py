@@ -502,6 +502,10 @@ class AaKF:
         "innov_enc_rad", "innov_acc_m_s2",
         "reset_fired", "reset_pos_fired", "reset_speed_fired",
     )
+    output_units = {"theta_rad": "rad", "omega_rad_s": "rad/s", "alpha_rad_s2": "rad/s2",
+                    "x_m": "m", "v_m_s": "m/s", "a_m_s2": "m/s2", "bias_m_s2": "m/s2",
+                    "innov_enc_rad": "rad", "innov_acc_m_s2": "m/s2", "reset_fired": "1",
+                    "reset_pos_fired": "1", "reset_speed_fired": "1"}
     recordable: tuple[str, ...] = ("gain", "P", "P_pred", "x_pred", "x_post", "innovation",
                                    "reset_lo", "reset_hi")
 
@@ -967,6 +971,8 @@ class EncoderDifferentiator:
 
     inputs: tuple[str, ...] = ("theta_enc",)
     outputs: tuple[str, ...] = ("theta_rad", "omega_rad_s", "alpha_rad_s2", "x_m", "v_m_s", "a_m_s2")
+    output_units = {"theta_rad": "rad", "omega_rad_s": "rad/s", "alpha_rad_s2": "rad/s2",
+                    "x_m": "m", "v_m_s": "m/s", "a_m_s2": "m/s2"}
     recordable: tuple[str, ...] = ()
 
     def __init__(self, params: EncoderDifferentiatorParams | None = None) -> None:

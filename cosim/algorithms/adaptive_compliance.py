@@ -216,6 +216,9 @@ class AdaptiveComplianceController:
             f"ref_{a}" for a in self.axes)
         self.outputs: tuple[str, ...] = tuple(
             f"{q}_{a}" for q in ("f", "kp", "kd", "err") for a in self.axes)
+        self.output_units = {f"{q}_{a}": u for q, u in (("f", "N"), ("kp", "N/m"),
+                                                         ("kd", "N.s/m"), ("err", "m"))
+                             for a in self.axes}
         self.grid = RBFGrid(params)
         self.masses = (np.ones(n) if params.damping_mass_kg is None
                        else np.asarray(params.damping_mass_kg[:n], float))

@@ -96,6 +96,8 @@ class BilateralController:
     #: default wiring (use_dob=True); the instance attribute reflects the params
     inputs: tuple[str, ...] = ("x_m", "x_s", "v_m", "v_s", "f_m", "f_s", "i_dob_m", "i_dob_s")
     outputs: tuple[str, ...] = ("i_m", "i_s", "acc_ref_m", "acc_ref_s", "x_d", "f_c")
+    output_units = {"i_m": "A", "i_s": "A", "acc_ref_m": "m/s2", "acc_ref_s": "m/s2",
+                    "x_d": "m", "f_c": "N"}
 
     def __init__(self, params: BilateralParams = BilateralParams()):
         self.params = params

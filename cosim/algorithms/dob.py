@@ -135,6 +135,7 @@ class DOB:
 
     inputs: tuple[str, ...] = ("i_cmd", "w")
     outputs: tuple[str, ...] = ("tau_dis_hat", "i_cmp", "i_tot")
+    output_units = {"tau_dis_hat": "N.m", "i_cmp": "A", "i_tot": "A"}
     recordable: tuple[str, ...] = ("tau_hat", "d_raw")
 
     def __init__(self, params: DOBParams | None = None) -> None:
@@ -238,6 +239,7 @@ class RFOB:
 
     inputs: tuple[str, ...] = ("i_cmd", "w")
     outputs: tuple[str, ...] = ("tau_ext_hat", "f_ext_hat", "f_int_hat")
+    output_units = {"tau_ext_hat": "N.m", "f_ext_hat": "N", "f_int_hat": "N"}
     recordable: tuple[str, ...] = ("tau_hat", "tau_raw")
 
     def __init__(self, params: RFOBParams | None = None) -> None:

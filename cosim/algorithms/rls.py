@@ -210,6 +210,9 @@ class RLSIdentifier:
         "e_pred",
         "updated",
     )
+    #: e_pred's unit depends on the regression ([rad/s] eq. 44, [N m s] integral): none
+    output_units = {"J_hat": "kg.m2", "b_hat": "N.m.s/rad", "fc_hat": "N.m", "theta_a1": "1",
+                    "theta_b0": "rad/(s.N.m)", "theta_fcb0": "rad/s", "updated": "1"}
     recordable: tuple[str, ...] = ("theta", "P", "e_pred")
 
     def __init__(self, params: RLSParams | None = None) -> None:

@@ -138,6 +138,7 @@ class ZeroForceController:
     #: default wiring (load-cell case); the instance attribute reflects the params
     inputs: tuple[str, ...] = ("f_lc",)
     outputs: tuple[str, ...] = ("i_cmd", "f_cntr")
+    output_units = {"i_cmd": "A", "f_cntr": "N"}
     recordable = ("f_cntr",)
 
     def __init__(self, params: ZeroForceParams = ZeroForceParams()):
@@ -194,6 +195,7 @@ class SineReference:
 
     inputs: tuple[str, ...] = ()
     outputs: tuple[str, ...] = ("x_ref", "v_ref", "a_ref")
+    output_units = {"x_ref": "m", "v_ref": "m/s", "a_ref": "m/s2"}
 
     def __init__(self, params: SineReferenceParams = SineReferenceParams()):
         self.params = params
@@ -255,6 +257,7 @@ class PositionController:
     #: default wiring; the instance attribute reflects the params
     inputs: tuple[str, ...] = ("x", "x_ref", "v_ref")
     outputs: tuple[str, ...] = ("i_cmd", "e")
+    output_units = {"i_cmd": "A", "e": "m"}
 
     def __init__(self, params: PositionControllerParams = PositionControllerParams()):
         self.params = params

@@ -570,6 +570,7 @@ class RunResult:
     messages: dict = dataclasses.field(default_factory=dict)   # role -> FMU log lines
     stop_reason: str | None = None      # an FMU ended the run itself (completed stays True)
     notes: list = dataclasses.field(default_factory=list)      # e.g. early returns continued
+    units: dict = dataclasses.field(default_factory=dict)      # name -> unit (Parquet field metadata)
 
     @property
     def names(self) -> list[str]:
@@ -587,13 +588,17 @@ class RunResult:
         import pandas as pd
         return pd.DataFrame(self.signals)
 
-    def to_parquet(self, path):
+    def to_parquet(self, path, units: Mapping[str, str] | None = None):
         """Write the signals (columns in order, time first) with the provenance, status
-        and step size in the file's metadata (key ``cosim``)."""
+        and step size in the file's metadata (key ``cosim``), and each signal's unit
+        (``units`` or ``self.units``) as its field metadata ``unit``."""
         import pyarrow as pa
         import pyarrow.parquet as pq
+        units = {**self.units, **(units or {})}
         table = pa.Table.from_pydict({k: (list(v) if np.asarray(v).dtype == object else np.asarray(v))
                                       for k, v in self.signals.items()})
+        table = table.cast(pa.schema([f.with_metadata({"unit": units[f.name]}) if f.name in units
+                                      else f for f in table.schema]))
         meta = {"provenance": self.provenance, "completed": self.completed,
                 "error": self.error, "ticks": self.ticks, "step_size": self.step_size,
                 "stop_reason": self.stop_reason, "notes": self.notes}
@@ -607,10 +612,12 @@ class RunResult:
         table = pq.read_table(str(path))
         meta = json.loads((table.schema.metadata or {}).get(b"cosim", b"{}"))
         signals = {name: table.column(name).to_numpy() for name in table.column_names}
+        units = {f.name: f.metadata[b"unit"].decode() for f in table.schema
+                 if f.metadata and b"unit" in f.metadata}
         return cls(signals, meta.get("provenance", []), completed=meta.get("completed", True),
                    error=meta.get("error"), ticks=meta.get("ticks", len(signals.get("time", ()))),
                    step_size=meta.get("step_size"), stop_reason=meta.get("stop_reason"),
-                   notes=meta.get("notes", []))
+                   notes=meta.get("notes", []), units=units)
 
 
 # =========================================================================== master

@@ -159,11 +159,28 @@ def _generic_figures(runs) -> list:
         for v in runs:
             if v.phase == r.phase and n in v.signals:
                 a.plot(v.signals["time"], v.signals[n], lw=0.8, label=v.label)
-        a.set_ylabel(n, fontsize=8)
+        a.set_ylabel(f"{n} [{r.units.get(n, '?')}]", fontsize=8)
     ax[-1, 0].set_xlabel("time [s]")
     if len({v.label for v in runs}) > 1:
         ax[0, 0].legend(fontsize=7, loc="upper right")
     return [("recorded signals", fig)]
+
+
+def signals_table(runs) -> str:
+    """Every recorded signal of each phase with its stored unit ("?" where none is
+    stored: see :mod:`cosim.scenarios.units`), from the first run of each phase."""
+    first = {}
+    for v in runs:
+        first.setdefault(v.phase, v)
+    if not first:
+        return "<p>(no stored run)</p>"
+    rows = ["<table><tr><th>phase</th><th>signal</th><th>unit</th><th>samples</th></tr>"]
+    for phase, v in first.items():
+        for n, x in v.signals.items():
+            rows.append(f"<tr><td>{esc(phase)}</td><td><code>{esc(n)}</code></td>"
+                        f"<td>{esc(v.units.get(n, '?'))}</td><td>{len(x)}</td></tr>")
+    rows.append("</table>")
+    return "\n".join(rows)
 
 
 def assumptions_table(items=None) -> str:
@@ -300,6 +317,7 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
                  assumptions_table(assumed)]
     body += ["<h2>Figures</h2>", "\n".join(figs_html) or "<p>(no figures: no finished run)</p>",
              "<h2>Runs</h2>", runs_table(verdict),
+             "<h2>Recorded signals and units</h2>", signals_table(runs),
              "<h2>Provenance</h2>", provenance_html(verdict),
              "<h2>Configuration</h2><pre>" + esc(sc.text) + "</pre>"]
     return page(f"{sc.name}: verification report", "\n".join(body))
@@ -334,6 +352,7 @@ def suite_page(summary: dict, links: dict) -> str:
             f"<p>{c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
             f"{c['error']} error; {c['requirements']} requirement(s). Wall time "
             f"{summary.get('wall_s', 0):.1f} s on {esc(summary.get('cluster'))}.</p>",
+            failing_requirements(summary),
             "\n".join(rows),
             "<h2>Requirements</h2>", suite_requirements(summary),
             "<h2>Assumed values (not in the thesis): source or calibration</h2>",
@@ -341,6 +360,35 @@ def suite_page(summary: dict, links: dict) -> str:
             "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
             + "</pre>"]
     return page("cosim verification suite", "\n".join(body))
+
+
+#: the verdicts a reader of the overview must see without opening a scenario
+FAILING = ("fail", "cannot-fail", "error")
+
+
+def failing_requirements(summary: dict) -> str:
+    """The requirements that did not pass (fail, cannot-fail, error), first on the
+    overview: scenario, id, value, rule, limit, verdict, and the scenarios that
+    errored without a requirement verdict."""
+    rows = []
+    for s in summary["scenarios"]:
+        for r in s.get("requirements", []):
+            if r["verdict"] in FAILING:
+                rows.append(f'<tr class="{esc(r["verdict"])}"><td>{esc(s["scenario"])}</td>'
+                            f'<td><b>{esc(r["id"])}</b></td><td>{_fmt(r["value"])}</td>'
+                            f'<td>{esc(r.get("rule"))}</td><td>{_fmt(r["limit"])}</td>'
+                            f'<td>{badge(r["verdict"])} {esc(r["verdict"])}</td>'
+                            f'<td class="muted">{esc(r.get("message") or "")}</td></tr>')
+        if s["status"] == "error" and not s.get("requirements"):
+            rows.append(f'<tr class="error"><td>{esc(s["scenario"])}</td><td>-</td><td>-</td>'
+                        f'<td>-</td><td>-</td><td>{badge("error")} error</td><td class="muted">'
+                        f'{esc("; ".join(s.get("errors", [])[:3]))}</td></tr>')
+    if not rows:
+        return ('<h2 id="failing">Failing requirements: none</h2>'
+                "<p>Every requirement passed (or is marked thesis-inconsistent).</p>")
+    return (f'<h2 id="failing">Failing requirements ({len(rows)})</h2>'
+            "<table><tr><th>scenario</th><th>id</th><th>value</th><th>rule</th><th>limit</th>"
+            "<th>verdict</th><th>message</th></tr>" + "".join(rows) + "</table>")
 
 
 def suite_requirements(summary: dict) -> str:

@@ -47,13 +47,39 @@ def render_suite(suite_dir) -> list[Path]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m cosim.report",
                                  description="re-render report pages from stored results")
+    add_arguments(ap)
+    return run(ap.parse_args(argv))
+
+
+def add_arguments(ap) -> None:
     ap.add_argument("dir", help="a `cosim suite` output folder (with summary.json), or a "
                                 "`cosim run` folder together with --scenario")
     ap.add_argument("--scenario", help="scenario file of a `cosim run` folder")
-    a = ap.parse_args(argv)
-    if a.scenario:
-        print(render_scenario(a.scenario, a.dir))
-    else:
-        for p in render_suite(a.dir):
-            print(p)
+    ap.add_argument("--pdf", nargs="?", const="", default=None, metavar="FILE",
+                    help="also print the pages to one PDF with headless Chromium "
+                         "(default FILE: DIR/report.pdf)")
+    ap.add_argument("--no-render", action="store_true",
+                    help="do not redraw the pages first (with --pdf: print them as stored)")
+
+
+def run(a) -> int:
+    """Redraw the pages of ``a.dir`` (unless ``a.no_render``) and print the PDF
+    (``a.pdf``); exit code 0, or 2 for a folder without results / no Chromium."""
+    import sys
+    from .pdf import PdfError, print_pdf
+    try:
+        if not a.no_render:
+            if a.scenario:
+                print(render_scenario(a.scenario, a.dir))
+            elif (Path(a.dir) / "summary.json").is_file():
+                for p in render_suite(a.dir):
+                    print(p)
+            elif not (Path(a.dir) / "report.html").is_file():
+                raise FileNotFoundError(f"{a.dir}: no summary.json (a `cosim run` folder "
+                                        f"needs --scenario FILE)")
+        if a.pdf is not None:
+            print(print_pdf(a.dir, a.pdf or None))
+    except (FileNotFoundError, PdfError) as exc:
+        print(f"cosim report: error: {exc}", file=sys.stderr)
+        return 2
     return 0

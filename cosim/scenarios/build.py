@@ -8,6 +8,7 @@ Errors carry the file and line of the item that caused them.
 """
 from __future__ import annotations
 
+import contextvars
 import re
 from pathlib import Path
 
@@ -20,10 +21,19 @@ from .schema import HUMAN_ARM_MODELS, Scenario, ScenarioError
 DEFAULT_FMU_DIR = paths.fmus_dir()
 
 
+#: FMU name/path as the scenario writes it -> this process's copy (set by a shipped
+#: run, :mod:`.ship`, around the run: the worker has the bytes, not the client's path)
+LOCAL_FMUS: contextvars.ContextVar[dict] = contextvars.ContextVar("cosim_local_fmus",
+                                                                  default={})
+
+
 def fmu_file(spec_fmu: str, fmu_dir) -> Path:
     """An FMU by name (``BallScrewUnit`` -> ``<fmus>/BallScrewUnit.fmu``, see
     :func:`cosim.paths.fmus_dir`) or by path (relative: to the working folder, else to
     the checkout)."""
+    local = LOCAL_FMUS.get().get(spec_fmu)
+    if local is not None:
+        return Path(local)
     p = Path(spec_fmu)
     if p.suffix == ".fmu" or "/" in spec_fmu:
         root = paths.source_checkout()

@@ -168,6 +168,7 @@ class RunView:
     values: dict            # the procedure's scalar values for this run
     artifacts: dict
     point: dict             # swept / drawn values
+    units: dict = dataclasses.field(default_factory=dict)   # name -> unit (:mod:`.units`)
 
 
 @dataclasses.dataclass

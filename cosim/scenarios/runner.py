@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 import time
 import traceback
 from pathlib import Path
@@ -29,8 +27,9 @@ from . import registry as reg
 from .build import check_build, make_builder
 from .expand import deep_merge, expand
 from .schema import Scenario, ScenarioError, load
-from .store import (clean_run_tmp, run_done, run_key, run_tmp_dir, safe_name, versions,
-                    write_verdict)
+from .store import (clean_run_tmp, publish_run, run_done, run_key, run_tmp_dir, safe_name,
+                    versions, write_verdict)
+from .units import signal_units
 from .verdict import all_runs, evaluate
 
 
@@ -57,7 +56,13 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
                                fmu_dir=str(fmu_dir or ""),
                                parameters=dict(deep_merge(sc.data, run.overrides)
                                                .get("parameters") or {}))
-        build = make_builder(sc, run, ctx, fmu_swaps)
+        make = make_builder(sc, run, ctx, fmu_swaps)
+        systems = []                  # what the procedure built: the recorded units
+
+        def build(overrides: dict | None = None):
+            system, record = make(overrides)
+            systems.append(system)
+            return system, record
         proc = reg.get("procedure", sc.procedure)
         result = None
         try:
@@ -77,7 +82,8 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
         if result is not None:
             phases = []
             for phase, rr in result.runs.items():
-                rr.to_parquet(tmp / f"{safe_name(phase)}.parquet")
+                rr.to_parquet(tmp / f"{safe_name(phase)}.parquet",
+                              units=signal_units(rr.signals, systems[::-1]))
                 phases.append({"phase": phase, "file": f"{safe_name(phase)}.parquet",
                                "completed": bool(rr.completed), "error": rr.error,
                                "ticks": int(rr.ticks), "wall_s": float(rr.wall_time or 0.0)})
@@ -104,10 +110,7 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
         info["traceback"] = traceback.format_exc(limit=6)
     info["wall_s"] = time.perf_counter() - t0
     (tmp / "run.json").write_text(json.dumps(jsonable(info), indent=1))
-    final = runs_dir / safe_name(run_label)
-    if final.exists():
-        shutil.rmtree(final)
-    os.replace(tmp, final)              # atomic: the run appears complete or not at all
+    publish_run(runs_dir, tmp, run_label)  # atomic: the run appears complete or not at all
     return info
 
 

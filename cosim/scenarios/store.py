@@ -111,7 +111,8 @@ def read_runs(sc: Scenario, out_dir: Path, runs: list | None = None
             views.append(reg.RunView(label=run.label, case=run.case, phase=ph["phase"],
                                      seed=run.seed, signals=rr.signals,
                                      values=info.get("values", {}),
-                                     artifacts=info.get("artifacts", {}), point=run.point))
+                                     artifacts=info.get("artifacts", {}), point=run.point,
+                                     units=rr.units))
     return views, infos
 
 
@@ -207,6 +208,36 @@ def clean_run_tmp(out_dir: Path) -> list[Path]:
                 shutil.rmtree(d, ignore_errors=True)
                 removed.append(d)
     return removed
+
+
+def publish_run(runs_dir: Path, tmp: Path, label: str) -> Path:
+    """Rename a complete temporary run folder into place (``runs_dir/<label>``),
+    replacing an older one: the run appears complete or not at all."""
+    import os
+    import shutil
+    final = Path(runs_dir) / safe_name(label)
+    if final.exists():
+        shutil.rmtree(final)
+    os.replace(tmp, final)
+    return final
+
+
+def store_run_files(out_dir: Path, label: str, files: dict) -> Path:
+    """Store a run whose files came as bytes (``{name: bytes}``: ``*.parquet`` and
+    ``run.json``, e.g. from a worker without the client's filesystem,
+    :mod:`.ship`) in ``out_dir/runs/<label>/``, atomically."""
+    runs_dir = Path(out_dir) / "runs"
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    if "run.json" not in files:
+        raise ValueError(f"run {label!r}: no run.json among the returned files {sorted(files)}")
+    tmp = run_tmp_dir(runs_dir, label)
+    for name, blob in files.items():
+        if Path(name).name != name or not (name == "run.json" or name.endswith(".parquet")):
+            raise ValueError(f"run {label!r}: unexpected file name {name!r}")
+        if name != "run.json":
+            (tmp / name).write_bytes(blob)
+    (tmp / "run.json").write_bytes(files["run.json"])     # written last = "done"
+    return publish_run(runs_dir, tmp, label)
 
 
 def finished_runs(out_dir: Path) -> list[Path]:

@@ -9,8 +9,10 @@ Layout of ``DIR``::
 The pages (``DIR/report.html`` linking to ``DIR/<scenario>/report.html``) are drawn
 from this store by :func:`cosim.report.render.render_suite` (``cosim suite`` does both).
 
-Every run is a Dask task (:func:`cosim.scenarios.runner.execute_run`) that writes its
-outputs atomically; a run whose stored ``run.json`` has the same cache key (scenario
+Every run is a Dask task. On a local cluster (:func:`cosim.scenarios.runner.execute_run`)
+it writes its outputs atomically itself; with ``--scheduler`` the runs are shipped
+(:mod:`.ship`: scenario text and FMU bytes, content-addressed, sent once per worker)
+and return their files, which this process alone writes (atomically); a run whose stored ``run.json`` has the same cache key (scenario
 content, FMU hashes, package source hash) is not repeated, so an interrupted suite
 rerun resumes where it stopped and an unchanged suite is not rerun at all.
 """
@@ -29,7 +31,8 @@ from . import registry as reg
 from .build import check_build
 from .runner import execute_run, finish_scenario
 from .schema import Scenario, load
-from .store import clean_run_tmp, run_done, run_key, safe_name, versions
+from .ship import execute_shipped, run_fmus, scatter_fmus
+from .store import clean_run_tmp, run_done, run_key, safe_name, store_run_files, versions
 from .verdict import all_runs, summary_row
 
 
@@ -111,9 +114,14 @@ def _warm_worker():
 
 def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None = None,
               fmu_swaps: dict | None = None, fmu_dir=None, use_cache: bool = True,
-              progress: bool = True, serial: bool = False) -> dict:
+              progress: bool = True, serial: bool = False, ship: bool | None = None) -> dict:
     """Run every run of every scenario; ``serial=True`` runs in this process (no Dask;
-    used by the benchmark as the baseline)."""
+    used by the benchmark as the baseline). ``ship``: send the scenario text and the
+    FMU bytes to the workers and write the returned results here (:mod:`.ship`; for
+    workers without this machine's filesystem); default: with ``scheduler`` only (a
+    local cluster shares this filesystem and reads/writes the paths itself)."""
+    if ship is None:
+        ship = scheduler is not None
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
     files = collect(paths)
@@ -161,15 +169,30 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             from distributed import as_completed
             t1 = time.perf_counter()
             futs = {}
+            if ship:      # values in, values out: the workers need no shared filesystem
+                fmus = {(sc.name, run.label): run_fmus(sc, run, fmu_dir, swaps)
+                        for sc, run, key, sdir, swaps in todo}
+                blobs = scatter_fmus(client, [v for pair in fmus.values() for t in pair
+                                              for v in t.values()])
             for sc, run, key, sdir, swaps in todo:
-                f = client.submit(execute_run, str(sc.path), run.label, str(sdir), swaps,
-                                  str(fmu_dir) if fmu_dir else None, key, pure=False,
-                                  key=f"run-{safe_name(sc.name)}-{safe_name(run.label)}-{key[:8]}")
+                tkey = f"run-{safe_name(sc.name)}-{safe_name(run.label)}-{key[:8]}"
+                if ship:
+                    by_spec, by_swap = ({n: (sha, blobs[sha], path)
+                                         for n, (sha, path) in t.items()}
+                                        for t in fmus[sc.name, run.label])
+                    f = client.submit(execute_shipped, str(sc.path), sc.text, run.label,
+                                      by_spec, by_swap, key, pure=False, key=tkey)
+                else:
+                    f = client.submit(execute_run, str(sc.path), run.label, str(sdir), swaps,
+                                      str(fmu_dir) if fmu_dir else None, key, pure=False,
+                                      key=tkey)
                 futs[f] = (sc, run, sdir)
             for f in as_completed(futs):
                 sc, run, sdir = futs[f]
                 try:
-                    f.result()
+                    out = f.result()
+                    if ship:
+                        store_run_files(sdir, run.label, out["files"])
                 except Exception as exc:     # the worker died (crash in native code)
                     _record_crash(sdir, run, key=None, exc=exc)
                 bar.step(f"{sc.name}:{run.label}")
