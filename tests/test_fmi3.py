@@ -11,7 +11,7 @@ import fmpy
 from fmpy.validation import validate_fmu
 
 from cosim.fmubuild.build import BuildError, build_fmu, platform_tuple
-from cosim.fmubuild.check import check_fmu
+from cosim.fmi.check import check_fmu
 from cosim.fmubuild.importers import run_fmpy
 
 from test_fmubuild import FIRST_ORDER, NOISY, write_pkg

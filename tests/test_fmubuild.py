@@ -11,7 +11,7 @@ import fmpy
 from fmpy.validation import validate_fmu
 
 from cosim.fmubuild.build import BuildError, build_fmu
-from cosim.fmubuild.check import FMUCheckError, check_fmu
+from cosim.fmi.check import FMUCheckError, check_fmu
 from cosim.fmubuild.modelica import ModelicaError
 
 PKG = "within T;\n"

@@ -187,7 +187,7 @@ def test_catalogue_is_the_contract():
 
 def test_gap_fmus_validate_and_carry_the_catalogue(gap_fmus):
     import fmpy
-    from cosim.fmubuild.check import check_fmu
+    from cosim.fmi.check import check_fmu
     assert set(gap_fmus) == {"BallScrewDevice"} | {e.modelica.split(".")[-1] for e in E.CATALOGUE.values()}
     ref = None
     for ident, path in gap_fmus.items():

@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import textwrap
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np

@@ -215,7 +215,7 @@ class FMUSlave:
 
     def __init__(self, path, role: str = "fmu", kind: str = "auto", rtol: float = 1e-6):
         import fmpy
-        from ..fmubuild.check import fmi_version
+        from ..fmi.check import fmi_version
 
         self.path = Path(path)
         self.role = role

@@ -23,7 +23,7 @@ import importlib
 
 # bound now: the submodule ``expand`` would otherwise shadow the function of that name
 # once imported (this import loads only that module and the registry)
-from .expand import expand
+from .expand import expand  # noqa: F401  (public name)
 
 #: the public names and the module that defines each (imported on first use, so that
 #: importing one module of the package, e.g. the registry from a trial, loads no other)
