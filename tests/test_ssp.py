@@ -169,6 +169,10 @@ def test_libcosim_runs_the_exported_plant_like_this_master(exported):
         obs.start_time_series(idx[r], vr[(r, v)], CosimVariableType.REAL)
     man = CosimManipulator.create_override()
     ex.add_manipulator(man)
+    # the first current as the input's initial value, as this master sets connected
+    # inputs in initialisation mode (FMI 2.0 sec. 4.2.4): the override manipulator
+    # applies only from the first step, which left acc's first sample on a = 0
+    ex.real_initial_value(idx["plant"], vr[("plant", "i")], table[0][1])
     ends = [k for k, _ in table[1:]] + [N]
     for (k0, cur), k1 in zip(table, ends):
         man.slave_real_values(idx["plant"], [vr[("plant", "i")]], [cur])
