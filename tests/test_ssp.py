@@ -30,10 +30,13 @@ from cosim.scenarios.ssp import NS, read_ssp
 from cosim.scenarios.ssp_export import export_ssp
 
 FMUS = fmus_dir()
-needs_fmus = pytest.mark.skipif(not (FMUS / "BallScrewUnit.fmu").exists()
-                                or not (FMUS / "Accelerometer.fmu").exists(),
-                                reason="FMUs not built (cosim fmus build)")
-pytestmark = needs_fmus
+
+
+@pytest.fixture(autouse=True)
+def _project_fmus(fmus):
+    """The project's FMUs, built from source once per session (conftest): a fresh
+    clone has none when this module is collected."""
+    return fmus
 
 STEP = 1e-3
 N = 1500                      # 1.5 s
@@ -75,7 +78,7 @@ def _run_scenario(path: Path):
 
 
 @pytest.fixture(scope="module")
-def exported(tmp_path_factory):
+def exported(tmp_path_factory, fmus):
     td = tmp_path_factory.mktemp("ssp")
     src = _write(td / "plant.yaml", SCENARIO)
     info = export_ssp(src, td / "plant.ssp")
@@ -310,8 +313,6 @@ def test_libcosim_loads_and_runs_the_bilateral_export(tmp_path):
     profile's parameters, two accelerometers), 11 connections."""
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimObserver import CosimObserver
-    if not (FMUS / "WallUnitRig.fmu").exists() or not (FMUS / "HumanArm1D.fmu").exists():
-        pytest.skip("FMUs not built")
     repo = Path(__file__).resolve().parent.parent
     info = export_ssp(repo / "scenarios" / "bilateral.yaml", tmp_path / "b.ssp",
                       case="encoder", port_connections=False)
