@@ -187,14 +187,10 @@ class MEIntegrator:
                         z0, z1 = self._z0, self._z1
                         event = any((z0[i] > 0) != (z1[i] > 0) for i in range(self.nz))
                 if event:      # set (again) in event mode, where the FMU updates relations
-                    f.enterEventMode()
-                    if disc or self._event_mode:
-                        st = raw_set(comp, vr, n, buf, *extra)
-                        if st > 1:
-                            return st
-                    self._event_iteration(t)
-                    f.enterContinuousTimeMode()
-                    self.n_events += 1
+                    st = self._in_event_mode(t, raw_set if (disc or self._event_mode) else None,
+                                             comp, vr, n, buf, extra, st if not disc else 0)
+                    if st > 1:
+                        return st
                 self._reset(t)
             except self.error_type:
                 raise
@@ -218,15 +214,10 @@ class MEIntegrator:
             if last.get(key) == now:
                 return 0
             t = self.time
-            f = self.f
             try:
-                f.enterEventMode()
-                st = raw_set(comp, vr, n, buf, *extra)
+                st = self._in_event_mode(t, raw_set, comp, vr, n, buf, extra, 0)
                 if st > 1:
                     return st
-                self._event_iteration(t)
-                f.enterContinuousTimeMode()
-                self.n_events += 1
                 self._reset(t)
             except self.error_type:
                 raise
@@ -236,6 +227,21 @@ class MEIntegrator:
             last[key] = now
             return st
         return set_discrete
+
+    def _in_event_mode(self, t, raw_set, comp, vr, n, buf, extra, status):
+        """Enter event mode, write the inputs there (``raw_set`` None: they are already
+        set), iterate the discrete states and return to continuous-time mode; the
+        status of the write (> 1: stopped after it), else ``status``."""
+        f = self.f
+        f.enterEventMode()
+        if raw_set is not None:
+            status = raw_set(comp, vr, n, buf, *extra)
+            if status > 1:
+                return status
+        self._event_iteration(t)
+        f.enterContinuousTimeMode()
+        self.n_events += 1
+        return status
 
     def _set_continuous(self, raw_set, comp, vr, n, buf, extra):
         """Set the continuous inputs of a write (continuous-time mode: discrete inputs,
