@@ -73,27 +73,41 @@ def _ensure_fmus(a) -> int | None:
     return None
 
 
-def _cmd_run(a) -> int:
+def _guarded(a, cmd: str, work):
+    """Run ``work(out, swaps)`` for ``cosim run``/``cosim suite``: the output folder
+    checked, the package's FMUs built, bad input -> exit 2, Ctrl-C -> what was kept and
+    exit 3. Returns (exit code or None, work's result)."""
     from cosim.master.fmu import FMUError
     from cosim.master.system import SystemError_
-    from cosim.report.render import render_scenario
     from cosim.scenarios.registry import RegistryError
-    from cosim.scenarios.runner import parse_fmu_swaps, run_scenario
+    from cosim.scenarios.runner import parse_fmu_swaps
     from cosim.scenarios.schema import ScenarioError
     from cosim.scenarios.store import finished_runs
+    from cosim.scenarios.suite import SuiteError
     if isinstance(out := _out_dir(a), int):
-        return out
+        return out, None
     if (rc := _ensure_fmus(a)) is not None:
-        return rc
+        return rc, None
     before = set(finished_runs(out))
     try:
-        swaps = parse_fmu_swaps(a.fmu)
+        return None, work(out, parse_fmu_swaps(a.fmu))
+    except (ScenarioError, RegistryError, SystemError_, FMUError, SuiteError) as exc:
+        return _err(str(exc)), None
+    except KeyboardInterrupt:
+        return _interrupted(cmd, out, before), None
+
+
+def _cmd_run(a) -> int:
+    from cosim.report.render import render_scenario
+    from cosim.scenarios.runner import run_scenario
+
+    def work(out, swaps):
         v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache)
         render_scenario(a.scenario, out)
-    except (ScenarioError, RegistryError, SystemError_, FMUError) as exc:
-        return _err(str(exc))
-    except KeyboardInterrupt:
-        return _interrupted("cosim run", out, before)
+        return v
+    rc, v = _guarded(a, "cosim run", work)
+    if rc is not None:
+        return rc
     for r in v["requirements"]:
         nc = r.get("negative_control")
         print(f"{r['verdict'].upper():5s} {r['id']}: value {r['value']} {r['rule']} {r['limit']}"
@@ -107,30 +121,19 @@ def _cmd_run(a) -> int:
 
 
 def _cmd_suite(a) -> int:
-    from cosim.master.fmu import FMUError
-    from cosim.master.system import SystemError_
     from cosim.report.render import render_suite
-    from cosim.scenarios.registry import RegistryError
-    from cosim.scenarios.runner import parse_fmu_swaps
-    from cosim.scenarios.schema import ScenarioError
-    from cosim.scenarios.suite import SuiteError, run_suite
-    from cosim.scenarios.store import finished_runs
-    if isinstance(out := _out_dir(a), int):
-        return out
-    if (rc := _ensure_fmus(a)) is not None:
-        return rc
-    before = set(finished_runs(out))
-    try:
-        swaps = parse_fmu_swaps(a.fmu)
+    from cosim.scenarios.suite import run_suite
+
+    def work(out, swaps):
         s = run_suite(a.paths, out, scheduler=a.scheduler, workers=a.workers,
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
                       progress=not a.no_progress,
                       ship=False if a.shared_fs else None)
         render_suite(out)
-    except (ScenarioError, RegistryError, SystemError_, FMUError, SuiteError) as exc:
-        return _err(str(exc))
-    except KeyboardInterrupt:
-        return _interrupted("cosim suite", out, before)
+        return s
+    rc, s = _guarded(a, "cosim suite", work)
+    if rc is not None:
+        return rc
     c = s["counts"]
     print(f"suite: {c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
           f"{c['error']} error; {s['runs_executed']} run(s) executed, {s['runs_cached']} "
