@@ -594,14 +594,7 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
             continue
         p = P("controllers", name)
         c.keys(spec, CTRL, p, f"controller {name!r}")
-        e = reg.get("controller", spec["type"])
-        if e is None:
-            close = reg.suggest(spec["type"], reg.names("controller"))
-            c.err(p + ("type",), f"controller {name!r}: unknown type {spec['type']!r}"
-                  + (f"; did you mean {close!r}?" if close else
-                     f" (registered: {', '.join(reg.names('controller'))})"))
-        for key, msg in reg.check_params(e, spec.get("params") or {}):
-            c.err(P("controllers", name, "params", *((key,) if key else ())), msg)
+        e = _check_registered(c, "controller", name, spec, p)
         msg = e.step_mismatch(spec.get("params") or {}, float(d.get("step", 1e-3)))
         if msg:
             c.err(P("controllers", name, "params", e.step_field), msg)
@@ -619,16 +612,24 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
             continue
         p = P("stimuli", name)
         c.keys(spec, STIM, p, f"stimulus {name!r}")
-        e = reg.get("stimulus", spec["type"])
-        if e is None:
-            close = reg.suggest(spec["type"], reg.names("stimulus"))
-            c.err(p + ("type",), f"stimulus {name!r}: unknown type {spec['type']!r}"
-                  + (f"; did you mean {close!r}?" if close else
-                     f" (registered: {', '.join(reg.names('stimulus'))})"))
-        for key, msg in reg.check_params(e, spec.get("params") or {}):
-            c.err(P("stimuli", name, "params", *((key,) if key else ())), msg)
+        _check_registered(c, "stimulus", name, spec, p)
     for i, r in enumerate(d.get("record", [])):
         _check_signal_head(c, d, r, P("record", i))
+
+
+def _check_registered(c: _Checker, kind: str, name: str, spec: dict, p):
+    """A controller's or stimulus' ``type`` is registered (else the error names the close
+    ones or the registered ones) and its ``params`` fit that type's dataclass; returns
+    the registry entry (None when unknown)."""
+    e = reg.get(kind, spec["type"])
+    if e is None:
+        close = reg.suggest(spec["type"], reg.names(kind))
+        c.err(p + ("type",), f"{kind} {name!r}: unknown type {spec['type']!r}"
+              + (f"; did you mean {close!r}?" if close else
+                 f" (registered: {', '.join(reg.names(kind))})"))
+    for key, msg in reg.check_params(e, spec.get("params") or {}):
+        c.err(p + ("params", *((key,) if key else ())), msg)
+    return e
 
 
 def _check_variations(c: _Checker, d: dict):
