@@ -623,9 +623,7 @@ def _reaching_session(run, build, ctx):
         raise ValueError(f"parameters.weeks must be >= 1, got {n_weeks}")
     motors = tuple(bool(m) for m in pr.get("motors", SESSION_MOTORS))
     dec = int(pr.get("decimate", 10))
-    # a negative control's ``duration`` override reaches run.overrides but not
-    # run.duration (scenarios/verdict.py control_runs): read it from the overrides
-    duration = float(run.overrides.get("duration", run.duration))
+    duration = float(run.duration)     # a control's duration override included
     out = ProcedureResult()
     system, record = build()
     x0 = float(system.params["table"].get("x0", 0.0)); y0 = float(system.params["table"].get("y0", 0.0))
