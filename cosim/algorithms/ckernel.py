@@ -1,0 +1,126 @@
+"""Compiled twins of the controllers' per-tick arithmetic (the C ABI in
+``cosim/algorithms/c/cosim_kernel.h``).
+
+A controller class keeps its readable Python ``step`` as the reference. It may also
+offer a compiled step: ``c_kernel()`` returns a :class:`CKernel` (which C function,
+the packed parameters and state, the order of inputs and outputs), or None when the
+configuration at hand has no compiled step; ``c_kernel_sync(state)`` writes the
+state of a compiled run back into the object, so that attributes read after (or
+during) the run are the same as with the Python step; ``c_kernel_error(code)``
+returns the exception the Python step would have raised for a nonzero return code.
+
+The master decides whether a run uses compiled steps; this module only says what a
+kernel is, where its source lives and how to compile sources into a shared library
+(the flags keep IEEE semantics: no fast-math, no contraction into FMA).
+"""
+from __future__ import annotations
+
+import ctypes
+import os
+import shutil
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+__all__ = ["CKernel", "KERNEL_DIR", "CFLAGS", "kernel_source", "kernel_sources",
+           "compile_shared", "KernelLibrary"]
+
+#: the kernels' C sources (package data of an installed wheel as well)
+KERNEL_DIR = Path(__file__).resolve().parent / "c"
+#: flags for every compiled step: IEEE double semantics as in CPython (no -ffast-math,
+#: no FMA contraction), so that a kernel can be bit-identical to its Python reference
+CFLAGS = ["-O2", "-fPIC", "-std=c99", "-ffp-contract=off", "-fno-fast-math",
+          "-fvisibility=default"]
+
+
+@dataclass
+class CKernel:
+    """What the master needs to run a block's compiled step.
+
+    Attributes
+    ----------
+    name : str
+        The kernel's name: C function ``cosim_kernel_<name>`` in ``c/<name>.c``.
+    params : tuple of float
+        Packed parameters (read-only in C).
+    state : list of float
+        Packed state at the start of the compiled run (read/write in C).
+    inputs : tuple of str
+        Input names (keys of ``step``'s measurements) in the order of ``in[]``.
+    outputs : tuple of str
+        Output names in the order of ``out[]``: every key ``step`` returns, then any
+        recordable attribute the kernel also provides (``out`` after ``step``).
+    """
+    name: str
+    params: tuple
+    state: list
+    inputs: tuple
+    outputs: tuple
+    attributes: tuple = field(default=())   # names in ``outputs`` that are attributes
+
+
+def kernel_source(name: str) -> Path:
+    """The C source of kernel ``name`` (error naming the file if it is missing)."""
+    p = KERNEL_DIR / f"{name}.c"
+    if not p.is_file():
+        raise FileNotFoundError(f"no compiled step {name!r}: {p} does not exist")
+    return p
+
+
+def kernel_sources() -> list[Path]:
+    """Every kernel source in :data:`KERNEL_DIR`, sorted by name."""
+    return sorted(KERNEL_DIR.glob("*.c"))
+
+
+def compile_shared(sources: Sequence[Path], out: Path, extra: Sequence[str] = ()) -> Path:
+    """Compile C ``sources`` into the shared library ``out`` with :data:`CFLAGS`."""
+    cc = os.environ.get("CC", "gcc")
+    if shutil.which(cc) is None:
+        raise RuntimeError(f"C compiler {cc!r} not found: install gcc (bash bootstrap.sh does it)")
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [cc, *CFLAGS, "-shared", f"-I{KERNEL_DIR}", *extra, "-o", str(out),
+           *map(str, sources), "-lm"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"compiling {', '.join(Path(s).name for s in sources)} failed:\n"
+                           f"{' '.join(cmd)}\n{r.stderr}")
+    return out
+
+
+class KernelLibrary:
+    """Kernels compiled into one shared library and called through ctypes: the slow,
+    simple way to call a kernel (tests compare kernels with their Python reference
+    through it; the master's compiled loop calls them directly from C)."""
+
+    def __init__(self, names: Sequence[str], build_dir: Path):
+        so = Path(build_dir) / "cosim_kernels_test.so"
+        compile_shared([kernel_source(n) for n in names], so)
+        self._lib = ctypes.CDLL(str(so))
+        self._fns = {}
+        for n in names:
+            f = getattr(self._lib, f"cosim_kernel_{n}")
+            f.restype = ctypes.c_int
+            f.argtypes = [ctypes.POINTER(ctypes.c_double)] * 4
+            self._fns[n] = f
+
+    def runner(self, k: CKernel):
+        """``step(inputs: Mapping) -> (code, outputs dict)`` for one kernel instance;
+        ``runner.state()`` returns the current state list."""
+        D = ctypes.c_double
+        f = self._fns[k.name]
+        p = (D * max(1, len(k.params)))(*k.params)
+        s = (D * max(1, len(k.state)))(*k.state)
+        i = (D * max(1, len(k.inputs)))()
+        o = (D * max(1, len(k.outputs)))()
+        ins, outs = k.inputs, k.outputs
+
+        def step(measurements):
+            for j, n in enumerate(ins):
+                i[j] = measurements[n]
+            code = f(p, s, i, o)
+            return code, {n: o[j] for j, n in enumerate(outs)}
+
+        step.state = lambda: list(s[:len(k.state)])
+        return step
