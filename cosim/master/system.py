@@ -50,6 +50,16 @@ An FMU stepped every d base steps (a fixed internal step, or a DefaultExperiment
 stepSize it cannot vary from) gets its inputs at t_k (k % d == 0) and is stepped to
 t_{k+d} in tick k + d - 1: its outputs are held in between.
 
+Faults
+------
+``System.faults`` (``add_fault``; empty by default) are applied by this loop where the
+value flows (:mod:`cosim.master.faults`): an FMU output's after step 1, a stimulus'
+after step 2, a controller output's right after that controller's step 3, a
+connection's (named by its destination input) on the value set in step 5 (or just
+before the destination's doStep for a sequential one). What is recorded is the
+faulted value; a connection fault leaves its source's recording true. The values
+exchanged in initialisation mode are never faulted.
+
 Errors
 ------
 An FMU error status (get/set/doStep), a non-finite FMU value or stimulus, a
@@ -86,6 +96,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from .faults import Fault, FaultKind
 from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, FMUTerminated, suggest
 from .roles import CONTRACTS, RoleContract, check_contract
 
@@ -138,6 +149,8 @@ class System:
         self._connections: list[_Connection] = []
         self.controllers: list[_Controller] = []
         self.stimuli: dict[str, Callable[[float], float]] = {}
+        #: faults the master injects (:mod:`cosim.master.faults`), applied in this order
+        self.faults: list[Fault] = []
 
     # ----------------------------------------------------------- lifetime
     def close(self) -> None:
@@ -525,6 +538,22 @@ class System:
                                  if c.source.partition(".")[0] != name]
             raise
 
+    def add_fault(self, signal: str, kind: FaultKind, name: str = "") -> Fault:
+        """Schedule a fault (:mod:`cosim.master.faults`) on ``signal``: an FMU output
+        ('role.out', faulted after it is read: every reader sees it), a connection by
+        its destination ('role.in', faulted just before it is set: only that input sees
+        it), a controller output ('ctrl.out', after its step) or a stimulus
+        ('stim.name'). Names and types are checked when the master plans the run."""
+        if not isinstance(kind, FaultKind):
+            raise SystemError_(f"fault on {signal!r}: {kind!r} is not a fault kind "
+                               f"(cosim.master.faults)")
+        if not isinstance(signal, str) or "." not in signal:
+            raise SystemError_(f"fault {name or signal!r}: signal {signal!r} is not of the form "
+                               f"'role.var', 'controller.output' or 'stim.name'")
+        f = Fault(signal, kind, name)
+        self.faults.append(f)
+        return f
+
     # ----------------------------------------------------------- helpers
     def _role(self, role: str) -> FMUSlave:
         try:
@@ -762,6 +791,10 @@ class Master:
         for c in sys_.controllers:
             for key, src in c.wiring.items():
                 source(src, f"controller {c.name!r} input {key!r}")
+        dests = {c.dest for c in sys_._connections}
+        for f in sys_.faults:            # a faulted output is read even if nothing else does
+            if f.signal not in dests:
+                source(f.signal, f"fault {f.name or f.signal!r}")
         rec_names = []
         extra = [f"{c.name}.{r}" for c in sys_.controllers for r in c.record]
         for r in self.record + extra:
@@ -806,6 +839,8 @@ class Master:
                                    f"({n_ticks} steps is not)")
         for c in sys_.controllers:          # reset before planning: attribute shapes
             c.block.reset()
+        for f in sys_.faults:
+            f.reset()
         plan = self._plan()
         T0 = float(start_time)
 
@@ -1077,6 +1112,7 @@ class Master:
         # raw ctypes calls take ctypes objects (see FMUSlave.raw): counts are c_size_t
         # constants, the communication point is _tc (set once per tick)
         labels: list[str] = []
+        L_fault, L_fault_ctrl, _fwrap = _fault_hooks(sys_, plan, slot, ns)
 
         def timed(label: str, body: list[str], indent: str) -> list[str]:
             if not timing:
@@ -1179,7 +1215,7 @@ class Master:
                     ex = ", _n1" if sio.fmi3 else ""
                     L_seq += [f"if (st := sget_{j}_{q}(sc_{j}_{q}, srvr_{j}_{q}, _n1, srb_{j}_{q}{ex})) > 1: "
                               f"_fail_fmu({si}, 'get', t, st)",
-                              f"swb_{j}[{q}] = {_affine(f'srb_{j}_{q}[0]', c)}"]
+                              f"swb_{j}[{q}] = {_fwrap(c, _affine(f'srb_{j}_{q}[0]', c))}"]
                 ex = f", swn_{j}" if io.fmi3 else ""
                 L_seq += [f"if (st := sset_{j}(c_{j}, swvr_{j}, swn_{j}, swb_{j}{ex})) > 1: "
                           f"_fail_fmu({j}, 'set', t, st)"]
@@ -1192,7 +1228,7 @@ class Master:
                 ns[f"wvr_{j}"] = (ctypes.c_uint32 * n)(*vrs)
                 ns[f"wb_{j}"] = (ctypes.c_double * n)()
                 ns[f"wn_{j}"] = ctypes.c_size_t(n)
-                terms = [_affine(f"V[{S(c.source)}]", c) for c in fast]
+                terms = [_fwrap(c, _affine(f"V[{S(c.source)}]", c)) for c in fast]
                 extra = f", wn_{j}" if io.fmi3 else ""
                 assign = (f"wb_{j}[:] = ({', '.join(terms)})" if n > 1 else f"wb_{j}[0] = {terms[0]}")
                 W += [assign,
@@ -1231,6 +1267,7 @@ class Master:
                         conv_errs.append((c, dv))
                         x = (f"({x} != 0)" if dv.kind == "bool" else
                              f"_toint({x}, {len(conv_errs) - 1}, t)")
+                    x = _fwrap(c, x)
                     W.append(f"tsb_{g}[{off[dv.name] + (el or 0)}] = {x}")
                 ex = f", tsm_{g}" if io.fmi3 else ""
                 W.append(f"if (st := ts_{g}(c_{j}, tsvr_{g}, tsn_{g}, tsb_{g}{ex})) > 1: "
@@ -1287,6 +1324,7 @@ class Master:
                 for o in ctrl_used[c.name]:
                     body.append(f"    V[{slot[c.name + '.' + o]}] = o[{o!r}]")
                 body += ["except Exception as e:", f"    _fail_ctrl({i}, t, e, o)"]
+            body += L_fault_ctrl.get(c.name, [])
             L_ctrl += timed(f"ctrl:{c.name}", body, "        ")
         # attributes: identifiers and integer indices were validated by _ATTR
         L_attr = []
@@ -1322,6 +1360,7 @@ class Master:
                   "        V[0] = t"]
         lines += L_read
         lines += L_stim
+        lines += ["        " + x for x in L_fault]
         lines += ["        " + x for x in checks]
         lines += L_ctrl
         lines += ["        " + x for x in L_cchk]
@@ -1475,6 +1514,53 @@ class Master:
         code = compile(src, "<cosim master tick loop>", "exec")
         exec(code, ns)
         return src, ns
+
+
+def _fault_hooks(sys_, plan, slot, ns):
+    """Where the faults of ``sys_.faults`` act in the generated tick loop (see
+    :mod:`cosim.master.faults`): lines applying FMU-output and stimulus faults after
+    the reads and stimuli, lines per controller applying its output faults after its
+    step, and ``wrap(connection, expr)`` applying a connection's faults to the value
+    it sets. A connection's fault is named by its destination input."""
+    dests = {c.dest: c for c in sys_._connections}
+    dests.update({plan.alias[c.dest]: c for c in sys_._connections if c.dest in plan.alias})
+    seq = {plan.alias.get(c.source, c.source): c for c in sys_._connections if c.sequential}
+    ctrl_names = [c.name for c in sys_.controllers]
+    L_in: list[str] = []
+    L_ctrl: dict[str, list[str]] = {}
+    on_conn: dict[int, list[str]] = {}
+    for i, f in enumerate(sys_.faults):
+        fn = f"_flt{i}"
+        ns[fn] = f.apply
+        what = f"fault {f.name or f.signal!r}"
+        name = plan.alias.get(f.signal, f.signal)
+        head, _, tail = f.signal.partition(".")
+        if head in sys_.roles:
+            v, _ = sys_.roles[head].element(tail)
+            if v.kind != "real":
+                raise SystemError_(f"{what}: {f.signal} is a {v.fmi_type}: faults act on "
+                                   f"Real values")
+        if name in dests:
+            on_conn.setdefault(id(dests[name]), []).append(fn)
+            continue
+        if head in sys_.roles and v.causality == "input":
+            raise SystemError_(f"{what}: input {f.signal} is not driven by a connection or "
+                               f"a controller: fault its source")
+        if name in seq:
+            c = seq[name]
+            raise SystemError_(f"{what}: {f.signal} feeds {c.dest} sequentially (read "
+                               f"after the FMU's doStep, not from the tick's values): "
+                               f"fault the connection instead (signal: {c.dest})")
+        if head in ctrl_names:
+            L_ctrl.setdefault(head, []).append(f"V[{slot[name]}] = {fn}(t, V[{slot[name]}])")
+        else:
+            L_in.append(f"V[{slot[name]}] = {fn}(t, V[{slot[name]}])")
+
+    def wrap(c, expr: str) -> str:
+        for fn in on_conn.get(id(c), ()):
+            expr = f"{fn}(t, {expr})"
+        return expr
+    return L_in, L_ctrl, wrap
 
 
 def _finite(x) -> bool:
