@@ -803,8 +803,10 @@ class Master:
             for n in source(r, "record", allow_attr=True) or [r]:
                 if n not in rec_names:
                     rec_names.append(n)
-        return _Plan(fmu_reads, typed_reads, text_reads, stim_used, ctrl_used, attrs,
+        plan = _Plan(fmu_reads, typed_reads, text_reads, stim_used, ctrl_used, attrs,
                      rec_names, alias)
+        _fault_hooks(sys_, plan)           # the faults' names and types, before any run
+        return plan
 
     # ----------------------------------------------------------------- run
     def run(self, duration: float, raise_on_error: bool = True,
@@ -1516,12 +1518,13 @@ class Master:
         return src, ns
 
 
-def _fault_hooks(sys_, plan, slot, ns):
+def _fault_hooks(sys_, plan, slot=None, ns=None):
     """Where the faults of ``sys_.faults`` act in the generated tick loop (see
     :mod:`cosim.master.faults`): lines applying FMU-output and stimulus faults after
     the reads and stimuli, lines per controller applying its output faults after its
     step, and ``wrap(connection, expr)`` applying a connection's faults to the value
-    it sets. A connection's fault is named by its destination input."""
+    it sets. A connection's fault is named by its destination input. Without ``ns``
+    only checks (at planning)."""
     dests = {c.dest: c for c in sys_._connections}
     dests.update({plan.alias[c.dest]: c for c in sys_._connections if c.dest in plan.alias})
     seq = {plan.alias.get(c.source, c.source): c for c in sys_._connections if c.sequential}
@@ -1531,7 +1534,8 @@ def _fault_hooks(sys_, plan, slot, ns):
     on_conn: dict[int, list[str]] = {}
     for i, f in enumerate(sys_.faults):
         fn = f"_flt{i}"
-        ns[fn] = f.apply
+        if ns is not None:
+            ns[fn] = f.apply
         what = f"fault {f.name or f.signal!r}"
         name = plan.alias.get(f.signal, f.signal)
         head, _, tail = f.signal.partition(".")
@@ -1551,6 +1555,8 @@ def _fault_hooks(sys_, plan, slot, ns):
             raise SystemError_(f"{what}: {f.signal} feeds {c.dest} sequentially (read "
                                f"after the FMU's doStep, not from the tick's values): "
                                f"fault the connection instead (signal: {c.dest})")
+        if ns is None:
+            continue
         if head in ctrl_names:
             L_ctrl.setdefault(head, []).append(f"V[{slot[name]}] = {fn}(t, V[{slot[name]}])")
         else:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextvars
 import re
+import zlib
 from pathlib import Path
 
 from cosim import paths
@@ -110,6 +111,17 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
                                   record=tuple(spec.get("record") or ()))
         except (SystemError_, ValueError, TypeError) as exc:
             raise _err(sc, ("controllers", name), exc) from None
+    from cosim.master.faults import make as make_fault
+    for name, spec in (d.get("faults") or {}).items():
+        if spec is None:                  # deleted by a case or a negative control
+            continue
+        params = {k: v for k, v in spec.items() if k not in ("signal", "kind")}
+        try:        # a noise fault's stream: the run's seed and the fault's name
+            kind = make_fault(spec["kind"], params,
+                              seed=(ctx.seed, zlib.crc32(str(name).encode())))
+            system.add_fault(spec["signal"], kind, name=str(name))
+        except (SystemError_, ValueError) as exc:
+            raise _err(sc, ("faults", name), exc) from None
     record = list(d.get("record") or [])
     return system, record
 
@@ -135,6 +147,9 @@ def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None, runs=None):
             path = ("record",)
             if m and m.group(1) in (sc.data.get("record") or []):
                 path = ("record", sc.data["record"].index(m.group(1)))
+            f = re.match(r"fault '([^']+)'", msg)
+            if f:
+                path = ("faults", f.group(1))
             raise _err(sc, path, msg) from None
         finally:
             for s in system.roles.values():

@@ -98,7 +98,7 @@ TOP = {
     "stimuli": (dict, False), "record": (list, False), "cases": (dict, False),
     "metrics": (dict, False), "requirements": (list, False), "sweep": (dict, False),
     "monte_carlo": (dict, False), "parameters": (dict, False),
-    "negative_controls": (dict, False),
+    "negative_controls": (dict, False), "faults": (dict, False),
 }
 ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
         "human_profile": (str, False), "grasp": (str, False), "kind": (str, False)}
@@ -118,7 +118,10 @@ NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
 #: a requirement the thesis itself makes unsatisfiable (verdict 'thesis-inconsistent')
 INCONS = {"reason": (str, True), "derivation": (str, False), "values": (list, False)}
 CASE_KEYS = {"description", "system", "controllers", "stimuli", "duration", "record",
-             "parameters"}
+             "parameters", "faults"}
+#: a fault (``faults: {name: {signal, kind, start_s, stop_s, <the kind's parameters>}}``,
+#: :mod:`cosim.master.faults`)
+FAULT = {"signal": (str, True), "kind": (str, True)}
 #: the human-arm model (``cosim.profiles.human_parameters``) whose parameter set a role
 #: with ``human_profile`` takes, by the role's contract (``cosim.master.roles``)
 HUMAN_ARM_MODELS = {"human_1d": "HumanArm1D", "human_2d": "HumanArm2D"}
@@ -615,6 +618,36 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
         _check_registered(c, "stimulus", name, spec, p)
     for i, r in enumerate(d.get("record", [])):
         _check_signal_head(c, d, r, P("record", i))
+    for name, spec in (d.get("faults") or {}).items():
+        if spec is not None:
+            _check_fault(c, d, name, spec, P("faults", name))
+
+
+def _check_fault(c: _Checker, d: dict, name, spec, p):
+    """One fault: its kind (one of :data:`cosim.master.faults.KINDS`), its signal's head
+    (a role, a controller or a stimulus; the variable is checked when the system is
+    planned) and its parameters against the kind's dataclass (types, window, ranges)."""
+    from cosim.master.faults import KINDS
+    if not isinstance(spec, dict):
+        c.err(p, f"fault {name!r} must be a mapping {{signal, kind, start_s, stop_s, ...}}, "
+              f"got {type(spec).__name__}")
+    kind = spec.get("kind")
+    if not isinstance(kind, str):
+        c.err(p + (("kind",) if "kind" in spec else ()), f"fault {name!r}: "
+              + (f"'kind' must be a string, got {kind!r}" if "kind" in spec else
+                 "missing required key 'kind'") + f" (kinds: {', '.join(KINDS)})")
+    if kind not in KINDS:
+        close = reg.suggest(kind, KINDS)
+        c.err(p + ("kind",), f"fault {name!r}: unknown kind {kind!r}"
+              + (f"; did you mean {close!r}?" if close else f" (kinds: {', '.join(KINDS)})"))
+    cls, ptype = KINDS.get(kind, (None, None))
+    fields = [f.name for f in dataclasses.fields(ptype)] if ptype else []
+    c.keys(spec, FAULT, p, f"fault {name!r}" + (f" ({kind})" if ptype else ""),
+           extra_ok=fields)
+    _check_signal_head(c, d, spec["signal"], p + ("signal",))
+    params = {k: v for k, v in spec.items() if k not in FAULT}
+    for key, msg in reg.check_params(reg.Entry("fault", name, cls, ptype), params):
+        c.err(p + ((key,) if key else ()), msg)
 
 
 def _check_registered(c: _Checker, kind: str, name: str, spec: dict, p):
