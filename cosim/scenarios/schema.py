@@ -701,7 +701,8 @@ def _check_override_path(c, d, path, where):
     if head not in OVERRIDE_HEADS:
         close = reg.suggest(head, OVERRIDE_HEADS)
         c.err(where, f"{path!r}: a sweep/Monte-Carlo path must start with system, controllers, "
-              f"stimuli, duration or parameters" + (f"; did you mean {close!r}?" if close else ""))
+              f"stimuli, duration, parameters or faults"
+              + (f"; did you mean {close!r}?" if close else ""))
     parts = str(path).split(".")
     if parts[:2] == ["system", "fmus"] and len(parts) > 2 and parts[2] not in d["system"]["fmus"]:
         close = reg.suggest(parts[2], d["system"]["fmus"])
