@@ -82,9 +82,45 @@ class RoleBinding:
             out[key] = {k: v.strip() for k, v in d.items()}
         return cls(out.get("map", {}), out.get("units", {}))
 
+    def static_diffs(self, contract: RoleContract) -> list[tuple[str, str, str]]:
+        """What is wrong with the binding whatever the FMU: (key, contract variable,
+        message) for names that are not the contract's and declared units that are not
+        units or not of the contract variable's dimension (a scenario checks these at
+        load time, with the line)."""
+        out = []
+        names = [n for n, *_ in contract.variables()]
+        for key, table in (("map", self.map), ("units", self.units)):
+            for cv in table:
+                if contract.unit(cv) is None:
+                    close = suggest(cv, names, 3)
+                    out.append((key, cv, f"binding {key}: {cv!r} is not a variable of the "
+                                f"{contract.name!r} contract" + (
+                                    f" (did you mean {', '.join(map(repr, close))}?)" if close
+                                    else f" ({', '.join(contract.inputs)} in; "
+                                    f"{', '.join(contract.outputs)} out)")))
+        for cv, unit in self.units.items():
+            cunit = contract.unit(cv)
+            if cunit is not None:
+                msg = unit_problem(repr(cv), unit, base_unit(unit), cunit)
+                if msg:
+                    out.append(("units", cv, msg))
+        return out
+
     def merged(self, other: "RoleBinding") -> "RoleBinding":
         """This binding with ``other``'s entries over it."""
         return RoleBinding({**self.map, **other.map}, {**self.units, **other.units})
+
+
+def unit_problem(where: str, unit: str, src, cunit: str) -> str | None:
+    """Why values in ``unit`` (its base ``src``, None if unknown) cannot play a contract
+    variable in ``cunit``; None if they can."""
+    if src is None:
+        return f"{where}: unit {unit!r} is not defined by the FMU nor a unit of the {_SYNTAX}"
+    dst = base_unit(cunit)
+    if src.exponents != dst.exponents:
+        return (f"{where}: unit {unit!r} ({dimension(src)}) is not of the dimension of the "
+                f"role's {cunit!r} ({dimension(dst)})")
+    return None
 
 
 def parse_map_option(text: str) -> tuple[str, str, str, str | None]:
@@ -133,14 +169,7 @@ class BoundSlave(FMUSlave):
         b, c, fv = self.binding, self.contract, self.fmu_variables
         diffs, reported = self.binding_diffs, self.binding_reported
         defs = self.md.unitDefinitions
-        for key, table in (("map", b.map), ("units", b.units)):
-            for cv in table:
-                if c.unit(cv) is None:
-                    close = suggest(cv, [n for n, *_ in c.variables()], 3)
-                    diffs.append(f"binding {key}: {cv!r} is not a variable of the {c.name!r} "
-                                 f"contract" + (f" (did you mean {', '.join(map(repr, close))}?)"
-                                                if close else f" ({', '.join(c.inputs)} in; "
-                                                f"{', '.join(c.outputs)} out)"))
+        diffs += [m for _, cv, m in b.static_diffs(c) if c.unit(cv) is None]
         bound: dict[str, VarInfo] = {}
         for cv, kind, cunit, _ in c.variables():
             fname = b.map.get(cv, cv)
@@ -175,17 +204,12 @@ class BoundSlave(FMUSlave):
                     reported.add(cv)
                     continue
             src = base_unit(unit, defs if unit == fu else ())
+            msg = unit_problem(where, unit, src, cunit)
+            if msg:
+                diffs.append(msg)
+                reported.add(cv)
+                continue
             dst = base_unit(cunit)
-            if src is None:
-                diffs.append(f"{where}: unit {unit!r} is not defined by the FMU nor a unit "
-                             f"of the {_SYNTAX}")
-                reported.add(cv)
-                continue
-            if src.exponents != dst.exponents:
-                diffs.append(f"{where}: unit {unit!r} ({dimension(src)}) is not of the "
-                             f"dimension of the role's {cunit!r} ({dimension(dst)})")
-                reported.add(cv)
-                continue
             if not declared and norm(fu) != norm(cunit):
                 # a conversion the binding does not state: the contract check reports it
                 # with the line to add

@@ -47,7 +47,7 @@ _RIG = {"x_enc": "handle position from the encoder, lead/(2 pi) theta_enc",
         "x_p": "the partner unit's handle position", "i_p": "the partner unit's current",
         "f_lc": "force in the load cell on the unit under test along +x",
         "f_meas": "load-cell reading of f_lc (noise, sampled and held)",
-        "f_wall": "force of the wall on the unit along +x (<= 0 in contact)"}
+        "f_wall": "force of the wall on the unit along +x"}
 
 CONTRACTS: dict[str, RoleContract] = {c.name: c for c in [
     RoleContract("ballscrew", "1-DOF ball-screw unit (thesis Table 1): current and external "

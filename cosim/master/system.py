@@ -312,7 +312,12 @@ class System:
                         + f" ({len(diffs)} difference{'s' if len(diffs) > 1 else ''}):\n  - "
                         + "\n  - ".join(diffs)
                         + f"\n  (the FMU's inputs: {[n for n, v in fv.items() if v.causality == 'input']}; "
-                        f"outputs: {[n for n, v in fv.items() if v.causality == 'output']})")
+                        f"outputs: {[n for n, v in fv.items() if v.causality == 'output']})"
+                        + ("" if binding else
+                           f"\n  (an FMU with other names or units plays the role through a "
+                           f"binding: map/units in the scenario's fmus entry, --map or "
+                           f"--binding on the command line; `cosim roles {c.name}` lists the "
+                           f"contract)"))
         except BaseException:
             slave.close()
             raise
