@@ -178,9 +178,11 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSet
 """
 
 
-def _c_md() -> str:
-    names = ["cmd_A", "load_N", "phi", "omega", "pos_um", "vel", "acc", "enc", "J", "b", "fc",
-             "Kt", "lead", "counts", "n_sub"]
+C_NAMES = ["cmd_A", "load_N", "phi", "omega", "pos_um", "vel", "acc", "enc", "J", "b", "fc",
+           "Kt", "lead", "counts", "n_sub"]
+
+
+def _c_md(names=C_NAMES) -> str:
     start = {8: 1.7e-5, 9: 1.6e-5, 10: 3e-3, 11: 0.0603, 12: 0.01, 13: 21600, 14: 10}
     rows = []
     for vr, n in enumerate(names):
@@ -303,3 +305,243 @@ def test_coulomb_friction_holds_and_releases_like_ballscrewunit(unit):
             tau = 0.0603 * amps - 3e-3
             expect = tau / 1.6e-5 * (1 - np.exp(-1.6e-5 * 0.05 / 1.7e-5))
             assert w_end == pytest.approx(expect, rel=2e-3)
+
+
+# --------------------------------------------------------------------------- refusals
+@pytest.fixture(scope="module")
+def c_fmu_contract_names(tmp_path_factory):
+    """The C unit with the contract's names (as the issue's pythonfmu unit had) and, like
+    it, no units; its position output in m (not um) so that only the units are missing."""
+    names = ["i", "f_ext", "theta", "w", "x", "v", "a", "theta_enc"] + C_NAMES[8:]
+    return compile_fmu(tmp_path_factory.mktemp("cfmu_names"), "ScrewC",
+                       C_SOURCE.replace("u->r[4] = 1e6 * r * u->th", "u->r[4] = r * u->th"),
+                       _c_md(names))
+
+
+def _cli(argv, capsys):
+    from cosim.cli import main
+    rc = main(argv)
+    return rc, capsys.readouterr()
+
+
+def _run_argv(tmp_path, *extra):
+    return ["run", str(REPO / "scenarios" / "bilateral.yaml"), "--out", str(tmp_path / "out"),
+            "--no-build", "--fmus", str(REPO / "fmus"), *extra]
+
+
+def test_undeclared_units_are_refused_with_the_whole_list(c_fmu_contract_names, tmp_path,
+                                                           capsys, fmus):
+    rc, cap = _cli(_run_argv(tmp_path, "--fmu", f"master={c_fmu_contract_names}"), capsys)
+    assert rc == 2
+    err = cap.err
+    assert "bilateral.yaml:" in err and "role 'master'" in err and "8 differences" in err
+    for var, unit in (("i", "A"), ("f_ext", "N"), ("theta", "rad"), ("w", "rad/s"),
+                      ("x", "m"), ("v", "m/s"), ("a", "m/s2"), ("theta_enc", "rad")):
+        assert f"'{var}' has unit '(none)', role needs '{unit}' (the FMU declares none" in err
+    assert "--map" in err and "cosim roles ballscrew" in err
+    # a binding that declares only some of them: the rest are still listed
+    rc, cap = _cli(_run_argv(tmp_path, "--fmu", f"master={c_fmu_contract_names}",
+                             "--map", "master.i=:A", "--map", "master.f_ext=:N"), capsys)
+    assert rc == 2 and "6 differences" in cap.err
+    assert "'theta' has no unit in the FMU and the binding declares none" in cap.err
+    assert "'i'" not in cap.err.split("differences")[1].split("(the FMU's")[0]
+
+
+def test_a_wrong_dimension_or_unknown_name_is_refused(c_fmu, tmp_path, capsys, fmus):
+    maps = [f"master.{k}={v}:{C_BINDING['units'][k]}" for k, v in C_BINDING["map"].items()]
+    # a force declared in degrees, a name the contract does not have, an FMU name the
+    # FMU does not have, a unit nobody defines: all at once
+    bad = [m for m in maps if not m.startswith(("master.f_ext=", "master.v="))]
+    bad += ["master.f_ext=load_N:deg", "master.v=velo:m/s", "master.thetaa=phi",
+            "master.a=acc:furlong"]
+    argv = sum((["--map", m] for m in bad), [])
+    rc, cap = _cli(_run_argv(tmp_path, "--fmu", f"master={c_fmu}", *argv), capsys)
+    assert rc == 2, cap.err
+    err = cap.err
+    assert "with its binding (4 differences)" in err
+    assert "'f_ext' (the FMU's 'load_N'): unit 'deg' (rad) is not of the dimension of the " \
+           "role's 'N' (kg.m.s-2)" in err
+    assert "binding map: 'thetaa' is not a variable of the 'ballscrew' contract (did you " \
+           "mean 'theta'" in err
+    assert "'v' [m/s] is bound to 'velo', which the FMU does not have (its outputs 'vel'" in err
+    assert "unit 'furlong' is not defined by the FMU nor a unit of the Modelica unit syntax" \
+        in err
+    # the same mistakes in a scenario file stop it at load time, at the line
+    text = (REPO / "scenarios" / "bilateral.yaml").read_text()
+    line = "    master: {fmu: BallScrewUnit, contract: ballscrew}\n"
+    assert line in text
+    f = tmp_path / "bilateral_byo.yaml"
+    f.write_text(text.replace(line, f"    master: {{fmu: {c_fmu}, contract: ballscrew,\n"
+                                    f"             map: {C_BINDING['map']},\n"
+                                    f"             units: {{f_ext: deg}}}}\n"))
+    from cosim.scenarios.schema import ScenarioError, load
+    with pytest.raises(ScenarioError) as ei:
+        load(f)
+    n = text.splitlines().index(line.rstrip("\n")) + 3
+    assert f"bilateral_byo.yaml:{n}:" in str(ei.value)
+    assert "unit 'deg' (rad) is not of the dimension of the role's 'N'" in str(ei.value)
+    f.write_text(text.replace(line, f"    master: {{fmu: {c_fmu}, map: {{i: cmd_A}}}}\n"))
+    with pytest.raises(ScenarioError, match="map/units bind the FMU to the role's contract"):
+        load(f)
+
+
+def test_a_unit_the_fmu_declares_is_converted_only_when_the_binding_names_it(tmp_path):
+    """Offsets both ways (degC <-> K, FMI's BaseUnit offset): the probe computes y = p u
+    in degC; through the binding the system writes and reads kelvin."""
+    from fmi_probes import build_probe2
+    fmu = build_probe2(tmp_path, u_unit="degC", y_unit="degC")
+    thermo = RoleContract("thermo", "test role", inputs={"u": "K"}, outputs={"y": "K"})
+    with pytest.raises(SystemError_) as ei:
+        System(0.1).add_fmu("a", fmu, contract=thermo)
+    assert "'u' has unit 'degC', role needs 'K' (same dimension: the role's binding " \
+           "converts it with units: {u: degC})" in str(ei.value)
+    s = System(0.1)
+    s.add_fmu("a", fmu, contract=thermo, parameters={"p": 2.0},
+              binding={"units": {"u": "degC", "y": "degC"}})
+    s.add_stimulus("T", lambda t: 300.0)
+    s.connect("stim.T", "a.u")
+    r = Master(s, ["a.u", "a.y"]).run(0.2)
+    np.testing.assert_allclose(r["a.u"], 300.0, rtol=1e-12)                 # read back in K
+    np.testing.assert_allclose(r["a.y"], 2.0 * (300.0 - 273.15) + 273.15, rtol=1e-12)
+    assert s.roles["a"].var("y").unit == "K"
+    # the FMU's own value is in degC: read it past the binding
+    assert s.roles["a"].fmu_variables["y"].unit == "degC"
+
+
+def test_bindings_parse_travel_and_enter_the_cache_key(c_fmu, tmp_path):
+    from cosim.scenarios import registry as reg
+    from cosim.scenarios.build import FMUSwap
+    from cosim.scenarios.schema import load
+    from cosim.scenarios.store import run_key
+    from cosim.scenarios.verdict import all_runs
+    assert parse_map_option("master.theta=motor.phi:deg") == ("master", "theta", "motor.phi",
+                                                              "deg")
+    assert parse_map_option("master.theta=:deg") == ("master", "theta", "theta", "deg")
+    assert parse_map_option("master.i=i_ref") == ("master", "i", "i_ref", None)
+    with pytest.raises(ValueError, match="expected ROLE.CONTRACT_VAR=FMU_VAR"):
+        parse_map_option("theta=motor.phi")
+    swap = FMUSwap(c_fmu, C_BINDING)
+    back = pickle.loads(pickle.dumps(swap))
+    assert back == str(c_fmu) and back.binding == C_BINDING and Path(back) == c_fmu
+    sc = load(REPO / "scenarios" / "bilateral.yaml")
+    run = all_runs(sc)[0]
+    keys = {run_key(sc, run, REPO / "fmus", {"master": s}) for s in
+            (str(c_fmu), FMUSwap(c_fmu, C_BINDING),
+             FMUSwap(c_fmu, {**C_BINDING, "units": {**C_BINDING["units"], "x": "mm"}}))}
+    assert len(keys) == 3
+    # a binding file: the FMU path relative to the file, --map over its entries
+    from types import SimpleNamespace
+
+    from cosim.scenario_cli import _swaps
+    shutil.copy(c_fmu, tmp_path / "ScrewC.fmu")
+    import yaml
+    (tmp_path / "b.yaml").write_text(yaml.safe_dump({"master": {"fmu": "ScrewC.fmu",
+                                                                **C_BINDING}}))
+    got = _swaps(SimpleNamespace(fmu=None, binding=[str(tmp_path / "b.yaml")],
+                                 map=["master.x=pos_um:mm"]))
+    assert Path(got["master"]) == (tmp_path / "ScrewC.fmu").resolve()
+    assert got["master"].binding["units"]["x"] == "mm"
+    assert got["master"].binding["map"] == C_BINDING["map"]
+    from cosim.scenarios.schema import ScenarioError
+    with pytest.raises(ScenarioError, match=r"--map/--binding for role\(s\) \['slave'\] "
+                                            r"without an FMU"):
+        _swaps(SimpleNamespace(fmu=None, binding=None, map=["slave.i=cmd_A"]))
+    assert RoleBinding.from_spec(None) == RoleBinding()
+    assert reg is not None
+
+
+def test_cosim_roles_prints_each_contract(capsys):
+    rc, cap = _cli(["roles", "ballscrew"], capsys)
+    assert rc == 0
+    lines = cap.out.splitlines()
+    assert lines[0].startswith("ballscrew: 1-DOF ball-screw unit")
+    assert lines[1].split() == ["variable", "causality", "unit", "meaning"]
+    rows = {ln.split()[0]: ln.split()[1:3] for ln in lines[2:]}
+    assert rows == {"i": ["input", "A"], "f_ext": ["input", "N"], "theta": ["output", "rad"],
+                    "w": ["output", "rad/s"], "x": ["output", "m"], "v": ["output", "m/s"],
+                    "a": ["output", "m/s2"], "theta_enc": ["output", "rad"]}
+    assert "encoder" in lines[-1]
+    rc, cap = _cli(["roles"], capsys)
+    from cosim.master.roles import CONTRACTS
+    assert rc == 0 and all(f"\n{n}: " in "\n" + cap.out for n in CONTRACTS)
+    rc, cap = _cli(["roles", "balscrew"], capsys)
+    assert rc == 2 and "did you mean 'ballscrew'" in cap.err
+
+
+# --------------------------------------------------------------------------- the trial
+G_SWEEP = "g_rad_s: [100.0, 250.0, 500.0, 1000.0, 1500.0, 3000.0, 6000.0]"
+MASTER = "    master: {fmu: BallScrewUnit, contract: ballscrew}\n"
+
+
+def _bilateral_run(tmp, master_line: str | None = None) -> tuple[dict, object]:
+    """The bilateral trial's encoder run (scenarios/bilateral.yaml: start-up
+    identification of both units, then 8.5 s of free motion, push into the wall, hold,
+    retreat), without the g sweep (BL-6's extra passes), with the master's fmus entry
+    replaced: (run.json, the main phase's RunResult)."""
+    import json
+
+    from cosim.master.system import RunResult
+    from cosim.scenarios.runner import execute_run
+    text = (REPO / "scenarios" / "bilateral.yaml").read_text()
+    assert G_SWEEP in text and MASTER in text
+    text = text.replace(G_SWEEP, "g_rad_s: []")
+    if master_line:
+        text = text.replace(MASTER, master_line)
+    f = Path(tmp) / "bilateral.yaml"
+    f.write_text(text)
+    execute_run(str(f), "encoder", str(Path(tmp) / "out"), fmu_dir=str(REPO / "fmus"))
+    d = Path(tmp) / "out" / "runs" / "encoder"
+    info = json.loads((d / "run.json").read_text())
+    assert info["status"] == "ok", info.get("error")
+    return info, RunResult.read_parquet(d / "main.parquet")
+
+
+def _trial_figures(r) -> dict:
+    t = r["time"]
+    free = (t >= 0.5) & (t <= 4.0)
+    hold = (t >= 5.5) & (t <= 7.0)
+    f_wall = r["slave.f_wall"][hold]
+    return {"free_tracking_rms_m": float(np.sqrt(np.mean((r["master.x"][free]
+                                                         - r["slave.x"][free]) ** 2))),
+            "peak_x_m": float(np.max(r["master.x"])),
+            "contact_force_N": float(np.mean(np.abs(f_wall))),
+            "transparency": float(abs(np.mean(r["human.f_h"][hold]) + np.mean(f_wall))
+                                  / np.mean(np.abs(f_wall)))}
+
+
+@pytest.fixture(scope="module")
+def bilateral_reference(tmp_path_factory, fmus):
+    return _bilateral_run(tmp_path_factory.mktemp("bil_ref"))
+
+
+@pytest.mark.slow
+def test_the_bilateral_trial_runs_with_each_exporters_master(unit, bilateral_reference,
+                                                             tmp_path):
+    """The trial with the exporter's unit as the master, bound in the scenario file
+    (the fmus entry's map/units), against the same run with the project's
+    BallScrewUnit. Measured (both exporters alike; reference in brackets): free-motion
+    tracking RMS 0.257 um (0.254), peak handle position 20.3170 mm (20.3174), mean
+    wall force in the hold 8.82 N (8.32), force transparency 0.095 (0.160), largest
+    master position difference 0.25 mm. The units differ in friction (Coulomb with
+    sticking against LuGre), hence the limits: tracking within 5 %, contact force
+    within 10 %, positions within 1 mm, transparency within BL-3's 0.25. A unit error
+    (mm read as m, deg as rad) would be 1000x / 57x off."""
+    path, binding, _ = unit
+    line = (f"    master: {{fmu: {path}, contract: ballscrew,\n"
+            f"             map: {binding['map']},\n             units: {binding['units']}}}\n")
+    info, r = _bilateral_run(tmp_path, line)
+    _, ref = bilateral_reference
+    got, want = _trial_figures(r), _trial_figures(ref)
+    assert got["free_tracking_rms_m"] == pytest.approx(want["free_tracking_rms_m"], rel=0.05)
+    assert got["peak_x_m"] == pytest.approx(want["peak_x_m"], abs=5e-6)
+    assert got["contact_force_N"] == pytest.approx(want["contact_force_N"], rel=0.10)
+    assert got["transparency"] <= 0.25
+    assert float(np.max(np.abs(r["master.x"] - ref["master.x"]))) < 1e-3
+    # the binding is in the run's provenance; the recorded units are the contract's
+    prov = {p["role"]: p for p in info["provenance"]}
+    assert prov["master"]["binding"]["map"] == binding["map"]
+    assert any(ln.startswith("x <- ") for ln in prov["master"]["binding"]["lines"])
+    import pyarrow.parquet as pq
+    schema = pq.read_table(tmp_path / "out" / "runs" / "encoder" / "main.parquet").schema
+    assert schema.field("master.x").metadata[b"unit"] == b"m"
+    assert schema.field("master.v").metadata[b"unit"] == b"m/s"
