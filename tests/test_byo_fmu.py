@@ -545,3 +545,40 @@ def test_the_bilateral_trial_runs_with_each_exporters_master(unit, bilateral_ref
     schema = pq.read_table(tmp_path / "out" / "runs" / "encoder" / "main.parquet").schema
     assert schema.field("master.x").metadata[b"unit"] == b"m"
     assert schema.field("master.v").metadata[b"unit"] == b"m/s"
+
+
+def test_replace_fmu_takes_a_binding_and_keeps_the_wiring(c_fmu, fmus):
+    """A system built on BallScrewUnit gets the C unit through its binding: the same
+    connections and recordings run; a binding that does not fit leaves the old FMU."""
+    s = System(TS)
+    s.add_fmu("m", fmus["BallScrewUnit"], contract="ballscrew", parameters=FRICTIONLESS)
+    s.add_stimulus("i", lambda t: 0.3)
+    s.connect("stim.i", "m.i")
+    old = s.roles["m"]
+    with pytest.raises(SystemError_, match=r"'x' \(the FMU's 'pos_um'\) has no unit"):
+        s.replace_fmu("m", c_fmu, binding={"map": C_BINDING["map"],
+                                           "units": {k: v for k, v in C_BINDING["units"].items()
+                                                     if k != "x"}})
+    assert s.roles["m"] is old and not old.closed
+    s.replace_fmu("m", c_fmu, binding=C_BINDING, parameters=C_FRICTIONLESS)
+    r = Master(s, ["m.x", "m.w"]).run(0.2)
+    # frictionless, constant current: w = Kt i t / J, x = r Kt i t^2 / (2 J)
+    t = r["time"]
+    np.testing.assert_allclose(r["m.w"], 0.0603 * 0.3 * t / 1.7e-5, rtol=1e-9)
+    np.testing.assert_allclose(r["m.x"][-1], 0.01 / (2 * np.pi) * 0.0603 * 0.3 * 0.2 ** 2
+                               / (2 * 1.7e-5), rtol=5e-3)
+    assert s.provenance()[0]["binding"]["map"]["x"] == "pos_um"
+    s.close()
+
+
+def test_a_shipped_run_keeps_the_swaps_binding(c_fmu):
+    from cosim.scenarios.build import FMUSwap
+    from cosim.scenarios.schema import load
+    from cosim.scenarios.ship import run_fmus
+    from cosim.scenarios.verdict import all_runs
+    sc = load(REPO / "scenarios" / "bilateral.yaml")
+    _, by_swap = run_fmus(sc, all_runs(sc)[0], REPO / "fmus",
+                          {"master": FMUSwap(c_fmu, C_BINDING)})
+    sha, client = by_swap["master"]
+    assert client.binding == C_BINDING and Path(client) == c_fmu.resolve()
+    assert FMUSwap("/elsewhere/x.fmu", client.binding).binding == C_BINDING
