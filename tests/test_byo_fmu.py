@@ -582,3 +582,21 @@ def test_a_shipped_run_keeps_the_swaps_binding(c_fmu):
     sha, client = by_swap["master"]
     assert client.binding == C_BINDING and Path(client) == c_fmu.resolve()
     assert FMUSwap("/elsewhere/x.fmu", client.binding).binding == C_BINDING
+
+
+def test_one_fmu_variable_bound_twice_must_be_read_one_way(c_fmu):
+    """An FMU without an encoder model binds theta_enc to its angle too; in the same
+    unit it reads the same, in two units it is refused (one value reference, one
+    conversion)."""
+    b = {"map": {**C_BINDING["map"], "theta_enc": "phi"}, "units": dict(C_BINDING["units"])}
+    s = System(TS)
+    s.add_fmu("m", c_fmu, contract="ballscrew", binding=b, parameters=C_FRICTIONLESS)
+    s.add_stimulus("i", lambda t: 0.3)
+    s.connect("stim.i", "m.i")
+    r = Master(s, ["m.theta", "m.theta_enc"]).run(0.1)
+    assert np.array_equal(r["m.theta"], r["m.theta_enc"]) and r["m.theta"][-1] > 0
+    s.close()
+    b["units"]["theta_enc"] = "deg"
+    with pytest.raises(SystemError_, match=r"'theta_enc' \(the FMU's 'phi'\): the FMU's 'phi' "
+                                           r"\(value reference 2\) is bound twice"):
+        System(TS).add_fmu("m", c_fmu, contract="ballscrew", binding=b)

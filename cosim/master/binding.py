@@ -171,6 +171,7 @@ class BoundSlave(FMUSlave):
         defs = self.md.unitDefinitions
         diffs += [m for _, cv, m in b.static_diffs(c) if c.unit(cv) is None]
         bound: dict[str, VarInfo] = {}
+        claims: dict[int, tuple[float, float]] = {}     # vr -> (gain, offset) of its binding
         for cv, kind, cunit, _ in c.variables():
             fname = b.map.get(cv, cv)
             v = fv.get(fname)
@@ -206,6 +207,8 @@ class BoundSlave(FMUSlave):
             src = base_unit(unit, defs if unit == fu else ())
             msg = unit_problem(where, unit, src, cunit)
             if msg:
+                if src is None and not declared:    # the FMU's own, unknown unit string
+                    msg += f" (declare what it means: units: {{{cv}: ...}})"
                 diffs.append(msg)
                 reported.add(cv)
                 continue
@@ -216,16 +219,17 @@ class BoundSlave(FMUSlave):
                 bound[cv] = dataclasses.replace(v, name=cv)
                 continue
             gain, offset = affine(src, dst)
+            prev = claims.setdefault(v.vr, (gain, offset))
+            if prev != (gain, offset):
+                # one value read two ways (theta in rad, theta_enc in deg of one variable)
+                diffs.append(f"{where}: the FMU's {fname!r} (value reference {v.vr}) is "
+                             f"bound twice with different units")
+                reported.add(cv)
+                continue
             if (gain, offset) != (1.0, 0.0):
                 if v.fmi_type not in ("Real", "Float64") or v.shape:
                     diffs.append(f"{where} is a {v.fmi_type}{' array' if v.shape else ''}: "
                                  f"the binding converts scalar Real/Float64 variables only")
-                    reported.add(cv)
-                    continue
-                prev = self.conversions.get(v.vr)
-                if prev is not None and prev[:2] != (gain, offset):
-                    diffs.append(f"{where}: the FMU's {fname!r} is bound twice with "
-                                 f"different units")
                     reported.add(cv)
                     continue
                 self.conversions[v.vr] = (gain, offset, cunit)
