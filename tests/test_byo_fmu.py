@@ -666,3 +666,27 @@ def test_ssp_export_of_a_bound_role_names_the_fmus_own_connectors(c_fmu, tmp_pat
     assert ("human", "f_h", "master", "load_N") in ends
     assert ("master", "acc", "acc_m", "a_true") in ends
     assert any(e[2] == "master" and e[3] == "cmd_A" for e in ends)       # bil.i_m -> i
+
+
+def test_units_resolve_through_the_fmus_definitions_then_the_modelica_syntax():
+    """cosim.master.units: the one place connections and bindings convert units."""
+    from types import SimpleNamespace as NS_
+
+    from cosim.master.units import base_unit, dimension, unit_conversion
+    assert unit_conversion("c", "mm", (), "m", ()) == (1e-3, 0.0)
+    g, o = unit_conversion("c", "deg/s", (), "rad/s", ())
+    assert g == pytest.approx(np.pi / 180) and o == 0.0
+    assert unit_conversion("c", "degC", (), "K", ()) == (1.0, 273.15)
+    assert unit_conversion("c", "K", (), "degC", ()) == (1.0, -273.15)
+    assert unit_conversion("c", "mA", (), "A", ())[0] == pytest.approx(1e-3)
+    with pytest.raises(ValueError, match=r"units 'deg' \(rad\) and 'N' \(kg.m.s-2\) are of "
+                                         r"different dimensions"):
+        unit_conversion("c", "deg", (), "N", ())
+    with pytest.raises(ValueError, match="defines no BaseUnit for 'furlong'"):
+        unit_conversion("c", "m", (), "furlong", ())
+    # an exporter's own definition wins over the syntax ("mm" defined as 1e-3 in)
+    inch = NS_(name="mm", baseUnit=NS_(kg=0, m=1, s=0, A=0, K=0, mol=0, cd=0, rad=0,
+                                       factor=2.54e-5, offset=0.0))
+    assert base_unit("mm", [inch]).factor == 2.54e-5
+    assert unit_conversion("c", "mm", [inch], "m", ()) == (2.54e-5, 0.0)
+    assert dimension(base_unit("N.m/A")) == "kg.m2.s-2.A-1"
