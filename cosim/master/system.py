@@ -305,14 +305,15 @@ class System:
                 diffs = list(getattr(slave, "binding_diffs", []))
                 diffs += check_contract(slave, c, getattr(slave, "binding_reported", ()))
                 if diffs:
-                    fv = getattr(slave, "fmu_variables", slave.variables)
+                    fv = getattr(slave, "fmu_variables", slave.variables)   # its own names
+                    ins = [n for n, v in fv.items() if v.causality == "input"]
+                    outs = [n for n, v in fv.items() if v.causality == "output"]
                     raise SystemError_(
                         f"role {role!r}: {Path(path).name} does not fit the {c.name!r} "
                         f"contract" + (" with its binding" if binding else "")
                         + f" ({len(diffs)} difference{'s' if len(diffs) > 1 else ''}):\n  - "
                         + "\n  - ".join(diffs)
-                        + f"\n  (the FMU's inputs: {[n for n, v in fv.items() if v.causality == 'input']}; "
-                        f"outputs: {[n for n, v in fv.items() if v.causality == 'output']})"
+                        + f"\n  (the FMU's inputs: {ins}; outputs: {outs})"
                         + ("" if binding else
                            f"\n  (an FMU with other names or units plays the role through a "
                            f"binding: map/units in the scenario's fmus entry, --map or "
