@@ -99,6 +99,7 @@ import numpy as np
 from .faults import Fault, FaultKind
 from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, FMUTerminated, suggest
 from .roles import CONTRACTS, RoleContract, check_contract
+from .units import unit_conversion
 
 
 class SystemError_(ValueError):
@@ -171,11 +172,16 @@ class System:
     def add_fmu(self, role: str, path, contract: str | RoleContract | None = None,
                 parameters: Mapping[str, float] | None = None, kind: str = "auto",
                 rtol: float = 1e-6, tolerance: float | None = None,
-                debug_logging: bool | list = False, step_multiple: int | None = None
-                ) -> FMUSlave:
+                debug_logging: bool | list = False, step_multiple: int | None = None,
+                binding=None) -> FMUSlave:
         """Bind an FMU to ``role``. With a ``contract`` (a name of
         :data:`~cosim.master.roles.CONTRACTS` or a RoleContract) the FMU's interface is
-        checked and every difference reported at once. ``parameters``: name -> value,
+        checked and every difference reported at once. ``binding``: how an FMU with
+        other names or units plays the contract (a
+        :class:`~cosim.master.binding.RoleBinding` or ``{"map": {contract var: FMU
+        var}, "units": {contract var: unit of the FMU's values}}``): the system then
+        sees the contract's names and units, the values converted where the master
+        reads and writes the FMU. ``parameters``: name -> value,
         set before initialisation (parameters, start values of inputs and of any
         variable with ``initial`` exact or approx; an FMI 3 array takes a sequence;
         checked here against the standard's rules). ``kind``: 'auto' (Co-Simulation
@@ -194,7 +200,7 @@ class System:
             raise SystemError_(f"role {role!r} is bound twice")
         if role == "stim" or role in [c.name for c in self.controllers]:
             raise SystemError_(f"name {role!r} already used")
-        slave, c = self._load(role, path, contract, kind, rtol)
+        slave, c = self._load(role, path, contract, kind, rtol, binding)
         try:
             self._configure(role, slave, tolerance, debug_logging, step_multiple)
             self._check_params(role, slave, parameters or {})
@@ -239,17 +245,18 @@ class System:
                     parameters: Mapping[str, float] | None = None, kind: str = "auto",
                     keep_parameters: bool = False, rtol: float = 1e-6,
                     tolerance: float | None = None, debug_logging: bool | list = False,
-                    step_multiple: int | None = None) -> FMUSlave:
+                    step_multiple: int | None = None, binding=None) -> FMUSlave:
         """Swap the FMU playing ``role`` for another (e.g. a user's plant model), keeping
         connections, wiring and recordings. Atomic: the contract of the role
         (``"same"``), every variable the system uses by name, every connection to or
         from the role (type, causality, variability, unit) and the parameters are
         checked first; on any failure the old FMU, its parameters and its contract stay
-        and the new one is unloaded."""
+        and the new one is unloaded. ``binding``: the new FMU's role binding (as in
+        :meth:`add_fmu`; the old FMU's binding was for the old FMU and is not kept)."""
         old = self._role(role)
         if contract == "same":
             contract = self.contracts.get(role)
-        slave, c = self._load(role, path, contract, kind, rtol)
+        slave, c = self._load(role, path, contract, kind, rtol, binding)
         try:
             self._configure(role, slave, tolerance, debug_logging, step_multiple)
             used = self._names_used_of(role)
@@ -281,31 +288,50 @@ class System:
         old.close()
         return slave
 
-    def _load(self, role, path, contract, kind, rtol=1e-6):
-        try:
-            slave = FMUSlave(path, role=role, kind=kind, rtol=rtol)
-        except FMUError:
-            raise
+    def _load(self, role, path, contract, kind, rtol=1e-6, binding=None):
+        """The FMU of ``role``, seen through its ``binding`` if one is given, checked
+        against ``contract``: every difference of both at once."""
+        from .binding import BindingError, BoundSlave, RoleBinding
         c = None
+        if isinstance(contract, str):
+            if contract not in CONTRACTS:
+                close = suggest(contract, CONTRACTS)
+                raise SystemError_(f"unknown role contract {contract!r} (contracts: "
+                                   f"{sorted(CONTRACTS)}"
+                                   + (f"; did you mean {close}?)" if close else ")"))
+            c = CONTRACTS[contract]
+        elif contract is not None:
+            c = contract
         try:
-            if contract is not None:
-                if isinstance(contract, str):
-                    if contract not in CONTRACTS:
-                        close = suggest(contract, CONTRACTS)
-                        raise SystemError_(f"unknown role contract {contract!r} (contracts: "
-                                           f"{sorted(CONTRACTS)}"
-                                           + (f"; did you mean {close}?)" if close else ")"))
-                    c = CONTRACTS[contract]
-                else:
-                    c = contract
-                diffs = check_contract(slave, c)
+            binding = RoleBinding.from_spec(binding, f"role {role!r}: binding")
+        except BindingError as exc:
+            raise SystemError_(str(exc)) from None
+        if binding and c is None:
+            raise SystemError_(f"role {role!r}: a binding (map/units) needs the role's "
+                               f"contract: it maps the contract's variables")
+        if binding:
+            slave = BoundSlave(path, binding, c, role=role, kind=kind, rtol=rtol)
+        else:
+            slave = FMUSlave(path, role=role, kind=kind, rtol=rtol)
+        try:
+            if c is not None:
+                diffs = list(getattr(slave, "binding_diffs", []))
+                diffs += check_contract(slave, c, getattr(slave, "binding_reported", ()))
                 if diffs:
-                    raise SystemError_(f"role {role!r}: {Path(path).name} does not fit the "
-                                       f"{c.name!r} contract ({len(diffs)} difference"
-                                       f"{'s' if len(diffs) > 1 else ''}):\n  - "
-                                       + "\n  - ".join(diffs)
-                                       + f"\n  (the FMU's inputs: {slave.names('input')}; "
-                                       f"outputs: {slave.names('output')})")
+                    fv = getattr(slave, "fmu_variables", slave.variables)   # its own names
+                    ins = [n for n, v in fv.items() if v.causality == "input"]
+                    outs = [n for n, v in fv.items() if v.causality == "output"]
+                    raise SystemError_(
+                        f"role {role!r}: {Path(path).name} does not fit the {c.name!r} "
+                        f"contract" + (" with its binding" if binding else "")
+                        + f" ({len(diffs)} difference{'s' if len(diffs) > 1 else ''}):\n  - "
+                        + "\n  - ".join(diffs)
+                        + f"\n  (the FMU's inputs: {ins}; outputs: {outs})"
+                        + ("" if binding else
+                           f"\n  (an FMU with other names or units plays the role through a "
+                           f"binding: map/units in the scenario's fmus entry, --map or "
+                           f"--binding on the command line; `cosim roles {c.name}` lists the "
+                           f"contract)"))
         except BaseException:
             slave.close()
             raise
@@ -580,7 +606,15 @@ class System:
         return slave, v
 
     def provenance(self) -> list[dict]:
-        return [dict(role=r, **dataclasses.asdict(s.info)) for r, s in self.roles.items()]
+        """Per role: the FMU (path, sha256, FMI version, kind, model, generation tool)
+        and, for an FMU bound with a role binding, the binding (``cosim roles``)."""
+        out = []
+        for r, s in self.roles.items():
+            p = dict(role=r, **dataclasses.asdict(s.info))
+            if getattr(s, "binding", None):
+                p["binding"] = {**s.binding.to_dict(), "lines": s.describe_binding()}
+            out.append(p)
+        return out
 
 
 # =========================================================================== result
@@ -1641,39 +1675,12 @@ def _check_value(role, name, v, x):
             raise SystemError_(f"{where} = {x!r} is not bytes")
 
 
-def _unit_of(slave, unit: str):
-    """(exponents, factor, offset) of ``unit`` from the FMU's UnitDefinitions, or None."""
-    for u in slave.md.unitDefinitions:
-        if u.name == unit and u.baseUnit is not None:
-            b = u.baseUnit
-            return ((b.kg, b.m, b.s, b.A, b.K, b.mol, b.cd, b.rad), float(b.factor),
-                    float(b.offset))
-    return None
-
-
-def _norm(u: str) -> str:
-    return (u or "").replace(" ", "")
-
-
 def _unit_conversion(both, sslave, su, dslave, du):
     """(gain, offset) taking a value in the source's unit to the destination's, or
-    SystemError_ when the units are of different dimensions (FMI 2.0 section 2.2.2,
-    FMI 3.0 section 2.4.3: value in base units = factor * value + offset)."""
-    if not su or not du or _norm(su) == _norm(du):
-        return 1.0, 0.0
-    a, b = _unit_of(sslave, su), _unit_of(dslave, du)
-    if a is None or b is None:
-        raise SystemError_(f"{both}: units differ ({su!r} -> {du!r}) and "
-                           f"{'the source' if a is None else 'the destination'} FMU defines "
-                           f"no BaseUnit for {su if a is None else du!r} to compare them; "
-                           f"connect(..., check_units=False) to connect them as they are")
-    names = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
-    if a[0] != b[0]:
-        def dim(e):
-            return ".".join(f"{n}{x if x != 1 else ''}" for n, x in zip(names, e) if x) or "1"
-        raise SystemError_(f"{both}: units {su!r} ({dim(a[0])}) and {du!r} ({dim(b[0])}) "
-                           f"are of different dimensions")
-    return a[1] / b[1], (a[2] - b[2]) / b[1]
+    SystemError_ when the units are of different dimensions (:mod:`.units`: the FMUs'
+    UnitDefinitions, else the Modelica unit syntax)."""
+    return unit_conversion(both, su, sslave.md.unitDefinitions, du,
+                           dslave.md.unitDefinitions, SystemError_)
 
 
 def _fast_dest(slave, dest: str) -> bool:

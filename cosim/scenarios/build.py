@@ -28,6 +28,31 @@ LOCAL_FMUS: contextvars.ContextVar[dict] = contextvars.ContextVar("cosim_local_f
                                                                   default={})
 
 
+class FMUSwap(str):
+    """A ``--fmu`` swap: the FMU's path (the string itself, so every place that takes
+    a swap as a path still does), with the role binding it comes with
+    (``binding``: ``{"map": {...}, "units": {...}}``, ``{}`` for none; see
+    :mod:`cosim.master.binding`). The binding goes into the run's cache key and travels
+    with a shipped run."""
+
+    def __new__(cls, path, binding: dict | None = None):
+        obj = super().__new__(cls, str(path))
+        obj.binding = {k: dict(v) for k, v in (binding or {}).items() if v}
+        return obj
+
+    def __reduce__(self):
+        return FMUSwap, (str(self), self.binding)
+
+    def at(self, path) -> "FMUSwap":
+        """The same swap for another copy of the FMU (a worker's)."""
+        return FMUSwap(path, self.binding)
+
+
+def swap_binding(swap) -> dict:
+    """The role binding of a ``--fmu`` swap ({} for a plain path)."""
+    return dict(getattr(swap, "binding", None) or {})
+
+
 def fmu_file(spec_fmu: str, fmu_dir) -> Path:
     """An FMU by name (``BallScrewUnit`` -> ``<fmus>/BallScrewUnit.fmu``, see
     :func:`cosim.paths.fmus_dir`) or by path (relative: to the working folder, else to
@@ -66,7 +91,11 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
     system = System(step_size=float(d.get("step", 1e-3)))
     swaps = dict(fmu_swaps or {})
     for role, spec in d["system"]["fmus"].items():
-        path = swaps.pop(role, None) or fmu_file(spec["fmu"], ctx.fmu_dir)
+        swap = swaps.pop(role, None)
+        path = swap or fmu_file(spec["fmu"], ctx.fmu_dir)
+        # the scenario's binding is its own FMU's; a swapped-in FMU comes with its own
+        binding = swap_binding(swap) if swap else {k: spec[k] for k in ("map", "units")
+                                                   if spec.get(k)}
         params = {}
         if "human_profile" in spec:       # the contract says which arm model (schema)
             params.update(human_parameters(spec["human_profile"], spec.get("grasp", "hard"),
@@ -79,7 +108,7 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
                 params[k] = v
         try:
             slave = system.add_fmu(role, path, contract=spec.get("contract"), parameters=params,
-                                   kind=spec.get("kind", "auto"))
+                                   kind=spec.get("kind", "auto"), binding=binding or None)
             if rel:
                 starts = {v.name: v.start for v in slave.md.modelVariables}
                 system.set_parameters(role, {k: f * float(starts[k]) for k, f in rel.items()})

@@ -101,7 +101,10 @@ TOP = {
     "negative_controls": (dict, False), "faults": (dict, False),
 }
 ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
-        "human_profile": (str, False), "grasp": (str, False), "kind": (str, False)}
+        "human_profile": (str, False), "grasp": (str, False), "kind": (str, False),
+        # a role binding (cosim.master.binding): contract variable -> the FMU's name /
+        # the unit of the FMU's values
+        "map": (dict, False), "units": (dict, False)}
 CONN = {"from": (str, True), "to": (str, True), "scale": (NUM, False),
         "sequential": (bool, False)}
 CTRL = {"type": (str, True), "params": (dict, False), "wiring": (dict, False),
@@ -572,6 +575,8 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
             close = reg.suggest(ct, CONTRACTS)
             c.err(P("system", "fmus", role, "contract"), f"unknown role contract {ct!r}"
                   + (f"; did you mean {close!r}?" if close else f" (contracts: {sorted(CONTRACTS)})"))
+        if spec.get("map") or spec.get("units"):
+            _check_binding(c, spec, P("system", "fmus", role), role)
         for k, v in (spec.get("parameters") or {}).items():
             if not isinstance(v, (int, float, bool)):
                 c.err(P("system", "fmus", role, "parameters", k),
@@ -648,6 +653,31 @@ def _check_fault(c: _Checker, d: dict, name, spec, p):
     params = {k: v for k, v in spec.items() if k not in FAULT}
     for key, msg in reg.check_params(reg.Entry("fault", name, cls, ptype), params):
         c.err(p + ((key,) if key else ()), msg)
+
+
+def _check_binding(c: _Checker, spec: dict, p: tuple, role: str):
+    """A role's ``map``/``units`` (a binding, :mod:`cosim.master.binding`): strings,
+    names of the role's contract, units of the contract variable's dimension; what
+    depends on the FMU is checked when the system is built."""
+    from cosim.master.binding import BindingError, RoleBinding
+    from cosim.master.roles import CONTRACTS
+    for key in ("map", "units"):
+        for k, v in (spec.get(key) or {}).items():
+            if not isinstance(v, str) or not v.strip():
+                c.err(p + (key, k), f"role {role!r}: {key}.{k} must be a non-empty string, "
+                      f"got {v!r}")
+    try:
+        b = RoleBinding.from_spec({k: spec[k] for k in ("map", "units") if k in spec},
+                                  f"role {role!r}")
+    except BindingError as exc:
+        c.err(p, str(exc))
+    ct = CONTRACTS.get(spec.get("contract") or "")
+    if ct is None:
+        c.err(p + ("contract",) if "contract" in spec else p,
+              f"role {role!r}: map/units bind the FMU to the role's contract: give the "
+              f"role a contract (`cosim roles` lists them)")
+    for key, cv, msg in b.static_diffs(ct):
+        c.err(p + (key, cv), f"role {role!r}: {msg}")
 
 
 def _check_registered(c: _Checker, kind: str, name: str, spec: dict, p):

@@ -24,7 +24,7 @@ import tempfile
 from pathlib import Path
 
 from . import registry as reg
-from .build import fmu_file
+from .build import FMUSwap, fmu_file, swap_binding
 from .expand import deep_merge
 from .schema import Scenario
 from .store import _fmu_sha, safe_name
@@ -41,7 +41,7 @@ def run_fmus(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None
     for role, spec in d["system"]["fmus"].items():
         if role in (fmu_swaps or {}):
             p = Path(fmu_swaps[role]).resolve()
-            by_swap[role] = (_fmu_sha(p), str(p))
+            by_swap[role] = (_fmu_sha(p), FMUSwap(p, swap_binding(fmu_swaps[role])))
         else:
             p = fmu_file(spec["fmu"], fmu_dir).resolve()
             by_spec[spec["fmu"]] = (_fmu_sha(p), str(p))
@@ -112,7 +112,9 @@ def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
         for table, dest in ((fmus, local), (swaps, local_swaps)):
             for name, (sha, blob, client_path) in table.items():
                 p = cached_fmu(sha, blob)
-                dest[name] = str(p)
+                # a swap keeps its role binding on the worker's copy
+                dest[name] = FMUSwap(p, swap_binding(client_path)) if dest is local_swaps \
+                    else str(p)
                 subst[str(p)] = client_path
         token = LOCAL_FMUS.set(local)
         try:

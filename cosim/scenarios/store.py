@@ -65,8 +65,11 @@ def run_key(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) -> str
     d = deep_merge(sc.data, run.overrides)
     fmus = {}
     for role, spec in d["system"]["fmus"].items():
-        p = Path((fmu_swaps or {}).get(role) or fmu_file(spec["fmu"], fmu_dir))
+        swap = (fmu_swaps or {}).get(role)
+        p = Path(swap or fmu_file(spec["fmu"], fmu_dir))
         fmus[role] = _fmu_sha(p) if p.is_file() else f"missing:{p}"
+        if getattr(swap, "binding", None):      # another binding, another run
+            fmus[role] = [fmus[role], swap.binding]
     blob = json.dumps({"scenario": sc.content_hash(), "run": run.label, "seed": run.seed,
                        "overrides": run.overrides, "fmus": fmus, "src": source_hash(),
                        "version": getattr(cosim, "__version__", "")},
