@@ -390,8 +390,6 @@ def test_scenario_systems_are_bit_identical(name, tmp_path, monkeypatch):
     data = yaml.safe_load((REPO / "scenarios" / name).read_text())
     data["duration"] = duration
     data["seeds"] = data["seeds"][:1]
-    if data.get("cases"):
-        data["cases"] = dict(list(data["cases"].items())[-1:])
     _merge(data, over)
     f = tmp_path / name
     f.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -418,7 +416,9 @@ def test_scenario_systems_are_bit_identical(name, tmp_path, monkeypatch):
         compared.append((self.engine_used, res.ticks))
         return res
     monkeypatch.setattr(Master, "run", both)
-    for r in expand(load(f))[:1]:
+    runs = expand(load(f))
+    last = list(data.get("cases") or {})[-1:]      # e.g. zero_force's dob_rfob
+    for r in ([r for r in runs if r.case in last] or runs)[:1]:
         execute_run(str(f), r.label, str(tmp_path / "out"), fmu_dir=str(REPO / "fmus"))
     assert compared, f"{name}: no run was compared"
     assert not failures, failures

@@ -343,6 +343,8 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
 
     ns["_steps"] = _steps
     ns["_engine"] = prog
+    master._engine_program = prog           # for inspection (and the benchmarks)
+    prog.time_steps = bool(getattr(master, "_time_steps", False))
     if not whole:
         def _e_fail():
             code, k, who, st = prog.error

@@ -669,6 +669,10 @@ class Master:
         #: Python controllers); and why (cosim.master.engine)
         self.engine_used: str | None = None
         self.engine_reason: str | None = None
+        #: benchmarks: the engine measures the FMUs' own doStep time (``_engine_program.
+        #: step_seconds``, per role in order) when this is set before run()
+        self._time_steps = False
+        self._engine_program = None
         #: the generated tick-loop source of the last run (for inspection)
         self.source: str | None = None
 

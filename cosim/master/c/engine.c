@@ -28,6 +28,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include "cosim_kernel.h"
 
 /* the kernels linked into this module: generated table (engine.py) */
@@ -58,6 +59,7 @@ typedef struct {
     int64_t ns; uint32_t *svr; double *sb; Seq *sq;         /* sequential inputs */
     int64_t d; double h, tcoff;                             /* step multiple */
     bool *ev, *term, *early; double *last;                  /* FMI 3 out-arguments */
+    double step_s;                                          /* time_steps: doStep wall time */
 } Fmu;
 
 typedef struct {
@@ -69,7 +71,7 @@ typedef struct {
 typedef struct {
     PyObject_HEAD
     int64_t nslot, t0zero, nfmu, nctrl, stim0, nstim, stim_end, ctrl_end, ncol;
-    int64_t stim_fail, rows_cap, nrows;
+    int64_t stim_fail, rows_cap, nrows, time_steps;
     double Ts, T0;
     double *V;              /* whole loop: the values; per tick: scratch */
     double *S;              /* stimuli, (N+1) x nstim */
@@ -176,14 +178,21 @@ static int do_steps(Program *P, int64_t k, int64_t j0)
             if (st > 1) return fail(P, E_SET, k, j, st);
         }
         double tc = F->d > 1 ? t - F->tcoff : t;
+        struct timespec a, b;
+        if (P->time_steps) clock_gettime(CLOCK_MONOTONIC, &a);
+        int st, stop;
         if (F->fmi3) {
-            int st = ((step3_t)F->step)(F->comp, tc, F->h, true, F->ev, F->term, F->early,
-                                        F->last);
-            if (st > 1 || *F->term || *F->early) return fail(P, E_STEP, k, j, st);
+            st = ((step3_t)F->step)(F->comp, tc, F->h, true, F->ev, F->term, F->early, F->last);
+            stop = st > 1 || *F->term || *F->early;
         } else {
-            int st = ((step2_t)F->step)(F->comp, tc, F->h, 1);
-            if (st > 1) return fail(P, E_STEP, k, j, st);
+            st = ((step2_t)F->step)(F->comp, tc, F->h, 1);
+            stop = st > 1;
         }
+        if (P->time_steps) {
+            clock_gettime(CLOCK_MONOTONIC, &b);
+            F->step_s += (double)(b.tv_sec - a.tv_sec) + 1e-9 * (double)(b.tv_nsec - a.tv_nsec);
+        }
+        if (stop) return fail(P, E_STEP, k, j, st);
     }
     return 0;
 }
@@ -277,6 +286,7 @@ static cosim_kernel_fn find_kernel(const char *name)
  * cosim/master/engine.py (_Layout) and read here in the same order. */
 static int Program_init(Program *P, PyObject *args, PyObject *kw)
 {
+    (void)kw;
     Py_buffer bi, bd;
     PyObject *names, *Vlist, *keep;
     if (!PyArg_ParseTuple(args, "y*y*O!OO", &bi, &bd, &PyTuple_Type, &names, &Vlist, &keep))
@@ -423,6 +433,34 @@ static int Program_set_stim_fail(Program *P, PyObject *v, void *closure)
     return 0;
 }
 
+static PyObject *Program_get_step_seconds(Program *P, void *closure)
+{
+    (void)closure;
+    PyObject *t = PyTuple_New(P->nfmu);
+    if (!t) return NULL;
+    for (int64_t j = 0; j < P->nfmu; j++) {
+        PyObject *x = PyFloat_FromDouble(P->f[j].step_s);
+        if (!x) { Py_DECREF(t); return NULL; }
+        PyTuple_SET_ITEM(t, j, x);
+    }
+    return t;
+}
+
+static PyObject *Program_get_time_steps(Program *P, void *closure)
+{
+    (void)closure;
+    return PyBool_FromLong((long)P->time_steps);
+}
+
+static int Program_set_time_steps(Program *P, PyObject *v, void *closure)
+{
+    (void)closure;
+    int on = v ? PyObject_IsTrue(v) : 0;
+    if (on < 0) return -1;
+    P->time_steps = on;
+    return 0;
+}
+
 static PyMethodDef Program_methods[] = {
     {"run", (PyCFunction)Program_run, METH_VARARGS,
      "run(k0, N) -> 0 | 1: ticks k0..N of the whole loop (1: failed, see error)"},
@@ -437,6 +475,10 @@ static PyMethodDef Program_methods[] = {
 static PyGetSetDef Program_getset[] = {
     {"error", (getter)Program_get_error, NULL, "(code, tick, index, status) of the last failure", NULL},
     {"nrows", (getter)Program_get_nrows, NULL, "rows recorded by run()", NULL},
+    {"step_seconds", (getter)Program_get_step_seconds, NULL,
+     "wall time spent in each FMU's doStep while time_steps was on [s]", NULL},
+    {"time_steps", (getter)Program_get_time_steps, (setter)Program_set_time_steps,
+     "measure the FMUs' own doStep time (two clock reads per doStep; benchmarks)", NULL},
     {"stim_fail", (getter)Program_get_stim_fail, (setter)Program_set_stim_fail,
      "tick at which a stimulus failed (evaluated beforehand): run() stops there, E_STIM", NULL},
     {NULL}
