@@ -463,15 +463,45 @@ def zf_libcosim(fmus: Path, n: int) -> tuple[float, list] | None:
     return wall, rec
 
 
-def zf_floor(fmus: Path, n: int) -> float:
+def zf_floor(fmus: Path, n: int) -> tuple[float, float]:
     """The rig's and accelerometer's own doSteps in a run of the zero-force
-    configuration: timed inside the compiled engine (two clock reads per doStep)."""
+    configuration: timed inside the compiled engine (two clock reads per doStep);
+    (the run's wall time, the doSteps' time)."""
     s, record = zero_force_system(fmus)
     m = Master(s, record, engine="compiled")
     m._time_steps = True
-    m.run(n * TS)
+    r = m.run(n * TS)
     s.close()
-    return sum(m._engine_program.step_seconds)
+    return r.wall_time, sum(m._engine_program.step_seconds)
+
+
+def partner_system(fmus: Path):
+    """The zero-force FMUs with only the controllers that have compiled steps today
+    (SineReference, PositionController on the partner; the unit under test unpowered):
+    what the whole loop in C costs on these FMUs."""
+    from cosim.algorithms.zero_force import (PositionController, SineReference,
+                                             SineReferenceParams)
+    s = System(TS)
+    s.add_fmu("rig", fmus / "ZeroForceRig.fmu", contract="zero_force_rig",
+              parameters={"k_cell": 2e4, "d_cell": 150.0})
+    s.add_fmu("acc", fmus / "Accelerometer.fmu", contract="accelerometer")
+    s.connect("rig.a", "acc.a_true", sequential=True)
+    s.add_controller("ref", SineReference(SineReferenceParams(amplitude_m=0.02, frequency_Hz=1.0)), {})
+    s.add_controller("pos", PositionController(),
+                     {"x": "rig.x_enc_p", "x_ref": "ref.x_ref", "v_ref": "ref.v_ref"},
+                     outputs={"i_cmd": "rig.i_p"})
+    return s, ["rig.x_p", "rig.x", "rig.f_lc", "rig.f_meas", "rig.theta_enc", "acc.acc_meas",
+               "pos.e", "pos.i_cmd"]
+
+
+def partner_master(fmus: Path, n: int, engine: str, time_steps: bool = False):
+    s, record = partner_system(fmus)
+    m = Master(s, record, engine=engine)
+    m._time_steps = time_steps
+    r = m.run(n * TS)
+    s.close()
+    floor = sum(m._engine_program.step_seconds) if time_steps else None
+    return r, m.engine_used, floor
 
 
 def zf_master(fmus: Path, n: int, engine: str, timing: bool = False):
@@ -579,14 +609,16 @@ def main(argv=None):
             res["libcosim"].append(lc[0])
             x_ref["libcosim"] = np.asarray(lc[1])
         res["floor"].append(zf_floor(fmus, n))
+    floor_wall, floor = min(res.pop("floor"))       # the fastest timed run's doSteps
     us = {k: min(v) / (n + 1) * 1e6 for k, v in res.items() if v}
+    us["floor"] = floor / (n + 1) * 1e6
     same = {k: bool(np.array_equal(x_ref["python"], v)) for k, v in x_ref.items()}
     diff = {k: float(np.max(np.abs(x_ref["python"] - v))) for k, v in x_ref.items()}
     rows = [("this master, compiled engine (" + used + ")", "engine"),
             ("this master, Python loop", "python"),
             ("FMPy high-level FMU2Slave loop", "fmpy"),
             ("libcosim (libcosimpy, one step at a time)", "libcosim"),
-            ("floor: the FMUs' own doSteps", "floor")]
+            ("floor: the FMUs' own doSteps (in an engine run)", "floor")]
     print(f"  {'loop':46s} {'us/tick':>8s} {'RTF':>7s} {'x engine':>9s}  rig.x vs Python loop")
     for label, k in rows:
         if k not in us:
@@ -609,6 +641,34 @@ def main(argv=None):
                      "fmpy_over_engine": us["fmpy"] / us["engine"],
                      "libcosim_over_engine": us["libcosim"] / us["engine"] if "libcosim" in us else None,
                      "engine_over_floor": us["engine"] / us["floor"]}
+
+    # the whole loop in C on the same FMUs (the controllers with compiled steps only)
+    pw = {"engine": [], "python": [], "floor": []}
+    pused, psig = None, {}
+    for _ in range(reps):
+        r, pused, _ = partner_master(fmus, n, "auto")
+        pw["engine"].append(r.wall_time)
+        psig["engine"] = r["rig.x"]
+        r, _, _ = partner_master(fmus, n, "python")
+        pw["python"].append(r.wall_time)
+        psig["python"] = r["rig.x"]
+        r, _, floor = partner_master(fmus, n, "compiled", time_steps=True)
+        pw["floor"].append((r.wall_time, floor))     # the same run: wall and doSteps
+    timed_wall, timed_floor = min(pw.pop("floor"))
+    pu = {k: min(v) / (n + 1) * 1e6 for k, v in pw.items()}
+    pu["floor"] = timed_floor / (n + 1) * 1e6
+    pu["own"] = (timed_wall - timed_floor) / (n + 1) * 1e6
+    print(f"\n  the same FMUs, partner controllers only (SineReference, PositionController: "
+          f"compiled steps):\n"
+          f"    compiled engine ({pused}) {pu['engine']:.2f} us/tick (RTF {1e3 / pu['engine']:.0f}), "
+          f"Python loop {pu['python']:.2f} us/tick ({pu['python'] / pu['engine']:.2f}x), "
+          f"\n    in one engine run with the doSteps timed: doSteps {pu['floor']:.2f} us/tick, "
+          f"the rest (master + 2 controllers in C, clock reads) {pu['own']:.2f} us/tick;"
+          f"\n    results bit-identical: "
+          f"{bool(np.array_equal(psig['engine'], psig['python']))}")
+    out["partner_only"] = {"engine": pused, "us_per_tick": pu["engine"],
+                           "python_loop_us_per_tick": pu["python"], "floor_doStep_us": pu["floor"],
+                           "master_and_controllers_us": pu["own"]}
 
     # per-stage timing of the Python loop (what the engine's time is made of)
     timed = [zf_master(fmus, n, "python", timing=True)[0].timing for _ in range(2)]

@@ -236,7 +236,7 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
     L = _Layout()
     L.ints(nslot, t0zero, len(slaves), len(kernels) if whole else 0, fmu_end,
            nstim if whole else 0, stim_end, ctrl_end, len(num_cols) if whole else 0,
-           -1 if whole else -1, (n_ticks + 1) if whole else 0,
+           -1, (n_ticks + 1) if whole else 0,
            Vd.ctypes.data if whole else 0, Sbuf.ctypes.data if whole else 0,
            rows.ctypes.data if whole else 0)
     L.dbls(Ts, T0)

@@ -241,9 +241,17 @@ static void *A(Cur *c) { return (void *)(intptr_t)I(c); }
 
 static void *zalloc(int64_t n, size_t size) { return calloc((size_t)(n > 0 ? n : 1), size); }
 
-static void read_term(Cur *c, Term *t)
+/* a slot index: in [0, n) or the layout is malformed */
+static int64_t SLOT(Cur *c, int64_t n)
 {
-    t->src = I(c); t->has_gain = (int)I(c); t->has_off = (int)I(c);
+    int64_t x = I(c);
+    if (x < 0 || x >= n) c->bad = 1;
+    return x;
+}
+
+static void read_term(Cur *c, Term *t, int64_t nslot)
+{
+    t->src = SLOT(c, nslot); t->has_gain = (int)I(c); t->has_off = (int)I(c);
     t->gain = D(c); t->off = D(c);
 }
 
@@ -306,20 +314,24 @@ static int Program_init(Program *P, PyObject *args, PyObject *kw)
         Fmu *F = &P->f[j];
         F->comp = A(&c); F->fmi3 = (int)I(&c); F->get = A(&c); F->set = A(&c); F->step = A(&c);
         F->nr = I(&c); F->ra = I(&c);
+        if (F->nr < 0 || (F->nr && (F->ra < 1 || F->ra + F->nr > P->nslot))) c.bad = 1;
         F->rvr = zalloc(F->nr, sizeof(uint32_t)); F->rb = zalloc(F->nr, sizeof(double));
         for (int64_t i = 0; i < F->nr; i++) F->rvr[i] = (uint32_t)I(&c);
         F->nw = I(&c);
+        if (F->nw < 0) c.bad = 1;
         F->wvr = zalloc(F->nw, sizeof(uint32_t)); F->wb = zalloc(F->nw, sizeof(double));
         F->wt = zalloc(F->nw, sizeof(Term));
-        for (int64_t i = 0; i < F->nw; i++) { F->wvr[i] = (uint32_t)I(&c); read_term(&c, &F->wt[i]); }
+        for (int64_t i = 0; i < F->nw; i++) { F->wvr[i] = (uint32_t)I(&c); read_term(&c, &F->wt[i], P->nslot); }
         F->ns = I(&c);
+        if (F->ns < 0) c.bad = 1;
         F->svr = zalloc(F->ns, sizeof(uint32_t)); F->sb = zalloc(F->ns, sizeof(double));
         F->sq = zalloc(F->ns, sizeof(Seq));
         for (int64_t q = 0; q < F->ns; q++) {
             Seq *s = &F->sq[q];
             F->svr[q] = (uint32_t)I(&c);
             s->si = I(&c); s->get = A(&c); s->comp = A(&c); s->fmi3 = (int)I(&c);
-            s->vr = (uint32_t)I(&c); read_term(&c, &s->t);
+            s->vr = (uint32_t)I(&c); read_term(&c, &s->t, P->nslot);
+            if (s->si < 0 || s->si >= j) c.bad = 1;       /* a source stepped before j */
         }
         F->d = I(&c); F->h = D(&c); F->tcoff = D(&c);
         F->ev = A(&c); F->term = A(&c); F->early = A(&c); F->last = A(&c);
@@ -336,18 +348,23 @@ static int Program_init(Program *P, PyObject *args, PyObject *kw)
         if (!C->fn) { PyErr_Format(PyExc_KeyError, "no compiled step %R in this engine", nm); goto done; }
         C->p = A(&c); C->s = A(&c);
         C->nin = I(&c);
+        if (C->nin < 0) c.bad = 1;
         C->in = zalloc(C->nin, sizeof(double)); C->in_slot = zalloc(C->nin, sizeof(int64_t));
-        for (int64_t q = 0; q < C->nin; q++) C->in_slot[q] = I(&c);
+        for (int64_t q = 0; q < C->nin; q++) C->in_slot[q] = SLOT(&c, P->nslot);
         int64_t nout = I(&c);
         C->out = zalloc(nout, sizeof(double));
         C->nuse = I(&c);
+        if (C->nuse < 0) c.bad = 1;
         C->use_idx = zalloc(C->nuse, sizeof(int64_t)); C->use_slot = zalloc(C->nuse, sizeof(int64_t));
         for (int64_t q = 0; q < C->nuse; q++) {
-            C->use_idx[q] = I(&c); C->use_slot[q] = I(&c);
+            C->use_idx[q] = I(&c); C->use_slot[q] = SLOT(&c, P->nslot);
             if (C->use_idx[q] < 0 || C->use_idx[q] >= nout) c.bad = 1;
         }
     }
-    for (int64_t i = 0; i < P->ncol; i++) P->rec[i] = I(&c);
+    for (int64_t i = 0; i < P->ncol; i++) P->rec[i] = SLOT(&c, P->nslot);
+    if (P->nslot < 1 || P->stim0 < 1 || P->stim0 + P->nstim > P->nslot ||
+        P->stim_end > P->nslot || P->ctrl_end > P->nslot || P->stim_end > P->ctrl_end)
+        c.bad = 1;
     if (!c.bad && c.pi != c.ni) c.bad = 1;
     if (c.bad) { PyErr_SetString(PyExc_ValueError, "engine program: malformed layout"); goto done; }
     if (Vlist != Py_None) {
