@@ -66,7 +66,9 @@ terminateSimulation) ends the run normally: the tick is completed and recorded, 
 Speed
 -----
 ``Master.run`` resolves every name once and generates one specialised Python
-function for the tick loop (see :attr:`Master.source`): values live in a flat list,
+function for the tick loop (see :attr:`Master.source`), the reference that the
+compiled engine (:mod:`cosim.master.engine`) reproduces bit for bit when it runs the
+ticks instead (``Master(engine=...)``): values live in a flat list,
 FMUs are called through their raw ctypes function pointers with preallocated
 buffers (statuses checked inline), controller inputs are dict displays, and rows are
 appended to a flat ``array('d')``. Non-finite checks are one ``sum`` per group of
@@ -650,6 +652,10 @@ class Master:
     attributes 'ctrl.attr' holding a number, or one element of an array attribute,
     'ctrl.attr[i]' / 'ctrl.attr[i,j]', e.g. 'aakf.P[0,0]'). ``timing=True`` measures
     the wall time of every FMU call and controller (slower; see RunResult.timing).
+    ``engine``: 'auto' (default, or ``$COSIM_ENGINE``) runs the ticks in the compiled
+    engine when it can (:mod:`cosim.master.engine`: bit-identical results, the same
+    errors), 'python' always in the generated Python loop, 'compiled' refuses a system
+    the engine cannot run; :attr:`engine_used` says which ran.
     """
 
     def __init__(self, system: System, record: list[str] | None = None, timing: bool = False,
