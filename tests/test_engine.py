@@ -353,9 +353,13 @@ def test_library_is_cached_by_the_sources_hash(tmp_path, monkeypatch):
     extra.parent.mkdir()
     extra.write_text('#include "cosim_kernel.h"\nint cosim_kernel_zz_none(const double *p, '
                      'double *s, const double *i, double *o) { return 0; }\n')
+    helper = tmp_path / "k" / "zz_helper.c"      # shared code, not a kernel itself
+    helper.write_text("double zz_helper_twice(double x) { return 2.0 * x; }\n")
     real = engine_mod.kernel_sources
-    monkeypatch.setattr(engine_mod, "kernel_sources", lambda: [*real(), extra])
+    monkeypatch.setattr(engine_mod, "kernel_sources", lambda: [*real(), extra, helper])
     assert engine_mod.library_path() != p        # another source: another library
+    names = engine_mod.load().kernel_names()
+    assert "zz_none" in names and "zz_helper" not in names
 
 
 # ============================================================================ scenarios

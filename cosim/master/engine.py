@@ -33,6 +33,7 @@ import importlib.util
 import math
 import numbers
 import os
+import re
 import sys
 import sysconfig
 import tempfile
@@ -98,10 +99,10 @@ def load():
         return mod
     if not so.is_file():
         srcs = _sources()
-        names = [p.stem for p in srcs[1:]]
-        bad = [n for n in names if not n.isidentifier()]
-        if bad:
-            raise RuntimeError(f"kernel source name(s) {bad} in {KERNEL_DIR} are not C identifiers")
+        # a source <name>.c defining cosim_kernel_<name> is a kernel; other sources
+        # (shared helpers of several kernels) are compiled in, not listed
+        names = [p.stem for p in srcs[1:] if p.stem.isidentifier() and
+                 re.search(rf"\bcosim_kernel_{p.stem}\s*\(", p.read_text())]
         so.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
             table = Path(tmp) / "kernel_table.c"
