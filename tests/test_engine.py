@@ -122,6 +122,20 @@ def test_whole_loop_in_c_is_bit_identical(fmus):
     assert mc.source.startswith("# not run: the compiled engine")
 
 
+def test_comparison_sees_one_ulp(fmus, monkeypatch):
+    """Negative control of the equality tests: a compiled step whose gain Kp is one ulp
+    off is caught (the comparison is not vacuous)."""
+    real = PositionController.c_kernel
+
+    def off(self):
+        k = real(self)
+        k.params = (np.nextafter(k.params[0], np.inf),) + tuple(k.params[1:])
+        return k
+    monkeypatch.setattr(PositionController, "c_kernel", off)
+    with pytest.raises(AssertionError, match="differs"):
+        _both(_rig_system(fmus), RIG_RECORD, 0.5, "compiled-loop")
+
+
 def test_python_controllers_with_compiled_fmi_calls_are_bit_identical(fmus):
     """Mode (b): the zero-force configuration (aaKF bank, DOB, RFOB in Python)."""
     import sys
