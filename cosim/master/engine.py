@@ -147,7 +147,10 @@ def _kernel_of(c, plan, names):
     fn = getattr(c.block, "c_kernel", None)
     if fn is None:
         return None, f"controller {c.name!r} ({type(c.block).__name__}) has no compiled step"
-    k = fn()
+    try:
+        k = fn()
+    except Exception as exc:     # the fast path is optional: the Python step runs
+        return None, f"controller {c.name!r}: c_kernel() failed: {type(exc).__name__}: {exc}"
     if k is None:
         return None, f"controller {c.name!r}: no compiled step for this configuration"
     if k.name not in names:
