@@ -51,6 +51,8 @@ import math
 from dataclasses import dataclass
 from typing import Mapping
 
+from .ckernel import CKernel
+
 
 # --------------------------------------------------------------------------- drive
 @dataclass(frozen=True)
@@ -210,6 +212,18 @@ class SineReference:
         self.k += 1
         return {"x_ref": x, "v_ref": v, "a_ref": a}
 
+    # compiled twin (c/sine_reference.c, cosim_kernel.h); step() above is the reference
+    def c_kernel(self) -> CKernel:
+        p = self.params
+        return CKernel("sine_reference", (p.amplitude_m, p.frequency_Hz, p.offset_m, p.Ts_s),
+                       [float(self.k)], (), self.outputs)
+
+    def c_kernel_sync(self, state) -> None:
+        self.k = int(state[0])
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"sine_reference: unexpected error code {code}")
+
 
 # --------------------------------------------------------------------------- position
 @dataclass(frozen=True)
@@ -293,3 +307,21 @@ class PositionController:
         if i_cmd == i_unsat:                      # clamping anti-windup
             self.integral += e * p.Ts_s
         return {"i_cmd": i_cmd, "e": e}
+
+    # compiled twin (c/position_controller.c, cosim_kernel.h); step() above is the reference
+    def c_kernel(self) -> CKernel:
+        p = self.params
+        params = (p.Kp_N_per_m, p.Kd_Ns_per_m, p.Ki_N_per_ms, p.feedforward_mass_kg,
+                  float(p.use_velocity_input), float(p.derivative_on_error),
+                  float(p.i_max_A is not None), p.i_max_A or 0.0, p.Ts_s,
+                  p.drive.force_constant_N_per_A)
+        state = [self.integral, 0.0 if self.x_prev is None else self.x_prev,
+                 0.0 if self.x_prev is None else 1.0]
+        return CKernel("position_controller", params, state, self.inputs, self.outputs)
+
+    def c_kernel_sync(self, state) -> None:
+        self.integral = state[0]
+        self.x_prev = state[1] if state[2] else None
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"position_controller: unexpected error code {code}")

@@ -76,7 +76,9 @@ terminateSimulation) ends the run normally: the tick is completed and recorded, 
 Speed
 -----
 ``Master.run`` resolves every name once and generates one specialised Python
-function for the tick loop (see :attr:`Master.source`): values live in a flat list,
+function for the tick loop (see :attr:`Master.source`), the reference that the
+compiled engine (:mod:`cosim.master.engine`) reproduces bit for bit when it runs the
+ticks instead (``Master(engine=...)``): values live in a flat list,
 FMUs are called through their raw ctypes function pointers with preallocated
 buffers (statuses checked inline), controller inputs are dict displays, and rows are
 appended to a flat ``array('d')``. Non-finite checks are one ``sum`` per group of
@@ -89,6 +91,7 @@ import dataclasses
 import json
 import keyword
 import math
+import os
 import re
 import time as _time
 from pathlib import Path
@@ -712,12 +715,33 @@ class Master:
     attributes 'ctrl.attr' holding a number, or one element of an array attribute,
     'ctrl.attr[i]' / 'ctrl.attr[i,j]', e.g. 'aakf.P[0,0]'). ``timing=True`` measures
     the wall time of every FMU call and controller (slower; see RunResult.timing).
+    ``engine``: 'auto' (default, or ``$COSIM_ENGINE``) runs the ticks in the compiled
+    engine when it can (:mod:`cosim.master.engine`: bit-identical results, the same
+    errors), 'python' always in the generated Python loop, 'compiled' refuses a system
+    the engine cannot run; :attr:`engine_used` says which ran.
     """
 
-    def __init__(self, system: System, record: list[str] | None = None, timing: bool = False):
+    def __init__(self, system: System, record: list[str] | None = None, timing: bool = False,
+                 engine: str | None = None):
         self.system = system
         self.record = list(record or [])
         self.timing = bool(timing)
+        from .engine import MODES
+        engine = engine if engine is not None else (os.environ.get("COSIM_ENGINE") or "auto")
+        if engine not in MODES:
+            raise SystemError_(f"engine must be one of {list(MODES)} (argument or $COSIM_ENGINE), "
+                               f"not {engine!r}")
+        #: 'auto' (the compiled engine when it can run the system), 'python', 'compiled'
+        self.engine = engine
+        #: how the last run was made: 'python', 'compiled-loop' (every controller
+        #: compiled: one C call for all ticks) or 'compiled-calls' (C for the FMI calls,
+        #: Python controllers); and why (cosim.master.engine)
+        self.engine_used: str | None = None
+        self.engine_reason: str | None = None
+        #: benchmarks: the engine measures the FMUs' own doStep time (``_engine_program.
+        #: step_seconds``, per role in order) when this is set before run()
+        self._time_steps = False
+        self._engine_program = None
         #: the generated tick-loop source of the last run (for inspection)
         self.source: str | None = None
 
@@ -924,6 +948,14 @@ class Master:
         self._stop = None
 
         slaves = list(sys_.roles.items())
+        mode, why, kernels = "python", "engine='python'", None
+        if self.engine != "python":
+            from . import engine as _engine
+            mode, why, kernels = _engine.choose(self, plan)
+            if mode == "python" and self.engine == "compiled":
+                raise SystemError_(f"engine='compiled': the compiled engine cannot run this "
+                                   f"system: {why}")
+        self.engine_used, self.engine_reason = mode, why
         try:
             for role, slave in slaves:
                 slave.instantiate(sys_.params.get(role), start_time=T0,
@@ -932,7 +964,13 @@ class Master:
             for role, slave in slaves:
                 slave.exit_initialization()
             src, ns = self._generate(slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec,
-                                     srec, Ts, T0, wbufs)
+                                     srec, Ts, T0, wbufs, engine_calls=mode == "compiled-calls")
+            if mode != "python":
+                _engine.attach(self, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end,
+                               rec, kernels, n_ticks, Ts, T0)
+                if mode == "compiled-loop":
+                    src = ("# not run: the compiled engine runs this loop (compiled-loop)\n"
+                           + src)
         except BaseException as exc:
             for _, s in slaves:
                 s.terminate()
@@ -1126,10 +1164,12 @@ class Master:
 
     # ----------------------------------------------------------------- codegen
     def _generate(self, slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec, srec, Ts, T0,
-                  wbufs):
+                  wbufs, engine_calls=False):
         """Source and namespace of the specialised tick loop ``_loop(k0, N)`` (and of
         ``_steps(k, j0)``, the doSteps of tick k after FMU j0, to finish a tick in which
-        an FMU ended the simulation)."""
+        an FMU ended the simulation). ``engine_calls``: the FMI calls of a tick are two
+        calls of the compiled engine (``_e_read``, ``_e_ws``, set by
+        :func:`cosim.master.engine.attach`), the rest stays in Python."""
         import ctypes
         sys_ = self.system
         timing = self.timing
@@ -1387,6 +1427,10 @@ class Master:
                       "except TypeError:", "    x = math.nan",
                       "if x - x: _nonfinite_ctrl(t)"]
 
+        if engine_calls:     # cosim.master.engine: the same FMI calls, compiled
+            L_read = ["        if _e_read(k): _e_fail()"]
+            L_write = ["        if _e_ws(k): _e_fail()"]
+            L_step = []
         lines = ["def _loop(k0, N):", "    V = _V"]
         if timing:
             lines.append("    _T = _T_list")
@@ -1404,7 +1448,7 @@ class Master:
         lines += timed("record", L_rec, "        ")
         lines += ["        if k == N:", "            break"]
         lines += L_write
-        if any(s.kind == "cs" for _, s in slaves):
+        if any(s.kind == "cs" for _, s in slaves) and not engine_calls:
             lines.append("        _tc.value = t")
         lines += L_step
         # the rest of a tick after FMU j0 ended the simulation in its doStep
