@@ -24,6 +24,7 @@ from cosim.algorithms.ckernel import CKernel, KernelLibrary
 from cosim.algorithms.zero_force import (PositionController, PositionControllerParams,
                                          SineReference, SineReferenceParams)
 from cosim.master import engine as engine_mod
+from cosim.master.faults import Bias, BiasParams
 from cosim.master.fmu import FMUError
 from cosim.master.system import ControllerError, Master, System, SystemError_
 
@@ -323,7 +324,7 @@ def test_what_the_engine_does_not_run_goes_to_the_python_loop(tmp_path, fmus):
     m = Master(s, RIG_RECORD, timing=True)
     m.run(0.01)
     assert m.engine_used == "python" and "timing" in m.engine_reason
-    s.faults = ["something"]
+    s.add_fault("rig.f_lc", Bias(BiasParams(offset=1.0)), "test bias")
     m = Master(s, RIG_RECORD)
     m.run(0.01)
     assert m.engine_used == "python" and "faults" in m.engine_reason
