@@ -74,6 +74,15 @@ ROWS, HEAD, PROGRESS, STACKS = "crash.rows", "crash.head.json", "crash.progress.
 SCRATCH_FILES = (ROWS, HEAD, PROGRESS, STACKS, PROGRESS + ".part")
 
 
+_WHERE = ["none"]
+
+
+def where() -> str:
+    """``"process"`` in a run's child process, else ``"none"`` (recorded in run.json
+    as ``isolation``)."""
+    return _WHERE[0]
+
+
 class RunTimeout(Exception):
     """A run in this process passed its wall-clock limit (SIGALRM)."""
 
@@ -270,6 +279,7 @@ def _child(conn, scratch: str, tmpdir: str, local_fmus: dict, args: tuple, kwarg
     """The child process's main: supervision aids, then the run, its info sent back."""
     import resource
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # Ctrl-C is the parent's to handle
+    _WHERE[0] = "process"
     try:
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))   # no core files
     except (ValueError, OSError):

@@ -26,7 +26,7 @@ from ..fileio import jsonable
 from . import registry as reg
 from .build import check_build, make_builder
 from .expand import deep_merge, expand
-from .isolate import alarm, run_timeout
+from .isolate import alarm, run_timeout, where
 from .schema import Scenario, ScenarioError, load
 from .store import (clean_run_tmp, publish_run, run_done, run_key, run_tmp_dir, safe_name,
                     versions, write_verdict)
@@ -55,7 +55,8 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
     out_dir = Path(out_dir)
     runs_dir = out_dir / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
-    info: dict = {"label": run_label, "key": key, "status": "error", "error": None}
+    info: dict = {"label": run_label, "key": key, "status": "error", "error": None,
+                  "isolation": where()}
     tmp = run_tmp_dir(runs_dir, run_label)
     try:
         sc = load(scenario_path)
