@@ -58,8 +58,9 @@ from .. import paths
 ISOLATION = ("auto", "process", "none")
 #: the per-run wall-clock limit without ``timeout_s`` or ``--timeout`` [s]
 DEFAULT_TIMEOUT_S = 1800.0
-#: the watcher's flush period in the child [s]
-FLUSH_S = 0.05
+#: the watcher's flush period in the child [s] (what a crash while the GIL is held, or a
+#: SIGKILL, keeps; a crash in an FMU call or a timeout gets an exact last flush)
+FLUSH_S = 0.25
 #: after the child's stack dump of a fatal signal, how long its watcher may take to
 #: write the last rows before the parent kills it [s]
 CRASH_GRACE_S = 5.0
@@ -68,6 +69,9 @@ DUMP_GRACE_S = 1.0
 _FATAL = (signal.SIGSEGV, signal.SIGBUS, signal.SIGFPE, signal.SIGILL)
 _TOOL = "rehab-cosim fmubuild"
 _LOOP_FILE = "<cosim master tick loop>"
+# the FMU wrappers: a frame of one of them outside the tick loop names its role
+_FMU_FILES = (os.path.join("master", "fmu.py"), os.path.join("fmi", "me.py"),
+              os.path.join("fmi", "fmi1.py"))
 # the watcher's files in the run's temporary folder (store.clean_run_tmp knows them)
 ROWS, HEAD, PROGRESS, STACKS = "crash.rows", "crash.head.json", "crash.progress.json", \
     "crash.stacks.txt"
@@ -179,11 +183,13 @@ class _Watcher(threading.Thread):
             except (OSError, ValueError):
                 return
             sig = None
+            final = False
             if ready:
                 data = os.read(self.wake, 4096)
                 sig = next((b for b in data if b in {int(s) for s in _FATAL}), None)
+                final = sig is not None or int(signal.SIGUSR2) in data
             try:
-                self.flush(sig)
+                self.flush(sig, final)
             except Exception:             # never let the watcher take the child down
                 pass
             if sig is not None:
@@ -195,20 +201,27 @@ class _Watcher(threading.Thread):
                 os.kill(os.getpid(), signal.SIGKILL)
 
     def _find(self):
+        """(Master, its row buffer, tick-loop line, function, FMU role being called
+        outside the tick loop) from the main thread's stack."""
         f = sys._current_frames().get(self.main)
-        line = fn = None
+        line = fn = role = None
         while f is not None:
             if f.f_code.co_filename == _LOOP_FILE and line is None:
                 line, fn = f.f_lineno, f.f_code.co_name
+            elif role is None and line is None and f.f_code.co_filename.endswith(_FMU_FILES):
+                r = getattr(f.f_locals.get("self"), "role", None)
+                role = (r, f.f_code.co_name) if isinstance(r, str) else None
             if f.f_code is self.run_code:
                 loc = f.f_locals
-                return loc.get("self"), loc.get("rec"), line, fn
+                return loc.get("self"), loc.get("rec"), line, fn, role
             f = f.f_back
-        return None, None, None, None
+        return None, None, None, None, role
 
-    def flush(self, sig=None):
-        master, rec, line, fn = self._find()
-        prog = {"time": time.time(), "signal": sig}
+    def flush(self, sig=None, final=False):
+        master, rec, line, fn, role = self._find()
+        prog = {"time": time.time(), "signal": sig, "final": final}
+        if role is not None:
+            prog.update(role=role[0], call=f"calling {role[1]}() outside the tick loop")
         if master is not None and rec is not None and getattr(master, "_cols", None):
             columns, num_cols = master._cols[0], master._cols[1]
             ncol = len(num_cols)
@@ -220,6 +233,8 @@ class _Watcher(threading.Thread):
                 self.written = n
             prog.update(rows=self.written, line=line, function=fn,
                         code=_source_line(master, line))
+            if line is None:
+                prog.setdefault("call", "instantiating, initialising or terminating the FMUs")
             j = _fmu_index(prog["code"])
             roles = list(master.system.roles)
             if j is not None and j < len(roles):
@@ -290,7 +305,7 @@ def _child(conn, scratch: str, tmpdir: str, local_fmus: dict, args: tuple, kwarg
     stacks = open(scratch / STACKS, "w")
     r, w = os.pipe()
     os.set_blocking(w, False)
-    for s in _FATAL:                      # behind faulthandler: note, write to the pipe
+    for s in (*_FATAL, signal.SIGUSR2):   # (behind faulthandler) only write to the pipe
         signal.signal(s, lambda *_: None)
     signal.set_wakeup_fd(w, warn_on_full_buffer=False)
     faulthandler.enable(file=stacks, all_threads=True)
@@ -395,10 +410,11 @@ def _supervise(p, rx, scratch: Path, timeout_s):
         if now > deadline:
             with contextlib.suppress(OSError):
                 os.kill(p.pid, signal.SIGUSR1)        # faulthandler: where it hangs
+                os.kill(p.pid, signal.SIGUSR2)        # the watcher: a last flush
             end = time.monotonic() + DUMP_GRACE_S
-            while time.monotonic() < end and _size(scratch / STACKS) == 0:
+            while time.monotonic() < end and not (
+                    _size(scratch / STACKS) and (_read_json(scratch / PROGRESS) or {}).get("final")):
                 time.sleep(0.02)
-            time.sleep(2 * FLUSH_S)                   # the watcher's last flush
             p.kill()
             p.join()
             return None, True
@@ -456,12 +472,19 @@ def _crash_record(p, scratch: Path, base: dict, key, timeout_s, timed_out: bool,
     n = 0 if rows is None else rows.shape[0]
     t_last = float(rows[-1, 0]) if n else None
     h = (head or {}).get("step_size")
-    where = (f"in role {role} ({Path(fmu).name if fmu else 'FMU ?'}) "
-             f"{'during its ' + prog['call'] if prog.get('call') == 'doStep' else 'while ' + prog.get('call', 'running')}"
-             + (f" from t = {t_last:.6f} s" + (f" to {t_last + h:.6f} s" if h else "")
-                if t_last is not None and prog.get("call") == "doStep" else "")
-             if role else "outside the tick loop (building or initialising the system)"
-             if head is None else "in the master's tick loop")
+    call = prog.get("call")
+    if role:
+        where = f"in role {role} ({Path(fmu).name if fmu else 'its FMU'})"
+        if call == "doStep":
+            where += " during its doStep" + (
+                f" from t = {t_last:.6f} s" + (f" to {t_last + h:.6f} s" if h else "")
+                if t_last is not None else "")
+        elif call:
+            where += f" while {call}"
+    elif head is None:
+        where = "outside the tick loop (building or initialising the system)"
+    else:
+        where = "in the master's run" + (f" while {call}" if call else "")
     kept = (f"rows up to t = {t_last:.6f} s kept ({n} rows, main.parquet)" if n else
             "no rows had been recorded")
     if timed_out:

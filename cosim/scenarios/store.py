@@ -21,6 +21,7 @@ from ..fileio import atomic_write_text, jsonable
 from . import registry as reg
 from .build import fmu_file
 from .expand import deep_merge, expand
+from .isolate import SCRATCH_FILES
 from .schema import Scenario
 
 
@@ -181,8 +182,9 @@ def clean_run_tmp(out_dir: Path) -> list[Path]:
     an interrupt) and those of processes of this host that no longer exist. Only
     folders named as :func:`run_tmp_dir` names them (or as before that, without the
     process) and holding nothing but ``*.parquet`` and ``run.json`` files are
-    touched; a folder of a process on another host is left alone. Returns the
-    removed folders."""
+    touched (and the crash watcher's files of a run in a child process,
+    :data:`.isolate.SCRATCH_FILES`); a folder of a process on another host is left
+    alone. Returns the removed folders."""
     import os
     import shutil
     out_dir = Path(out_dir)
@@ -200,7 +202,8 @@ def clean_run_tmp(out_dir: Path) -> list[Path]:
                 if m["host"] != host or (pid != me and _pid_alive(pid)):
                     continue
             try:
-                ours = all(f.is_file() and (f.suffix == ".parquet" or f.name == "run.json")
+                ours = all(f.is_file() and (f.suffix == ".parquet" or f.name == "run.json"
+                                            or f.name in SCRATCH_FILES)
                            for f in d.iterdir())
             except OSError:
                 continue
