@@ -267,3 +267,27 @@ def test_in_process_timeout_keeps_the_rows(tmp_path, fmus):
     assert info["wall_s"] < 30
     (ph,) = info["phases"]
     assert not ph["completed"] and 10 < ph["ticks"] < 600_000
+
+
+def test_a_crash_outside_the_tick_loop_names_the_role(probes, tmp_path):
+    """A NULL dereference in fmi2ExitInitializationMode: no row was recorded, the
+    record still names the signal, the role and the wrapper call it crashed in."""
+    from cosim.scenarios import expand, load
+    from cosim.scenarios.runner import execute_run
+    line = "fmi2Status fmi2ExitInitializationMode(fmi2Component c) { P *p = c; p->mode = 2;"
+    assert line in PROBE2_C
+    src = PROBE2_C.replace(line, line.replace("p->mode = 2;",
+                                              "{ volatile int *q = 0; p->mode = *q; }"))
+    fmu = compile_fmu(tmp_path / "init", "probe2", src, probe2_md(), "2.0", name="initsegv")
+    f = tmp_path / "init.yaml"
+    f.write_text(PROBE.format(name="initsegv", fmu=fmu, timeout=60))
+    (run,) = expand(load(f))
+    info = execute_run(str(f), run.label, str(tmp_path / "out"), isolation="auto")
+    c = info["crash"]
+    assert info["status"] == "error" and c["signal"] == "SIGSEGV" and c["role"] == "bad", info
+    assert Path(c["fmu"]).name == "initsegv.fmu" and c["rows_kept"] == 0, c
+    assert info["error"].startswith("crashed: SIGSEGV in role bad (initsegv.fmu) while "
+                                    "calling exit_initialization() outside the tick loop; "
+                                    "no simulated time reached; no rows had been recorded"), \
+        info["error"]
+    assert not [d for d in (tmp_path / "out" / "runs").iterdir() if d.name.startswith(".")]

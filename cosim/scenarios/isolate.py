@@ -496,8 +496,8 @@ def _crash_record(p, scratch: Path, base: dict, key, timeout_s, timed_out: bool,
     else:
         what = f"crashed: the run's process exited with code {p.exitcode} {where}"
         stop = f"crashed: exit code {p.exitcode}"
-    info["error"] = f"{what}; last simulated time reached t = " + (
-        f"{t_last:.6f} s; " if t_last is not None else "none; ") + kept
+    info["error"] = f"{what}; " + (f"last simulated time reached t = {t_last:.6f} s; "
+                                   if t_last is not None else "no simulated time reached; ") + kept
     info["crash"] = {"kind": "timeout" if timed_out else "crash", "signal": sig,
                      "exitcode": p.exitcode, "role": role, "fmu": fmu,
                      "call": prog.get("call"), "loop_line": prog.get("code"),
