@@ -290,8 +290,10 @@ def _call_kind(code: str) -> str:
     return "getting outputs"
 
 
-def _child(conn, scratch: str, tmpdir: str, local_fmus: dict, args: tuple, kwargs: dict):
-    """The child process's main: supervision aids, then the run, its info sent back."""
+def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, args: tuple,
+           kwargs: dict):
+    """The child process's main: supervision aids, then the run, its info sent back.
+    ``env``, ``tmpdir``: the parent's now (the forkserver has those of its start)."""
     import resource
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # Ctrl-C is the parent's to handle
     _WHERE[0] = "process"
@@ -299,8 +301,9 @@ def _child(conn, scratch: str, tmpdir: str, local_fmus: dict, args: tuple, kwarg
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))   # no core files
     except (ValueError, OSError):
         pass
+    os.environ.clear()
+    os.environ.update(env)
     tempfile.tempdir = tmpdir
-    os.environ["TMPDIR"] = tmpdir
     scratch = Path(scratch)
     stacks = open(scratch / STACKS, "w")
     r, w = os.pipe()
@@ -353,7 +356,8 @@ def run_in_child(scenario_path: str, run_label: str, out_dir: str, fmu_swaps=Non
     ctx = _context()
     rx, tx = ctx.Pipe(duplex=False)
     p = ctx.Process(target=_child, name=f"cosim-run-{run_label}",
-                    args=(tx, str(scratch), tempfile.gettempdir(), dict(LOCAL_FMUS.get()),
+                    args=(tx, str(scratch), dict(os.environ), tempfile.gettempdir(),
+                          dict(LOCAL_FMUS.get()),
                           (scenario_path, run_label, out_dir, fmu_swaps, fmu_dir, key),
                           {"isolation": "none", "timeout_s": None}))
     info = None
@@ -396,7 +400,10 @@ def _supervise(p, rx, scratch: Path, timeout_s):
         except (EOFError, OSError):
             p.join()
         if info is not None:              # the child stored the run itself
-            p.join()
+            p.join(10.0)
+            if p.exitcode is None:        # stuck on its way out: its run is stored
+                p.kill()
+                p.join()
             return info, False
         if p.exitcode is not None:
             return None, False
