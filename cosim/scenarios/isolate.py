@@ -172,7 +172,7 @@ class _Watcher(threading.Thread):
         self.main = threading.main_thread().ident
         self.dir, self.wake = scratch, wake_fd
         self.stop = threading.Event()
-        self.rec_id = None
+        self.rec = None                  # the buffer being copied (held: its id stays its own)
         self.written = 0
         self.fd = None
 
@@ -225,7 +225,7 @@ class _Watcher(threading.Thread):
         if master is not None and rec is not None and getattr(master, "_cols", None):
             columns, num_cols = master._cols[0], master._cols[1]
             ncol = len(num_cols)
-            if id(rec) != self.rec_id:          # a new run (phase): a new rows file
+            if rec is not self.rec:             # a new run (phase): a new rows file
                 self._start(master, rec, columns, num_cols)
             n = len(rec) // ncol
             if n > self.written:
@@ -248,7 +248,7 @@ class _Watcher(threading.Thread):
         if self.fd is not None:
             os.close(self.fd)
         self.fd = os.open(self.dir / ROWS, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        self.rec_id, self.written = id(rec), 0
+        self.rec, self.written = rec, 0
         sys_ = master.system
         try:
             from .units import signal_units
@@ -491,7 +491,8 @@ def _crash_record(p, scratch: Path, base: dict, key, timeout_s, timed_out: bool,
     elif head is None:
         where = "outside the tick loop (building or initialising the system)"
     else:
-        where = "in the master's run" + (f" while {call}" if call else "")
+        where = "in the master's run" + (f" while {call}" if call else "") + (
+            f" (tick-loop line: {prog['code']})" if prog.get("code") else "")
     kept = (f"rows up to t = {t_last:.6f} s kept ({n} rows, main.parquet)" if n else
             "no rows had been recorded")
     if timed_out:
