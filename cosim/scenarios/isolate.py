@@ -363,7 +363,8 @@ def run_in_child(scenario_path: str, run_label: str, out_dir: str, fmu_swaps=Non
     info = None
     timed_out = False
     try:
-        p.start()
+        with _may_have_children():
+            p.start()
         tx.close()
         info, timed_out = _supervise(p, rx, scratch, timeout_s)
         if info is None:
@@ -385,6 +386,23 @@ def run_in_child(scenario_path: str, run_label: str, out_dir: str, fmu_swaps=Non
         unpack.sweep()                    # the dead child's FMU folders
         with contextlib.suppress(ValueError):
             p.close()
+
+
+@contextlib.contextmanager
+def _may_have_children():
+    """A daemonic process (a ``dask worker`` of an external cluster, by default) may
+    not start children (multiprocessing's rule, so that none outlives it): lifted
+    while the run's child starts. The parent kills and reaps it in every case but its
+    own death, and an orphaned child ends with its run (its result pipe is closed)."""
+    cfg = multiprocessing.current_process()._config
+    daemon = cfg.get("daemon")
+    if daemon:
+        cfg["daemon"] = False
+    try:
+        yield
+    finally:
+        if daemon:
+            cfg["daemon"] = daemon
 
 
 def _supervise(p, rx, scratch: Path, timeout_s):
