@@ -52,6 +52,7 @@ import zipfile
 from pathlib import Path
 
 from .. import paths
+from .store import CRASH_PREFIX, publish_run, run_tmp_dir
 
 #: ``--isolation`` choices: ``auto`` = a child process when any FMU of the run is not
 #: the project's; ``process`` = always; ``none`` = in this process
@@ -72,9 +73,9 @@ _LOOP_FILE = "<cosim master tick loop>"
 # the FMU wrappers: a frame of one of them outside the tick loop names its role
 _FMU_FILES = (os.path.join("master", "fmu.py"), os.path.join("fmi", "me.py"),
               os.path.join("fmi", "fmi1.py"))
-# the watcher's files in the run's temporary folder (store.clean_run_tmp knows them)
-ROWS, HEAD, PROGRESS, STACKS = "crash.rows", "crash.head.json", "crash.progress.json", \
-    "crash.stacks.txt"
+# the watcher's files in the run's temporary folder (store.clean_run_tmp knows the prefix)
+ROWS, HEAD, PROGRESS, STACKS = (CRASH_PREFIX + x for x in ("rows", "head.json",
+                                                           "progress.json", "stacks.txt"))
 SCRATCH_FILES = (ROWS, HEAD, PROGRESS, STACKS, PROGRESS + ".part")
 
 
@@ -290,8 +291,8 @@ def _call_kind(code: str) -> str:
     return "getting outputs"
 
 
-def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, args: tuple,
-           kwargs: dict):
+def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, target,
+           args: tuple, kwargs: dict):
     """The child process's main: supervision aids, then the run, its info sent back.
     ``env``, ``tmpdir``: the parent's now (the forkserver has those of its start)."""
     import resource
@@ -316,10 +317,9 @@ def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, args: t
     watcher = _Watcher(scratch, r)
     watcher.start()
     from .build import LOCAL_FMUS
-    from .runner import execute_run
     token = LOCAL_FMUS.set(local_fmus)
     try:
-        info = execute_run(*args, **kwargs)
+        info = target(*args, **kwargs)
     finally:
         LOCAL_FMUS.reset(token)
         watcher.stop.set()
@@ -340,14 +340,14 @@ def _context():
     return _CTX[0]
 
 
-def run_in_child(scenario_path: str, run_label: str, out_dir: str, fmu_swaps=None,
+def run_in_child(target, scenario_path: str, run_label: str, out_dir: str, fmu_swaps=None,
                  fmu_dir=None, key=None, timeout_s: float | None = None,
                  base: dict | None = None) -> dict:
-    """:func:`cosim.scenarios.runner.execute_run` in a child process, supervised.
-    Returns the run's info; a child that crashed or passed ``timeout_s`` gets an
-    error record (with the rows kept) written here, atomically."""
+    """``target`` (:func:`cosim.scenarios.runner.execute_run`, passed in: the runner
+    imports this module) in a child process, supervised. Returns the run's info; a
+    child that crashed or passed ``timeout_s`` gets an error record (with the rows
+    kept) written here, atomically."""
     from .build import LOCAL_FMUS
-    from .store import publish_run, run_tmp_dir
     from ..fmi import unpack
     t0 = time.perf_counter()
     runs_dir = Path(out_dir) / "runs"
@@ -357,7 +357,7 @@ def run_in_child(scenario_path: str, run_label: str, out_dir: str, fmu_swaps=Non
     rx, tx = ctx.Pipe(duplex=False)
     p = ctx.Process(target=_child, name=f"cosim-run-{run_label}",
                     args=(tx, str(scratch), dict(os.environ), tempfile.gettempdir(),
-                          dict(LOCAL_FMUS.get()),
+                          dict(LOCAL_FMUS.get()), target,
                           (scenario_path, run_label, out_dir, fmu_swaps, fmu_dir, key),
                           {"isolation": "none", "timeout_s": None}))
     info = None

@@ -28,8 +28,8 @@ from .build import check_build, make_builder
 from .expand import deep_merge, expand
 from .isolate import alarm, run_timeout, where
 from .schema import Scenario, ScenarioError, load
-from .store import (clean_run_tmp, publish_run, run_done, run_key, run_tmp_dir, safe_name,
-                    versions, write_verdict)
+from .store import (clean_run_tmp, publish_run, run_done, run_fmu_paths, run_key, run_tmp_dir,
+                    safe_name, versions, write_verdict)
 from .units import signal_units
 from .verdict import all_runs, evaluate
 
@@ -138,19 +138,18 @@ def _isolated(scenario_path, run_label, out_dir, fmu_swaps, fmu_dir, key, isolat
     ``isolation`` says it runs here (or the scenario cannot be read: the in-process
     path records that error)."""
     from .isolate import run_in_child, wants_process
-    from .ship import run_fmus
     try:
         sc = load(scenario_path)
         run = {r.label: r for r in all_runs(sc)}[run_label]
-        by_spec, by_swap = run_fmus(sc, run, fmu_dir, fmu_swaps)
+        fmus = run_fmu_paths(sc, run, fmu_dir, fmu_swaps).values()
     except Exception:
         return None
-    if not wants_process(isolation, [p for _, p in [*by_spec.values(), *by_swap.values()]]):
+    if not wants_process(isolation, fmus):
         return None
     base = {"label": run.label, "case": run.case, "seed": run.seed, "point": run.point,
             "duration": run.duration, "step": run.step, "isolation": "process"}
-    return run_in_child(scenario_path, run_label, out_dir, fmu_swaps, fmu_dir, key,
-                        timeout_s, base=base)
+    return run_in_child(execute_run, scenario_path, run_label, out_dir, fmu_swaps, fmu_dir,
+                        key, timeout_s, base=base)
 
 
 def finish_scenario(sc: Scenario, out_dir: Path, fmu_swaps=None) -> dict:

@@ -33,7 +33,8 @@ from .isolate import run_timeout, wants_process
 from .runner import execute_run, finish_scenario
 from .schema import Scenario, load
 from .ship import execute_shipped, run_fmus, scatter_fmus
-from .store import clean_run_tmp, run_done, run_key, safe_name, store_run_files, versions
+from .store import (clean_run_tmp, run_done, run_fmu_paths, run_key, safe_name, store_run_files,
+                    versions)
 from .verdict import all_runs, summary_row
 
 
@@ -160,9 +161,8 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             if use_cache and run_done(sdir, run, key):
                 cached[sc.name] += 1
                 continue
-            fmus = run_fmus(sc, run, fmu_dir, swaps)
-            iso = "process" if wants_process(isolation, [p for t in fmus for _, p in t.values()]) \
-                else "none"
+            iso = ("process" if wants_process(isolation, run_fmu_paths(sc, run, fmu_dir, swaps)
+                                              .values()) else "none")
             todo.append((sc, run, key, sdir, swaps, iso, run_timeout(sc, timeout_s)))
     timing = {"load_and_check_s": time.perf_counter() - t0}
     bar = _Progress(len(todo), progress)
