@@ -291,3 +291,38 @@ def test_a_crash_outside_the_tick_loop_names_the_role(probes, tmp_path):
                                     "no simulated time reached; no rows had been recorded"), \
         info["error"]
     assert not [d for d in (tmp_path / "out" / "runs").iterdir() if d.name.startswith(".")]
+
+
+def test_ctrl_c_during_an_isolated_run_ends_its_child(probes, tmp_path):
+    """SIGINT to `cosim run` while its child hangs in doStep: exit 3 with the usual
+    message, the child gone, nothing half-written and nothing in TMPDIR."""
+    import os
+    import signal
+    import time
+    env, tmpdir = _tmp_env(tmp_path)
+    f = tmp_path / "hang60.yaml"
+    f.write_text(probes["hang"].read_text().replace(f"timeout_s: {HANG_TIMEOUT_S}",
+                                                    "timeout_s: 600"))
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", str(f), "--out", str(out),
+                          "--no-build"], cwd=REPO, env=env, stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    child = None
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 120 and child is None:
+        runs = list((out / "runs").glob(".*.tmp-*@*")) if (out / "runs").is_dir() else []
+        pids = {int(d.name.rsplit(".tmp-", 1)[1].split("@")[0]) for d in runs} - {p.pid}
+        rows = [json.loads(x.read_text()).get("rows", 0)      # the parent's scratch folder
+                for d in runs for x in d.glob("crash.progress.json")]
+        if pids and rows and max(rows) > 2000:                 # hanging after t = 2 s
+            (child,) = pids                                    # the child's own run folder
+        time.sleep(0.1)
+    assert child is not None, "the child never reached the hang"
+    p.send_signal(signal.SIGINT)
+    stdout, stderr = p.communicate(timeout=120)
+    assert p.returncode == ec.INCOMPLETE, stdout + stderr
+    assert "cosim: interrupted:" in stderr and "Traceback" not in stderr, stderr
+    with pytest.raises(ProcessLookupError):
+        os.kill(child, 0)
+    assert not (out / "runs").exists() or not list((out / "runs").iterdir())
+    assert sorted(x.name for x in tmpdir.iterdir()) == []

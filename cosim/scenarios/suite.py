@@ -262,7 +262,9 @@ def _record_crash(sdir: Path, run: reg.RunSpec, key, exc):
     d.mkdir(parents=True, exist_ok=True)
     atomic_write(d / "run.json", json.dumps({
         "label": run.label, "case": run.case, "seed": run.seed, "status": "error",
-        "key": key, "error": f"worker crashed: {type(exc).__name__}: {exc}"}))
+        "key": key, "error": f"worker crashed: {type(exc).__name__}: {exc} (a run in the "
+                             f"worker's own process; with --isolation process a crash is "
+                             f"recorded with its signal, role, FMU, time and rows)"}))
 
 
 def junit_xml(summary: dict) -> str:
