@@ -326,3 +326,22 @@ def test_ctrl_c_during_an_isolated_run_ends_its_child(probes, tmp_path):
         os.kill(child, 0)
     assert not (out / "runs").exists() or not list((out / "runs").iterdir())
     assert sorted(x.name for x in tmpdir.iterdir()) == []
+
+
+def test_a_child_that_cannot_start_is_an_error_record(probes, tmp_path, monkeypatch):
+    """No process left (EAGAIN) for the run's child: the run is an error that says so,
+    stored like any run; nothing half-written."""
+    import multiprocessing.context as mpc
+    from cosim.scenarios import expand, load
+    from cosim.scenarios.runner import execute_run
+
+    def no_fork(process_obj):
+        raise OSError(11, "Resource temporarily unavailable")
+    monkeypatch.setattr(mpc.ForkServerProcess, "_Popen", staticmethod(no_fork))
+    (run,) = expand(load(probes["segv"]))
+    info = execute_run(str(probes["segv"]), run.label, str(tmp_path / "out"),
+                       isolation="process")
+    assert info["status"] == "error" and info["error"].startswith(
+        "the run's child process could not start (BlockingIOError"), info["error"]
+    stored, _ = _record(tmp_path / "out")
+    assert stored["error"] == info["error"]

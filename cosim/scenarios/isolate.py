@@ -363,8 +363,17 @@ def run_in_child(target, scenario_path: str, run_label: str, out_dir: str, fmu_s
     info = None
     timed_out = False
     try:
-        with _may_have_children():
-            p.start()
+        try:
+            with _may_have_children():
+                p.start()
+        except (OSError, RuntimeError, AssertionError, ValueError) as exc:
+            info = {**(base or {"label": run_label}), "key": key, "status": "error",
+                    "error": f"the run's child process could not start "
+                             f"({type(exc).__name__}: {exc}); rerun with --isolation none "
+                             f"to run it in this process", "wall_s": time.perf_counter() - t0}
+            (scratch / "run.json").write_text(json.dumps(info, indent=1, default=str))
+            publish_run(runs_dir, scratch, run_label)
+            return info
         tx.close()
         info, timed_out = _supervise(p, rx, scratch, timeout_s)
         if info is None:
@@ -376,7 +385,8 @@ def run_in_child(target, scenario_path: str, run_label: str, out_dir: str, fmu_s
             publish_run(runs_dir, scratch, run_label)
         return info
     finally:
-        if p.is_alive():                  # interrupted (Ctrl-C) or a bug here
+        tx.close()
+        if p.pid is not None and p.is_alive():   # interrupted (Ctrl-C) or a bug here
             p.kill()
         if p.pid is not None:
             p.join()
