@@ -1,8 +1,10 @@
 """``cosim run`` and ``cosim suite`` (scenario files, see docs/scenario-format.md).
 
     cosim run SCENARIO --out DIR [--fmu ROLE=PATH ...] [--map ROLE.VAR=FMU_VAR[:UNIT] ...]
-              [--binding FILE.yaml]
-    cosim suite PATH... --out DIR [--scheduler ADDRESS] [--workers N] [--fmu ROLE=PATH ...]
+              [--binding FILE.yaml] [--isolation auto|process|none] [--timeout SECONDS]
+    cosim suite PATH... --out DIR [--scheduler ADDRESS] [--workers N | --serial]
+                [--fmu ROLE=PATH ...] [--map ...] [--binding ...]
+                [--isolation auto|process|none] [--timeout SECONDS]
 
 ``--fmu`` swaps an FMU in for a role; ``--map`` / ``--binding`` bind it to the role's
 contract when its names or units differ (:mod:`cosim.master.binding`,
@@ -160,7 +162,8 @@ def _cmd_run(a) -> int:
     from cosim.scenarios.runner import run_scenario
 
     def work(out, swaps):
-        v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache)
+        v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
+                         isolation=a.isolation, timeout_s=a.timeout)
         render_scenario(a.scenario, out)
         return v
     rc, v = _guarded(a, "cosim run", work)
@@ -185,8 +188,9 @@ def _cmd_suite(a) -> int:
     def work(out, swaps):
         s = run_suite(a.paths, out, scheduler=a.scheduler, workers=a.workers,
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
-                      progress=not a.no_progress,
-                      ship=False if a.shared_fs else None)
+                      progress=not a.no_progress, serial=a.serial,
+                      ship=False if a.shared_fs else None,
+                      isolation=a.isolation, timeout_s=a.timeout)
         render_suite(out)
         return s
     rc, s = _guarded(a, "cosim suite", work)
@@ -210,6 +214,7 @@ def add_commands(sub) -> None:
     r.add_argument("--no-cache", action="store_true", help="rerun finished runs")
     r.add_argument("--no-build", action="store_true",
                    help="do not (re)build the package's FMUs from Modelica first")
+    _isolation_args(r)
     r.set_defaults(func=_cmd_run)
     s = sub.add_parser("suite", help="run scenario files/folders on Dask: summary.json, "
                        "junit.xml, report.html")
@@ -231,6 +236,9 @@ def add_commands(sub) -> None:
     s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     s.add_argument("--no-build", action="store_true",
                    help="do not (re)build the package's FMUs from Modelica first")
+    s.add_argument("--serial", action="store_true",
+                   help="run every run in this process, one after the other (no Dask)")
+    _isolation_args(s)
     s.set_defaults(func=_cmd_suite)
 
 
@@ -242,3 +250,30 @@ def _binding_options(p) -> None:
     p.add_argument("--binding", action="append", metavar="FILE.yaml",
                    help="role bindings from a file: ROLE: {fmu: PATH, map: {VAR: FMU_VAR}, "
                         "units: {VAR: UNIT}} (docs/bring-your-own-fmu.md)")
+
+
+def _isolation_args(p) -> None:
+    from cosim.scenarios.isolate import DEFAULT_TIMEOUT_S
+    p.add_argument("--isolation", choices=("auto", "process", "none"), default="auto",
+                   help="run each run in a supervised child process, so that an FMU that "
+                        "crashes or hangs ends only its run, with a record (signal, role, "
+                        "FMU, last time, the rows before it): auto (default) = when one of "
+                        "the run's FMUs is not the project's own; process = always; none = "
+                        "never")
+    p.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
+                   help=f"wall-clock limit per run for scenarios without timeout_s "
+                        f"(default {DEFAULT_TIMEOUT_S:g} s; 0 = none); a run past it ends "
+                        f"as 'error: timeout' and the others go on. Enforced on a hung FMU "
+                        f"call only for runs in a child process")
+
+
+def _seconds(text: str) -> float:
+    import argparse
+    import math
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v

@@ -99,6 +99,7 @@ TOP = {
     "metrics": (dict, False), "requirements": (list, False), "sweep": (dict, False),
     "monte_carlo": (dict, False), "parameters": (dict, False),
     "negative_controls": (dict, False), "faults": (dict, False),
+    "timeout_s": (NUM, False),      # per-run wall-clock limit [s] (cosim.scenarios.isolate)
 }
 ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
         "human_profile": (str, False), "grasp": (str, False), "kind": (str, False),
@@ -250,6 +251,8 @@ def load(path, fmu_dir=None) -> Scenario:
     if abs(n - round(n)) > 1e-6 * max(1.0, n):
         c.err(("duration",), f"duration {d['duration']} s is not a whole number of steps of "
               f"{step} s")
+    if "timeout_s" in d:
+        c.positive(d["timeout_s"], ("timeout_s",), "timeout_s (wall-clock limit per run) [s]")
     seeds = d.get("seeds", [0])
     seeds = [seeds] if isinstance(seeds, int) else seeds
     if not seeds:

@@ -90,7 +90,8 @@ def _client_paths(text: str, subst: dict) -> str:
 
 
 def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
-                    fmus: dict, swaps: dict, key: str | None = None) -> dict:
+                    fmus: dict, swaps: dict, key: str | None = None,
+                    isolation: str = "none", timeout_s: float | None = None) -> dict:
     """One run on a worker from values only (a Dask task).
 
     ``scenario_file``: the client's path of the scenario (a name, never opened);
@@ -98,7 +99,9 @@ def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
     role -> (sha256, bytes, client path) of the ``--fmu`` swaps. Runs
     :func:`cosim.scenarios.runner.execute_run` in a temporary folder of this process
     and returns ``{"files": {name: bytes}}``: the run folder, with the worker's
-    paths replaced by the client's in run.json and the Parquet metadata."""
+    paths replaced by the client's in run.json and the Parquet metadata. ``isolation``,
+    ``timeout_s``: as :func:`~cosim.scenarios.runner.execute_run` (decided by the
+    client, which knows which FMUs are the project's)."""
     import pyarrow.parquet as pq
 
     from .build import LOCAL_FMUS
@@ -118,7 +121,8 @@ def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
                 subst[str(p)] = client_path
         token = LOCAL_FMUS.set(local)
         try:
-            execute_run(str(scen), run_label, str(work / "out"), local_swaps, None, key)
+            execute_run(str(scen), run_label, str(work / "out"), local_swaps, None, key,
+                        isolation=isolation, timeout_s=timeout_s)
         finally:
             LOCAL_FMUS.reset(token)
         d = work / "out" / "runs" / safe_name(run_label)
