@@ -304,6 +304,10 @@ def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, target,
         pass
     os.environ.clear()
     os.environ.update(env)
+    # the supervision reads the Python tick loop (its row buffer and the line being
+    # executed: which FMU); the compiled engine runs the ticks in C holding the
+    # interpreter lock, where neither can be read: an isolated run uses the Python loop
+    os.environ["COSIM_ENGINE"] = "python"
     tempfile.tempdir = tmpdir
     scratch = Path(scratch)
     stacks = open(scratch / STACKS, "w")
