@@ -114,6 +114,8 @@ from typing import Mapping, NamedTuple, Sequence
 import numpy as np
 from scipy.linalg import expm
 
+from .ckernel import CKernel
+
 __all__ = [
     "AakfParams",
     "AakfModel",
@@ -614,6 +616,55 @@ class AaKF:
         self._ce = self._cs + len(self._kf)
         return self._kf[o]
 
+    # --- compiled step (cosim/algorithms/c/aakf.c; this class stays the reference) ---
+    def _kernel_member(self, tables: dict) -> list[float]:
+        """This filter's block of the kernel parameters (A_d, C row, where its gain
+        table lies); the gain sequence is run to convergence and added to ``tables``."""
+        seq = self._seq
+        while not seq.done:
+            seq.extend()
+        if id(seq) not in tables:
+            tables[id(seq)] = np.array([r for chunk in seq.K_tuples for r in chunk], float)
+        return [float(self._Ad_sparse), *self._Ad, *self._s_row,
+                float(seq.n), float(id(seq))]          # offset: filled in by _kernel_params
+
+    def _kernel_state(self) -> list[float]:
+        ep = self._enc_prev
+        return [float(self.k), *self._x_post, *self._x_pred, *self._innov, self.loglik,
+                self.reset_lo, self.reset_hi, 0.0 if ep is None else ep,
+                float(ep is not None), 0.0, 0.0]
+
+    def _kernel_sync_state(self, s: Sequence[float]) -> None:
+        self.k = k = int(s[0])
+        self._x_post = tuple(float(v) for v in s[1:5])
+        self._x_pred = tuple(float(v) for v in s[5:9])
+        self._innov = (float(s[9]), float(s[10]))
+        self.loglik = float(s[11])
+        self.reset_lo, self.reset_hi = float(s[12]), float(s[13])
+        self._enc_prev = float(s[14]) if s[15] else None
+        self._gk = k - 1                     # the gain of the last step (-1: none yet)
+        self._cs = self._ce = 0              # the next step finds its gain chunk again
+        self._kf = []
+        self._kss = None
+
+    def c_kernel(self) -> CKernel | None:
+        """The compiled step ``aakf`` (c/aakf.c), bit-identical to :meth:`step`.
+
+        Its parameters hold the gain sequence K_k up to convergence (computed here if
+        not yet: about 0.9 s per sigma_a, shared with the Python step), so they are a
+        read-only float64 array (about 2.7 MB per sigma_a), not a tuple."""
+        if not self._C_std:
+            return None
+        return _kernel(self, [self], bank=False)
+
+    def c_kernel_sync(self, state: Sequence[float]) -> None:
+        """Write the state of a compiled run back: later :meth:`step` calls continue as
+        if every step had run in Python."""
+        self._kernel_sync_state(state)
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"compiled aaKF step returned {code} (it has no error codes)")
+
     def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
         """One sample (eq. 98-103 with the Sec. 2.2.2 reset).
 
@@ -822,6 +873,70 @@ class AaKFBank(AaKF):
         return _outputs(self._s, th, om, al, bi, e0, e1, *flags)
 
     recordable: tuple[str, ...] = AaKF.recordable + ("weights", "sigma_a_eff")
+
+    def c_kernel(self) -> CKernel | None:
+        """The compiled step ``aakf`` in bank mode, bit-identical to :meth:`step`."""
+        if not all(f._C_std for f in self.members):
+            return None
+        return _kernel(self, self.members, bank=True)
+
+    def c_kernel_sync(self, state: Sequence[float]) -> None:
+        n = len(self.members)
+        for i, f in enumerate(self.members):
+            f._kernel_sync_state(state[_KS_MEMBER * i:_KS_MEMBER * (i + 1)])
+        b = [float(v) for v in state[_KS_MEMBER * n:]]
+        self.k = int(b[0])
+        self._enc_prev = b[2] if b[1] else None
+        self._best = int(b[3])
+        self.sigma_a_eff = b[4]
+        self._innov = (b[5], b[6])
+        self._x_mix = tuple(b[7:11])
+        self._L = b[11:11 + n]
+        self._w = b[11 + n:11 + 2 * n]
+        self._w_prior = b[11 + 2 * n:11 + 3 * n]
+
+
+#: kernel layout (c/aakf.c): header, per-member parameter block, per-member state
+_KP_HEADER = 14
+_KP_MEMBER = 21
+_KS_MEMBER = 18
+
+
+def _kernel(f: AaKF, members: Sequence[AaKF], bank: bool) -> CKernel:
+    """Pack ``f`` (one filter, or a bank of ``members``) for c/aakf.c."""
+    p = f.params
+    n = len(members)
+    tables: dict[int, np.ndarray] = {}
+    blocks = [m._kernel_member(tables) for m in members]
+    member_reset_out = (not bank) and f._reset_out
+    head = [float(n), float(bank), p.Ts, members[0]._delta, members[0]._half_delta, f._s,
+            float(p.encoder_quantiser == "floor"),
+            float(members[0]._reset_pred), float(members[0]._reset_post),
+            float(member_reset_out), float(bank and f._reset_out),
+            float(p.init_from_first_measurement), float(p.reset_speed_bound == "eq31_accel"),
+            f._lam if bank else 0.0, *(f._log_sa if bank else [])]
+    off = len(head) + _KP_MEMBER * n
+    where = {}
+    for key, t in tables.items():
+        where[key] = off
+        off += t.size
+    for b in blocks:
+        b[-1] = float(where[int(b[-1])])
+    params = np.concatenate([np.array(head + [v for b in blocks for v in b], float),
+                             *(t.ravel() for t in tables.values())])
+    params.flags.writeable = False
+    state = [v for m in members for v in m._kernel_state()]
+    if bank:
+        ep = f._enc_prev
+        state += [float(f.k), float(ep is not None), 0.0 if ep is None else ep,
+                  float(f._best), f.sigma_a_eff, *f._innov, *f._x_mix,
+                  *f._L, *f._w, *f._w_prior]
+        extra = ("sigma_a_eff",)
+    else:
+        extra = ("reset_lo", "reset_hi")
+    return CKernel(name="aakf", params=params, state=[float(v) for v in state],
+                   inputs=("theta_enc", "acc_meas"), outputs=tuple(f.outputs) + extra,
+                   attributes=extra)
 
 
 _SHARED_FIELDS = ("Ts", "lead_m", "encoder_counts_per_rev", "encoder_quantiser",
