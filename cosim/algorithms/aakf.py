@@ -1108,3 +1108,21 @@ class EncoderDifferentiator:
         s = p.lead_m / (2.0 * math.pi)
         return {"theta_rad": th, "omega_rad_s": omega, "alpha_rad_s2": alpha,
                 "x_m": s * th, "v_m_s": s * omega, "a_m_s2": s * alpha}
+
+    # --- compiled step (cosim/algorithms/c/encoder_diff.c; this class stays the reference) ---
+    def c_kernel(self) -> CKernel:
+        """The compiled step ``encoder_diff`` (bit-identical to :meth:`step`)."""
+        p = self.params
+        tp, op = self._theta_prev, self._omega_prev
+        return CKernel(name="encoder_diff", params=(p.Ts, p.lead_m / (2.0 * math.pi)),
+                       state=[0.0 if tp is None else tp, float(tp is not None),
+                              0.0 if op is None else op, float(op is not None)],
+                       inputs=self.inputs, outputs=self.outputs)
+
+    def c_kernel_sync(self, state: Sequence[float]) -> None:
+        """Write the state of a compiled run back (the last angle and speed)."""
+        self._theta_prev = float(state[0]) if state[1] else None
+        self._omega_prev = float(state[2]) if state[3] else None
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"compiled encoder_diff step returned {code} (it has no error codes)")

@@ -49,7 +49,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Mapping, Sequence
+
+from .ckernel import CKernel
 
 
 # --------------------------------------------------------------------------- drive
@@ -166,6 +168,24 @@ class ZeroForceController:
         i_cmp = float(measurements["i_dob"]) if p.use_dob else 0.0
         i_tot = _saturate(i_c + i_cmp, p.i_max_A)            # eq. 5: I_tot = I_c + I_cmp
         return {"i_cmd": i_tot, "f_cntr": self.f_cntr}
+
+    # --- compiled step (cosim/algorithms/c/zero_force.c; this class stays the reference) ---
+    def c_kernel(self) -> CKernel:
+        """The compiled step ``zero_force`` (bit-identical to :meth:`step`)."""
+        p = self.params
+        return CKernel(
+            name="zero_force",
+            params=(p.force_gain, p.drive.force_constant_N_per_A, float(p.enabled),
+                    float(p.use_dob), float(p.use_force_reference),
+                    float(p.i_max_A is not None), 0.0 if p.i_max_A is None else p.i_max_A),
+            state=[self.f_cntr], inputs=self.inputs, outputs=tuple(self.outputs))
+
+    def c_kernel_sync(self, state: Sequence[float]) -> None:
+        """Write the state of a compiled run back (``f_cntr`` of the last step)."""
+        self.f_cntr = float(state[0])
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"compiled zero-force step returned {code} (it has no error codes)")
 
 
 # --------------------------------------------------------------------------- reference

@@ -117,6 +117,14 @@ class AssistController(AdaptiveComplianceController):
         self._tick += 1
         return out
 
+    def c_kernel(self):
+        """The compiled step of the base class; None while snapshots are taken (they
+        are Python lists filled during the run)."""
+        return None if self.snapshot_every else super().c_kernel()
+
+    def c_kernel_sync(self, state) -> None:
+        self._tick = super().c_kernel_sync(state)
+
 
 def compliance_params(k: float, tau: float, alpha0: float = 10.0, **kw) -> AdaptiveComplianceParams:
     """Controller parameters of the trials: 6 x 6 cells over the 0.4 m x 0.4 m table
