@@ -309,3 +309,26 @@ def test_adaptive_compliance_kernel_none_when_not_2d_or_snapshots():
     assert k is not None and k.state[-1] == 1.0        # ticks stepped so far
     c.c_kernel_sync(k.state)
     assert c._tick == 1
+
+
+@pytest.mark.parametrize("sigma_a", [300.0, None], ids=["single", "bank"])
+def test_aakf_ticks_limit_the_packed_gain_sequence(lib, sigma_a):
+    """c_kernel(ticks=n) packs enough gain for n steps (a 6 s run needs 6000, not the
+    ~28 000 of convergence); past them the kernel returns 1 and changes nothing."""
+    p = AakfParams(sigma_a=sigma_a, sigma_a_bank=(30.0, 3000.0), sigma_b=2.5e-3)
+    f = AaKF(p)
+    f.step({"theta_enc": 0.0, "acc_meas": 0.0})
+    k = f.c_kernel(ticks=3000)
+    run = lib.runner(k)
+    for j in range(3000):
+        code, _ = run({"theta_enc": 1e-4 * j, "acc_meas": 0.1})
+        assert code == 0
+    seq = (f.members[0] if sigma_a is None else f)._seq
+    if not seq.done:                         # computed in chunks: up to seq.n steps run
+        for j in range(seq.n - 1 - 3000):
+            assert run({"theta_enc": 0.3, "acc_meas": 0.1})[0] == 0
+        before = run.state()
+        code, _ = run({"theta_enc": 0.3, "acc_meas": 0.1})
+        assert code == 1 and run.state() == before
+        assert "ticks" in str(f.c_kernel_error(1))
+    assert seq.n < 28000                     # not run to convergence

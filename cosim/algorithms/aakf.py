@@ -617,16 +617,17 @@ class AaKF:
         return self._kf[o]
 
     # --- compiled step (cosim/algorithms/c/aakf.c; this class stays the reference) ---
-    def _kernel_member(self, tables: dict) -> list[float]:
+    def _kernel_member(self, tables: dict, ticks: int | None) -> list[float]:
         """This filter's block of the kernel parameters (A_d, C row, where its gain
-        table lies); the gain sequence is run to convergence and added to ``tables``."""
+        table lies). The shared gain sequence is extended to cover ``ticks`` more steps
+        (None: to convergence) and added to ``tables``."""
         seq = self._seq
-        while not seq.done:
+        while not seq.done and (ticks is None or seq.n < self.k + ticks):
             seq.extend()
         if id(seq) not in tables:
             tables[id(seq)] = np.array([r for chunk in seq.K_tuples for r in chunk], float)
         return [float(self._Ad_sparse), *self._Ad, *self._s_row,
-                float(seq.n), float(id(seq))]          # offset: filled in by _kernel_params
+                float(seq.n), float(id(seq)), float(seq.done)]   # id: the table's offset, later
 
     def _kernel_state(self) -> list[float]:
         ep = self._enc_prev
@@ -647,15 +648,17 @@ class AaKF:
         self._kf = []
         self._kss = None
 
-    def c_kernel(self) -> CKernel | None:
+    def c_kernel(self, ticks: int | None = None) -> CKernel | None:
         """The compiled step ``aakf`` (c/aakf.c), bit-identical to :meth:`step`.
 
-        Its parameters hold the gain sequence K_k up to convergence (computed here if
-        not yet: about 0.9 s per sigma_a, shared with the Python step), so they are a
-        read-only float64 array (about 2.7 MB per sigma_a), not a tuple."""
+        Its parameters hold the data-independent gain sequence K_k (shared with the
+        Python step, computed here where it is not yet), so they are a read-only
+        float64 array, not a tuple: up to convergence (~28 000 steps, 2.7 MB and about
+        0.9 s of numpy per sigma_a) when ``ticks`` is None, else enough for ``ticks``
+        more steps (the kernel returns 1 past them unless the gain has converged)."""
         if not self._C_std:
             return None
-        return _kernel(self, [self], bank=False)
+        return _kernel(self, [self], bank=False, ticks=ticks)
 
     def c_kernel_sync(self, state: Sequence[float]) -> None:
         """Write the state of a compiled run back: later :meth:`step` calls continue as
@@ -663,7 +666,10 @@ class AaKF:
         self._kernel_sync_state(state)
 
     def c_kernel_error(self, code: int) -> Exception:
-        return RuntimeError(f"compiled aaKF step returned {code} (it has no error codes)")
+        if code == 1:
+            return RuntimeError("compiled aaKF step ran past the gain sequence it was given: "
+                                "c_kernel(ticks=...) was smaller than the run")
+        return RuntimeError(f"compiled aaKF step returned unknown code {code}")
 
     def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
         """One sample (eq. 98-103 with the Sec. 2.2.2 reset).
@@ -874,11 +880,12 @@ class AaKFBank(AaKF):
 
     recordable: tuple[str, ...] = AaKF.recordable + ("weights", "sigma_a_eff")
 
-    def c_kernel(self) -> CKernel | None:
-        """The compiled step ``aakf`` in bank mode, bit-identical to :meth:`step`."""
+    def c_kernel(self, ticks: int | None = None) -> CKernel | None:
+        """The compiled step ``aakf`` in bank mode, bit-identical to :meth:`step`
+        (``ticks``: see :meth:`AaKF.c_kernel`)."""
         if not all(f._C_std for f in self.members):
             return None
-        return _kernel(self, self.members, bank=True)
+        return _kernel(self, self.members, bank=True, ticks=ticks)
 
     def c_kernel_sync(self, state: Sequence[float]) -> None:
         n = len(self.members)
@@ -898,16 +905,16 @@ class AaKFBank(AaKF):
 
 #: kernel layout (c/aakf.c): header, per-member parameter block, per-member state
 _KP_HEADER = 14
-_KP_MEMBER = 21
+_KP_MEMBER = 22
 _KS_MEMBER = 18
 
 
-def _kernel(f: AaKF, members: Sequence[AaKF], bank: bool) -> CKernel:
+def _kernel(f: AaKF, members: Sequence[AaKF], bank: bool, ticks: int | None) -> CKernel:
     """Pack ``f`` (one filter, or a bank of ``members``) for c/aakf.c."""
     p = f.params
     n = len(members)
     tables: dict[int, np.ndarray] = {}
-    blocks = [m._kernel_member(tables) for m in members]
+    blocks = [m._kernel_member(tables, ticks) for m in members]
     member_reset_out = (not bank) and f._reset_out
     head = [float(n), float(bank), p.Ts, members[0]._delta, members[0]._half_delta, f._s,
             float(p.encoder_quantiser == "floor"),
@@ -921,7 +928,7 @@ def _kernel(f: AaKF, members: Sequence[AaKF], bank: bool) -> CKernel:
         where[key] = off
         off += t.size
     for b in blocks:
-        b[-1] = float(where[int(b[-1])])
+        b[-2] = float(where[int(b[-2])])
     params = np.concatenate([np.array(head + [v for b in blocks for v in b], float),
                              *(t.ravel() for t in tables.values())])
     params.flags.writeable = False

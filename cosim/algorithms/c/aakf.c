@@ -15,9 +15,12 @@
  *   [11] init from first measurement  [12] eq31_accel  [13] lambda (bank forgetting)
  *   [14 .. 14+n) log sigma_a_i (bank only)
  *   then per member MB doubles: Ad sparse flag, Ad (16, row-major), C[1,2], C[1,3],
- *   number of gain entries nK, offset of the gain table in p;
+ *   number of gain entries nK, offset of the gain table in p, 1 = the sequence has
+ *   converged (its last entry is held);
  *   gain table: nK rows of (K00, K01, K10, K11, K20, K21, K30, K31, Si00, Si01, Si11,
- *   log det S); row min(k, nK - 1) is the gain of step k (the last is held).
+ *   log det S); row min(k, nK - 1) is the gain of step k once converged.
+ * Returns 1 when a step lies past a gain table that has not converged (c_kernel was
+ * asked for fewer ticks than the run takes).
  * s: per member MS doubles: k, x_k|k (4), x_k|k-1 (4), e_k (2), loglik, reset_lo,
  *   reset_hi, theta_enc_k-1, has theta_enc_k-1, reset_pos, reset_speed (bank); then (bank) k, has enc_prev, enc_prev,
  *   best member, sigma_a_eff, e (2), x mix (4), L (n), w (n), w_prior (n).
@@ -30,7 +33,7 @@
 #include "cosim_kernel.h"
 
 #define HDR 14
-#define MB 21
+#define MB 22
 #define MS 18
 
 typedef struct {
@@ -64,13 +67,15 @@ static void clamp(const double *p, double *theta, double *omega, double alpha, d
 }
 
 /* one single filter (AaKF.step): member parameters m, state s */
-static void member_step(const double *p, const double *m, double *s, double enc, double acc,
-                        member_out *o)
+static int member_step(const double *p, const double *m, double *s, double enc, double acc,
+                       member_out *o)
 {
     const double *A = m + 1;
     double y_enc = p[6] != 0.0 ? enc + p[4] : enc;
     double k = s[0];
     double nK = m[19];
+    if (k >= nK && m[21] == 0.0)
+        return 1;                            /* past the packed, unconverged sequence */
     const double *K = p + (long)m[20] + 12 * (long)(k < nK ? k : nK - 1.0);
     double x0, x1, x2, x3;
     int pos = 0, spd = 0;
@@ -118,6 +123,7 @@ static void member_step(const double *p, const double *m, double *s, double enc,
         clamp(p, &x0, &x1, x2, enc, has_prev, enc_prev, &pos, &spd);
     o->th = x0; o->om = x1; o->al = x2; o->bi = x3; o->e0 = e0; o->e1 = e1;
     o->pos = pos; o->spd = spd;
+    return 0;
 }
 
 static void outputs(double sc, double th, double om, double al, double bi, double e0,
@@ -140,7 +146,8 @@ int cosim_kernel_aakf(const double *p, double *s, const double *in, double *out)
     member_out o;
 
     if (p[1] == 0.0) {                                     /* one filter (AaKF) */
-        member_step(p, mp, s, enc, acc, &o);
+        if (member_step(p, mp, s, enc, acc, &o))
+            return 1;
         outputs(p[5], o.th, o.om, o.al, o.bi, o.e0, o.e1, o.pos, o.spd, out);
         out[12] = s[12];
         out[13] = s[13];
@@ -155,11 +162,14 @@ int cosim_kernel_aakf(const double *p, double *s, const double *in, double *out)
     double top = 0.0, tot = 0.0, eff = 0.0;
     int best = 0, pos, spd;
     int i;
+    for (i = 0; i < n; i++)                   /* nothing changes when a table ends */
+        if (s[MS * i] >= mp[MB * i + 19] && mp[MB * i + 21] == 0.0)
+            return 1;
     for (i = 0; i < n; i++)
         wp[i] = w[i];                         /* w_k-1: the prior weights of this tick */
     for (i = 0; i < n; i++) {
         double *si = s + MS * i;
-        member_step(p, mp + MB * i, si, enc, acc, &o);
+        (void)member_step(p, mp + MB * i, si, enc, acc, &o);
         si[16] = (double)o.pos;               /* the member's reset flags of this tick */
         si[17] = (double)o.spd;
         L[i] = lam * L[i] + si[11];           /* L_i,k = lambda L_i,k-1 + l_i,k */
