@@ -332,3 +332,23 @@ def test_aakf_ticks_limit_the_packed_gain_sequence(lib, sigma_a):
         assert code == 1 and run.state() == before
         assert "ticks" in str(f.c_kernel_error(1))
     assert seq.n < 28000                     # not run to convergence
+
+
+def test_kernel_sources_ship_in_the_wheel(tmp_path):
+    """The C sources are package data (pyproject.toml): an installed wheel compiles them."""
+    import shutil
+    import zipfile
+    from pathlib import Path
+    from test_install_wheel import REPO, _build_wheel
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("pyproject.toml", "setup.py", "README.md"):
+        shutil.copy2(REPO / name, src / name)
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    shutil.copytree(REPO / "cosim", src / "cosim", ignore=ignore)
+    shutil.copytree(REPO / "modelica", src / "modelica", ignore=ignore)
+    names = set(zipfile.ZipFile(_build_wheel(src, tmp_path / "dist")).namelist())
+    want = {f"cosim/algorithms/c/{p.name}" for p in kernel_sources()}
+    want.add("cosim/algorithms/c/cosim_kernel.h")
+    assert len(want) == len(KERNELS) + 1 and want <= names, sorted(want - names)
+    assert Path(REPO / "cosim" / "algorithms" / "c" / "aakf.c").is_file()
