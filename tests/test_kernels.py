@@ -50,10 +50,11 @@ def _same(a: float, b: float) -> bool:
     return a == b and math.copysign(1.0, a) == math.copysign(1.0, b) or (a != a and b != b)
 
 
-def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=()):
+def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=(), reset=False):
     """Step ``make()`` objects over ``rows`` (input dicts): Python on both up to
     legs[0], then the kernel of B against Python A up to legs[1], then sync B and
-    Python on both. Returns (largest relative difference per output, kernel).
+    Python on both (``reset``: both objects are reset() before the kernel is packed).
+    Returns (largest relative difference per output, kernel).
 
     rtol None: every output and attribute bit-identical (sign of zero included);
     else |kernel - python| <= rtol * max|python| per signal."""
@@ -62,6 +63,9 @@ def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=()):
     n1, n2 = int(legs[0] * n), int(legs[1] * n)
     for m in rows[:n1]:
         assert a.step(m) == b.step(m)
+    if reset:
+        a.reset()
+        b.reset()
     k = b.c_kernel()
     assert isinstance(k, CKernel)
     run = lib.runner(k)
@@ -352,3 +356,21 @@ def test_kernel_sources_ship_in_the_wheel(tmp_path):
     want.add("cosim/algorithms/c/cosim_kernel.h")
     assert len(want) == len(KERNELS) + 1 and want <= names, sorted(want - names)
     assert Path(REPO / "cosim" / "algorithms" / "c" / "aakf.c").is_file()
+
+
+@pytest.mark.parametrize("which", ["aakf", "bank", "dob", "rfob", "encoder_diff", "ac"])
+def test_kernel_packed_after_reset(lib, logs, which):
+    """reset() mid-run, then the kernel: its first tick takes the start branches again."""
+    aak = logs["free_motion"][:4000]
+    iw = _current_speed_rows(4000, 7)
+    cases = {
+        "aakf": (lambda: AaKF(AakfParams(sigma_a=300.0, reset_enabled=True)), aak, None),
+        "bank": (lambda: AaKF(AakfParams(sigma_a_bank=(100.0, 3000.0))), aak, None),
+        "dob": (lambda: DOB(), iw, None),
+        "rfob": (lambda: RFOB(), iw, None),
+        "encoder_diff": (EncoderDifferentiator, [{"theta_enc": m["theta_enc"]} for m in aak], None),
+        "ac": (lambda: AdaptiveComplianceController(AdaptiveComplianceParams(k_N_per_m2s=1000.0)),
+               _reaching_rows(4000, 8), 1e-12),
+    }
+    make, rows, rtol = cases[which]
+    _compare(make, rows, lib, rtol=rtol, reset=True)
