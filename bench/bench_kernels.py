@@ -1,7 +1,8 @@
 """Per-step cost of each compiled controller step (cosim/algorithms/c/*.c) against its
 Python ``step``, side by side in one run, on the configurations the thesis suite runs.
 
-Three figures per block (us per step, min over repeats):
+Three figures per block (us of this thread's CPU time per step, min over repeats: the
+machine is shared, and CPU time is less disturbed by other processes than wall time):
 
 * ``python``: the class's ``step`` on pre-built input dicts;
 * ``ctypes``: one ctypes call of the kernel per step (inputs written into the ctypes
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import os
 import platform
 import sys
 import tempfile
@@ -38,16 +40,16 @@ _LOOP_C = r"""
 #define _POSIX_C_SOURCE 199309L
 #include <time.h>
 #include "cosim_kernel.h"
-/* the kernel over n ticks, inputs cycling through nrows rows; returns seconds */
+/* the kernel over n ticks, inputs cycling through nrows rows; returns CPU seconds */
 double cosim_bench_loop(cosim_kernel_fn f, const double *p, double *s, const double *ins,
                         long nin, long nrows, long n, double *out)
 {
     struct timespec a, b;
-    clock_gettime(CLOCK_MONOTONIC, &a);
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &a);
     for (long k = 0; k < n; k++)
         if (f(p, s, ins + (k % nrows) * nin, out))
             return -1.0;
-    clock_gettime(CLOCK_MONOTONIC, &b);
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &b);
     return (double)(b.tv_sec - a.tv_sec) + 1e-9 * (double)(b.tv_nsec - a.tv_nsec);
 }
 """
@@ -103,10 +105,10 @@ def _cases(n: int) -> list[Case]:
 def _python_us(block, rows, repeat: int) -> float:
     best = float("inf")
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         for m in rows:
             block.step(m)
-        best = min(best, time.perf_counter() - t0)
+        best = min(best, time.thread_time() - t0)
     return best / len(rows) * 1e6
 
 
@@ -129,7 +131,8 @@ def main(argv=None) -> int:
     loop.argtypes = [ctypes.c_void_p, PD, PD, PD, ctypes.c_long, ctypes.c_long, ctypes.c_long, PD]
     lines = [f"# bench/bench_kernels.py  {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
              f"# {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
-             f"CFLAGS {' '.join(CFLAGS)}; us per step, min of {a.repeat} over {a.ticks} steps",
+             f"CFLAGS {' '.join(CFLAGS)}; us per step, min of {a.repeat} over {a.ticks} steps; "
+             f"load average at start {os.getloadavg()[0]:.1f} (2 cores)",
              f"{'block':44s} {'python':>8s} {'ctypes':>8s} {'C loop':>8s} {'py/C':>7s}"]
     print("\n".join(lines), flush=True)
     for case in _cases(a.ticks):
@@ -154,12 +157,12 @@ def main(argv=None) -> int:
         best = float("inf")
         for _ in range(a.repeat):
             s[:] = s0
-            t0 = time.perf_counter()
+            t0 = time.thread_time()
             for row in ins.tolist():
                 for j, v in enumerate(row):
                     buf[j] = v
                 fn(pp, sp, buf, op)
-            best = min(best, time.perf_counter() - t0)
+            best = min(best, time.thread_time() - t0)
         ct = best / len(ins) * 1e6
         addr = ctypes.cast(fn, ctypes.c_void_p).value
         best = float("inf")
