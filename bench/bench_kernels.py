@@ -131,7 +131,7 @@ def main(argv=None) -> int:
     loop.argtypes = [ctypes.c_void_p, PD, PD, PD, ctypes.c_long, ctypes.c_long, ctypes.c_long, PD]
     lines = [f"# bench/bench_kernels.py  {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}",
              f"# {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
-             f"CFLAGS {' '.join(CFLAGS)}; us per step, min of {a.repeat} over {a.ticks} steps; "
+             f"CFLAGS {' '.join(CFLAGS)}; us of CPU time per step, min of {a.repeat} over {a.ticks} steps; "
              f"load average at start {os.getloadavg()[0]:.1f} (2 cores)",
              f"{'block':44s} {'python':>8s} {'ctypes':>8s} {'C loop':>8s} {'py/C':>7s}"]
     print("\n".join(lines), flush=True)
