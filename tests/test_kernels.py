@@ -22,7 +22,6 @@ Per-step cost: bench/bench_kernels.py (never asserted here).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -374,3 +373,13 @@ def test_kernel_packed_after_reset(lib, logs, which):
     }
     make, rows, rtol = cases[which]
     _compare(make, rows, lib, rtol=rtol, reset=True)
+
+
+def test_adaptive_compliance_one_reaching_training(lib):
+    """150 s, as one training of reaching.yaml (k 1500, tau 20 s, the table's axis
+    masses): the map does not drift apart over 150 000 ticks."""
+    from cosim.trials.reaching import AssistController, compliance_params
+    p = compliance_params(1500.0, 20.0, 10.0)
+    worst, _ = _compare(lambda: AssistController(p), _reaching_rows(150000, 9), lib,
+                        legs=(0.01, 0.99), rtol=1e-12, attrs=("a", "kp", "kd"))
+    print("adaptive_compliance 150 s worst relative difference", max(worst.values()))
