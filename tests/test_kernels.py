@@ -49,11 +49,12 @@ def _same(a: float, b: float) -> bool:
     return a == b and math.copysign(1.0, a) == math.copysign(1.0, b) or (a != a and b != b)
 
 
-def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=(), reset=False):
+def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=(), reset=False, objects=None):
     """Step ``make()`` objects over ``rows`` (input dicts): Python on both up to
     legs[0], then the kernel of B against Python A up to legs[1], then sync B and
-    Python on both (``reset``: both objects are reset() before the kernel is packed).
-    Returns (largest relative difference per output, kernel).
+    Python on both (``reset``: both objects are reset() before the kernel is packed;
+    the kernel is packed for the ticks of its leg). Returns (largest relative
+    difference per output, kernel); ``objects`` (a list) receives the two objects.
 
     rtol None: every output and attribute bit-identical (sign of zero included);
     else |kernel - python| <= rtol * max|python| per signal."""
@@ -65,7 +66,9 @@ def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=(), reset=False)
     if reset:
         a.reset()
         b.reset()
-    k = b.c_kernel()
+    if objects is not None:
+        objects += [a, b]
+    k = b.c_kernel(ticks=n2 - n1) if "ticks" in _params(b.c_kernel) else b.c_kernel()
     assert isinstance(k, CKernel)
     run = lib.runner(k)
     names = k.outputs
@@ -103,6 +106,11 @@ def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=(), reset=False)
         else:
             assert np.max(np.abs(A - B)) <= rtol * max(1e-300, np.max(np.abs(A))), at
     return worst, k
+
+
+def _params(f) -> tuple:
+    import inspect
+    return tuple(inspect.signature(f).parameters)
 
 
 def test_every_source_is_tested():
@@ -302,16 +310,41 @@ def test_adaptive_compliance_within_1e12(lib, opts):
     print("adaptive_compliance worst relative difference", max(worst.values()))
 
 
-def test_adaptive_compliance_kernel_none_when_not_2d_or_snapshots():
+def test_adaptive_compliance_kernel_none_when_not_2d_or_snapshots_unsized():
     from cosim.trials.reaching import AssistController, compliance_params
     assert AdaptiveComplianceController(AdaptiveComplianceParams(n_dof=1)).c_kernel() is None
     assert AssistController(compliance_params(1000.0, 5.0), snapshot_every=250).c_kernel() is None
     c = AssistController(compliance_params(1000.0, 5.0))
     c.step({"pos_x": 0.0, "pos_y": 0.0, "ref_x": 0.01, "ref_y": 0.0})
     k = c.c_kernel()
-    assert k is not None and k.state[-1] == 1.0        # ticks stepped so far
+    assert k is not None and k.state[2 * 36 + 8] == 1.0      # ticks stepped so far
     c.c_kernel_sync(k.state)
     assert c._tick == 1
+
+
+def test_adaptive_compliance_snapshots_as_circular(lib):
+    """circular.yaml's controller (snapshot every 250 ticks): the kernel, packed for the
+    run's ticks, takes the same map snapshots at the same ticks; one more is refused."""
+    from cosim.trials.reaching import AssistController, compliance_params
+    p = compliance_params(1000.0, 5.0, 10.0)
+    objs: list = []
+    rows = _reaching_rows(20000, 10)
+    _compare(lambda: AssistController(p, snapshot_every=250), rows, lib, legs=(0.1013, 0.9),
+             rtol=1e-12, objects=objs)
+    a, b = objs
+    assert [t for t, _ in a.snapshots] == [t for t, _ in b.snapshots] == list(range(0, 20000, 250))
+    for (_, A), (_, B) in zip(a.snapshots, b.snapshots):
+        assert np.max(np.abs(A - B)) <= 1e-12 * np.max(np.abs(A))
+    c = AssistController(p, snapshot_every=250)
+    k = c.c_kernel(ticks=250)                  # room for the snapshot at tick 0 only
+    run = lib.runner(k)
+    for m in rows[:250]:
+        assert run(m)[0] == 0
+    before = run.state()
+    assert run(rows[250])[0] == 2 and run.state() == before
+    assert "ticks" in str(c.c_kernel_error(2))
+    c.c_kernel_sync(before)
+    assert c._tick == 250 and [t for t, _ in c.snapshots] == [0]
 
 
 @pytest.mark.parametrize("sigma_a", [300.0, None], ids=["single", "bank"])

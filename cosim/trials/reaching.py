@@ -117,13 +117,21 @@ class AssistController(AdaptiveComplianceController):
         self._tick += 1
         return out
 
-    def c_kernel(self):
-        """The compiled step of the base class; None while snapshots are taken (they
-        are Python lists filled during the run)."""
-        return None if self.snapshot_every else super().c_kernel()
+    def c_kernel(self, ticks: int | None = None):
+        """The compiled step of the base class, taking the snapshots too: their buffer
+        holds those of ``ticks`` more steps, so with snapshots ``ticks`` is needed
+        (None: no compiled step)."""
+        if not self.snapshot_every:
+            return self._c_kernel(0, 0)
+        if ticks is None:
+            return None
+        due = range(-(-self._tick // self.snapshot_every) * self.snapshot_every,
+                    self._tick + ticks, self.snapshot_every)
+        return self._c_kernel(self.snapshot_every, len(due))
 
     def c_kernel_sync(self, state) -> None:
-        self._tick = super().c_kernel_sync(state)
+        self._tick, snaps = self._c_kernel_sync(state)
+        self.snapshots.extend(snaps)
 
 
 def compliance_params(k: float, tau: float, alpha0: float = 10.0, **kw) -> AdaptiveComplianceParams:

@@ -12,9 +12,13 @@
  *    [5] 1 = physical damping form  [6] m_x [kg]  [7] m_y [kg]  [8] c/((2 pi) sqrt(det S))
  *    [9] -1/(2 sigma_x^2)  [10] -1/(2 sigma_y^2) [1/m^2]  [11] cells per axis m
  *    [12 .. 12+m) centres along x [m], [12+m .. 12+2m) centres along y [m]
+ *    [12+2m] snapshot every n ticks (0: none)  [13+2m] room for snapshots
  * s: [0 .. 2P) heights a (axis x: P, then axis y: P; P = m^2, cell (i, j) at i m + j)
  *    [2P] has x~_k-1  [2P+1] x~_x,k-1  [2P+2] x~_y,k-1  [2P+3] motors on
  *    [2P+4] kp_x  [2P+5] kp_y  [2P+6] kd_x  [2P+7] kd_y  [2P+8] ticks stepped
+ *    [2P+9] snapshots taken, then that many (tick, a (2P)) records (the trials'
+ *    AssistController.snapshots: the map after each tick that is a multiple of n)
+ * Returns 2 when a snapshot is due and there is no room left (state unchanged).
  * in: pos_x, pos_y, ref_x, ref_y [m]
  * out: f_x, f_y [N], kp_x, kp_y [N/m], kd_x, kd_y [N s/m], err_x, err_y [m]
  */
@@ -36,6 +40,10 @@ int cosim_kernel_adaptive_compliance(const double *p, double *s, const double *i
     double *ax = s, *ay = s + P, *st = s + 2 * P;
     if (m > MAXC)
         return 1;
+    double every = p[12 + 2 * m], tick = st[8];
+    int snap = every > 0.0 && fmod(tick, every) == 0.0;
+    if (snap && st[9] >= p[13 + 2 * m])
+        return 2;                                   /* no room: nothing changed */
     for (i = 0; i < m; i++) {                     /* eq. 63: separable, diagonal S */
         double d = x - cx[i];
         gx[i] = exp(p[9] * d * d);
@@ -88,7 +96,14 @@ int cosim_kernel_adaptive_compliance(const double *p, double *s, const double *i
     }
     st[0] = 1.0; st[1] = ex; st[2] = ey;
     st[4] = kpx; st[5] = kpy; st[6] = kdx; st[7] = kdy;
-    st[8] = st[8] + 1.0;
+    if (snap) {                                     /* (tick, a_k) */
+        double *rec = st + 10 + (long)st[9] * (1 + 2 * P);
+        rec[0] = tick;
+        for (i = 0; i < 2 * P; i++)
+            rec[1 + i] = s[i];
+        st[9] = st[9] + 1.0;
+    }
+    st[8] = tick + 1.0;
     if (st[3] != 0.0) {                                     /* eq. 73 */
         out[0] = kpx * ex + kdx * dex;
         out[1] = kpy * ey + kdy * dey;
