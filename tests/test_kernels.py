@@ -68,7 +68,7 @@ def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=(), reset=False,
         b.reset()
     if objects is not None:
         objects += [a, b]
-    k = b.c_kernel(ticks=n2 - n1) if "ticks" in _params(b.c_kernel) else b.c_kernel()
+    k = b.c_kernel(ticks=n2 - n1)
     assert isinstance(k, CKernel)
     run = lib.runner(k)
     names = k.outputs
@@ -108,13 +108,17 @@ def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=(), reset=False,
     return worst, k
 
 
-def _params(f) -> tuple:
-    import inspect
-    return tuple(inspect.signature(f).parameters)
-
-
 def test_every_source_is_tested():
     assert sorted(p.stem for p in kernel_sources()) == sorted(KERNELS)
+
+
+def test_every_c_kernel_takes_ticks():
+    """One call for the master: c_kernel(ticks=n), n the ticks of the compiled run
+    (blocks whose kernel needs no bound ignore it)."""
+    import inspect
+    for cls in (AaKF, AaKFBank, EncoderDifferentiator, DOB, RFOB, ZeroForceController,
+                BilateralController, AdaptiveComplianceController):
+        assert list(inspect.signature(cls.c_kernel).parameters) == ["self", "ticks"], cls
 
 
 # --------------------------------------------------------------------------------- aaKF

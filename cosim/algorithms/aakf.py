@@ -1117,8 +1117,8 @@ class EncoderDifferentiator:
                 "x_m": s * th, "v_m_s": s * omega, "a_m_s2": s * alpha}
 
     # --- compiled step (cosim/algorithms/c/encoder_diff.c; this class stays the reference) ---
-    def c_kernel(self) -> CKernel:
-        """The compiled step ``encoder_diff`` (bit-identical to :meth:`step`)."""
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``encoder_diff`` (bit-identical to :meth:`step`; ``ticks`` unused)."""
         p = self.params
         tp, op = self._theta_prev, self._omega_prev
         return CKernel(name="encoder_diff", params=(p.Ts, p.lead_m / (2.0 * math.pi)),

@@ -146,8 +146,8 @@ class BilateralController:
         return out
 
     # --- compiled step (cosim/algorithms/c/bilateral.c; this class stays the reference) ---
-    def c_kernel(self) -> CKernel:
-        """The compiled step ``bilateral`` (bit-identical to :meth:`step`)."""
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``bilateral`` (bit-identical to :meth:`step`; ``ticks`` unused)."""
         p = self.params
         last = [float(self.last[k]) for k in self.outputs] if self.last else [0.0] * 6
         return CKernel(

@@ -173,8 +173,8 @@ class DOB:
         return out
 
     # --- compiled step (cosim/algorithms/c/dob.c; this class stays the reference) ---
-    def c_kernel(self) -> CKernel:
-        """The compiled step ``dob`` (bit-identical to :meth:`step`)."""
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``dob`` (bit-identical to :meth:`step`; ``ticks`` unused)."""
         prm = self.params
         return CKernel(
             name="dob",
@@ -312,9 +312,10 @@ class RFOB:
         return {"tau_ext_hat": self.tau_hat, "f_ext_hat": f_ext, "f_int_hat": -f_ext}
 
     # --- compiled step (cosim/algorithms/c/rfob.c; this class stays the reference) ---
-    def c_kernel(self) -> CKernel:
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
         """The compiled step ``rfob`` with the parameters in use now (a later
-        :meth:`set_parameters` needs a new kernel); bit-identical to :meth:`step`."""
+        :meth:`set_parameters` needs a new kernel); bit-identical to :meth:`step`; ``ticks``
+        unused."""
         prm = self.params
         return CKernel(
             name="rfob",

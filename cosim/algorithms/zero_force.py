@@ -170,8 +170,8 @@ class ZeroForceController:
         return {"i_cmd": i_tot, "f_cntr": self.f_cntr}
 
     # --- compiled step (cosim/algorithms/c/zero_force.c; this class stays the reference) ---
-    def c_kernel(self) -> CKernel:
-        """The compiled step ``zero_force`` (bit-identical to :meth:`step`)."""
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``zero_force`` (bit-identical to :meth:`step`; ``ticks`` unused)."""
         p = self.params
         return CKernel(
             name="zero_force",
