@@ -3,9 +3,9 @@
  *
  * The Python classes are the reference; this is the same arithmetic in the same order
  * (bit-identical, tests/test_kernels.py). The gain K_k (eq. 99, 100, 103) does not
- * depend on the data: AaKF.c_kernel() packs the shared precomputed sequence (run to
- * convergence, then held) into p, with the inverse and log-determinant of
- * S_k = C P_k|k-1 C^T + R (eq. 100) that the bank's likelihood needs.
+ * depend on the data: AaKF.c_kernel(ticks) packs the shared precomputed sequence (for
+ * the ticks of the run, or to convergence, then held) into p, with the inverse and
+ * log-determinant of S_k = C P_k|k-1 C^T + R (eq. 100) that the bank's likelihood needs.
  *
  * p (packed by AaKF.c_kernel / AaKFBank.c_kernel):
  *   [0] n members (1 for a single filter)   [1] 1 = bank
@@ -22,8 +22,9 @@
  * Returns 1 when a step lies past a gain table that has not converged (c_kernel was
  * asked for fewer ticks than the run takes).
  * s: per member MS doubles: k, x_k|k (4), x_k|k-1 (4), e_k (2), loglik, reset_lo,
- *   reset_hi, theta_enc_k-1, has theta_enc_k-1, reset_pos, reset_speed (bank); then (bank) k, has enc_prev, enc_prev,
- *   best member, sigma_a_eff, e (2), x mix (4), L (n), w (n), w_prior (n).
+ *   reset_hi, theta_enc_k-1, has theta_enc_k-1, reset_pos, reset_speed (bank);
+ *   then (bank) k, has enc_prev, enc_prev, best member, sigma_a_eff, e (2),
+ *   x mix (4), L (n), w (n), w_prior (n).
  * in: theta_enc [rad], acc_meas [m/s^2].
  * out: theta_rad, omega_rad_s, alpha_rad_s2, x_m, v_m_s, a_m_s2, bias_m_s2,
  *   innov_enc_rad, innov_acc_m_s2, reset_fired, reset_pos_fired, reset_speed_fired,
