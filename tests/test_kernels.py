@@ -22,6 +22,7 @@ Per-step cost: bench/bench_kernels.py (never asserted here).
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -420,3 +421,42 @@ def test_adaptive_compliance_one_reaching_training(lib):
     worst, _ = _compare(lambda: AssistController(p), _reaching_rows(150000, 9), lib,
                         legs=(0.01, 0.99), rtol=1e-12, attrs=("a", "kp", "kd"))
     print("adaptive_compliance 150 s worst relative difference", max(worst.values()))
+
+
+def _sum_cpython312(xs, start=0):
+    """CPython >= 3.12's sum() of floats (Python/bltinmodule.c): start + x_0, then
+    Neumaier's compensated summation, the compensation added at the end if finite."""
+    it = iter(xs)
+    f = start + next(it)
+    c = 0.0
+    for x in it:
+        t = f + x
+        c += (f - t) + x if abs(f) >= abs(x) else (x - t) + f
+        f = t
+    return f + c if c and math.isfinite(c) else f
+
+
+@pytest.mark.skipif(sys.version_info >= (3, 12), reason="the interpreter's own sum is compensated")
+def test_aakf_bank_under_python312_sum(lib, logs, monkeypatch):
+    """The bank's kernel follows the interpreter's sum(): on CPython >= 3.12 (compensated)
+    it uses Neumaier's summation. Checked here with the 3.12 algorithm in place of the
+    builtin in cosim.algorithms.aakf and the kernel's flag set."""
+    from cosim.algorithms import aakf as aakf_mod
+    rows = logs["identification"][:8000]
+    p = AakfParams(p0_bias_std_m_s2=0.1)
+    py, ck = AaKF(p), AaKF(p)
+    k = ck.c_kernel(ticks=len(rows))
+    params = np.array(k.params)
+    assert params[14] == 0.0                  # this interpreter: plain sums
+    params[14] = 1.0
+    monkeypatch.setattr(aakf_mod, "sum", _sum_cpython312, raising=False)
+    run = lib.runner(CKernel(k.name, params, k.state, k.inputs, k.outputs, k.attributes))
+    plain = lib.runner(k)
+    differs = 0
+    for m in rows:
+        o = py.step(m)
+        code, oc = run(m)
+        assert code == 0 and all(_same(o[nm], oc[nm]) for nm in o), m
+        oplain = plain(m)[1]
+        differs += any(not _same(o[nm], oplain[nm]) for nm in o)
+    assert differs > 0                         # the two summations do differ on this run

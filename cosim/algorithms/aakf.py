@@ -108,6 +108,7 @@ help. Figures: docs/decisions.md, "aaKF and RLS on independent data".
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass, replace
 from typing import Mapping, NamedTuple, Sequence
 
@@ -953,7 +954,7 @@ class AaKFBank(AaKF):
 
 
 #: kernel layout (c/aakf.c): header, per-member parameter block, per-member state
-_KP_HEADER = 14
+_KP_HEADER = 15
 _KP_MEMBER = 22
 _KS_MEMBER = 18
 
@@ -976,7 +977,10 @@ def _kernel(f: AaKF, members: Sequence[AaKF], bank: bool, ticks: int | None) -> 
             float(members[0]._reset_pred), float(members[0]._reset_post),
             float(member_reset_out), float(bank and f._reset_out),
             float(p.init_from_first_measurement), float(p.reset_speed_bound == "eq31_accel"),
-            f._lam if bank else 0.0, *(f._log_sa if bank else [])]
+            f._lam if bank else 0.0,
+            # CPython 3.12 made sum() of floats compensated (Neumaier): the bank's sums
+            float(sys.version_info >= (3, 12)), *(f._log_sa if bank else [])]
+    assert len(head) == _KP_HEADER + (n if bank else 0)      # the layout of c/aakf.c
     off = len(head) + _KP_MEMBER * n
     where = {}
     for key, t in tables.items():

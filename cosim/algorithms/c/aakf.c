@@ -13,7 +13,8 @@
  *   [6] floor quantiser  [7] member reset on the prediction  [8] on the posterior
  *   [9] member reset on the output  [10] bank reset on the output (bank's estimate)
  *   [11] init from first measurement  [12] eq31_accel  [13] lambda (bank forgetting)
- *   [14 .. 14+n) log sigma_a_i (bank only)
+ *   [14] 1 = Python's sum() of floats is compensated (Neumaier; CPython >= 3.12)
+ *   [15 .. 15+n) log sigma_a_i (bank only)
  *   then per member MB doubles: Ad sparse flag, Ad (16, row-major), C[1,2], C[1,3],
  *   number of gain entries nK, offset of the gain table in p, 1 = the sequence has
  *   converged (its last entry is held);
@@ -33,7 +34,7 @@
 #include <math.h>
 #include "cosim_kernel.h"
 
-#define HDR 14
+#define HDR 15
 #define MB 22
 #define MS 18
 
@@ -127,6 +128,30 @@ static int member_step(const double *p, const double *m, double *s, double enc, 
     return 0;
 }
 
+/* Python's sum() of the n >= 1 floats x_i = a[i] (b NULL) or a[i] * b[i], start 0:
+ * 0 + x_0, then plain additions (CPython <= 3.11) or Neumaier's compensated summation
+ * (CPython >= 3.12, Python/bltinmodule.c) */
+static double py_sum(const double *a, const double *b, int n, int compensated)
+{
+    double f = 0.0 + (b ? a[0] * b[0] : a[0]), c = 0.0;
+    for (int i = 1; i < n; i++) {
+        double x = b ? a[i] * b[i] : a[i];
+        if (compensated) {
+            double t = f + x;
+            if (fabs(f) >= fabs(x))
+                c += (f - t) + x;
+            else
+                c += (x - t) + f;
+            f = t;
+        } else {
+            f += x;
+        }
+    }
+    if (compensated && c != 0.0 && isfinite(c))
+        f += c;
+    return f;
+}
+
 static void outputs(double sc, double th, double om, double al, double bi, double e0,
                     double e1, int pos, int spd, double *out)
 {
@@ -160,7 +185,7 @@ int cosim_kernel_aakf(const double *p, double *s, const double *in, double *out)
     double *L = b + 11, *w = L + n, *wp = w + n;
     double lam = p[13];
     double th = 0.0, om = 0.0, al = 0.0, bi = 0.0, e0 = 0.0, e1 = 0.0;
-    double top = 0.0, tot = 0.0, eff = 0.0;
+    double top = 0.0, tot, eff;
     int best = 0, pos, spd;
     int i;
     for (i = 0; i < n; i++)                   /* nothing changes when a table ends */
@@ -180,15 +205,14 @@ int cosim_kernel_aakf(const double *p, double *s, const double *in, double *out)
     for (i = 0; i < n; i++) {
         L[i] = L[i] - top;                    /* keep exp() in range; w unchanged */
         w[i] = exp(L[i]);
-        tot += w[i];                          /* sum(ex), left to right */
     }
+    tot = py_sum(w, (const double *)0, n, p[14] != 0.0);   /* sum(ex) */
     for (i = 0; i < n; i++) {
         w[i] = w[i] / tot;                    /* w_i,k = exp(L_i,k) / sum_j exp(L_j,k) */
         if (w[i] > w[best])                   /* most probable member (first of equals) */
             best = i;
     }
-    for (i = 0; i < n; i++)
-        eff += w[i] * log_sa[i];
+    eff = py_sum(w, log_sa, n, p[14] != 0.0);  /* sum(w_i log sigma_a_i) */
     b[4] = exp(eff);                          /* sigma_a_eff = exp(sum_i w_i log sigma_a_i) */
     /* the bank's estimate sum_i w_i,k x_i,k|k (members have no output-stage reset,
      * so x_i,k|k is member i's output) and innovation sum_i w_i,k-1 e_i,k */
