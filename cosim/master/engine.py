@@ -28,8 +28,10 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import importlib
 import importlib.machinery
 import importlib.util
+import inspect
 import math
 import numbers
 import os
@@ -144,13 +146,15 @@ def unsupported(master, plan) -> str | None:
     return None
 
 
-def _kernel_of(c, plan, names):
+def _kernel_of(c, plan, names, ticks):
     """The CKernel of controller ``c`` for the whole compiled loop, or (None, why)."""
     fn = getattr(c.block, "c_kernel", None)
     if fn is None:
         return None, f"controller {c.name!r} ({type(c.block).__name__}) has no compiled step"
     try:
-        k = fn()
+        # ``ticks``: how many steps the run makes (a kernel may size tables by it,
+        # cosim.algorithms.ckernel); a block's c_kernel() may do without it
+        k = fn(ticks=ticks) if "ticks" in inspect.signature(fn).parameters else fn()
     except Exception as exc:     # the fast path is optional: the Python step runs
         return None, f"controller {c.name!r}: c_kernel() failed: {type(exc).__name__}: {exc}"
     if k is None:
@@ -173,7 +177,7 @@ def _attr_key(attr, index) -> str:
     return f"{attr}[{','.join(map(str, index))}]" if index else attr
 
 
-def choose(master, plan):
+def choose(master, plan, ticks: int):
     """(mode, reason, kernels): 'python', 'compiled-loop' or 'compiled-calls'."""
     why = unsupported(master, plan)
     if why is not None:
@@ -184,7 +188,7 @@ def choose(master, plan):
         return "python", f"the compiled engine is not available: {exc}", None
     kernels, notes = [], []
     for c in master.system.controllers:
-        k, note = _kernel_of(c, plan, names)
+        k, note = _kernel_of(c, plan, names, ticks)
         kernels.append(k)
         if note:
             notes.append(note)

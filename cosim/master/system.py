@@ -951,7 +951,7 @@ class Master:
         mode, why, kernels = "python", "engine='python'", None
         if self.engine != "python":
             from . import engine as _engine
-            mode, why, kernels = _engine.choose(self, plan)
+            mode, why, kernels = _engine.choose(self, plan, n_ticks + 1)  # steps k = 0..N
             if mode == "python" and self.engine == "compiled":
                 raise SystemError_(f"engine='compiled': the compiled engine cannot run this "
                                    f"system: {why}")
