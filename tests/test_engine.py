@@ -31,12 +31,19 @@ from cosim.master.system import ControllerError, Master, System, SystemError_
 REPO = Path(__file__).resolve().parent.parent
 
 
-def _same(a, b):
-    """Every column bit-identical, and the run ended the same way."""
+def _same(a, b, rel: float = 0.0):
+    """Every column bit-identical (or, with ``rel`` > 0, within ``rel`` of the column's
+    largest magnitude), and the run ended the same way."""
     assert list(a.signals) == list(b.signals)
     for k in a.signals:
         x, y = np.asarray(a.signals[k]), np.asarray(b.signals[k])
         assert x.dtype == y.dtype, k
+        if rel and x.dtype.kind == "f":
+            tol = rel * max(1.0, float(np.nanmax(np.abs(x))) if x.size else 1.0)
+            assert np.array_equal(np.isnan(x), np.isnan(y)) and \
+                np.nanmax(np.abs(x - y), initial=0.0) <= tol, \
+                f"{k}: differs by {np.nanmax(np.abs(x - y))} > {tol}"
+            continue
         assert np.array_equal(x, y, equal_nan=True), \
             f"{k}: differs, first at row {int(np.argmax(x != y))} (max |d| {np.nanmax(np.abs(x - y))})"
     assert (a.completed, a.error, a.ticks, a.stop_reason, a.notes) == \
@@ -403,7 +410,8 @@ def _merge(a, b):
 @pytest.mark.parametrize("name", sorted(SHORT))
 def test_scenario_systems_are_bit_identical(name, tmp_path, monkeypatch):
     """Every Master.run a shortened run of the scenario makes is made with the Python
-    loop and with the engine ('auto'), and compared column by column."""
+    loop and with the engine ('auto'), and compared column by column (bitwise, or to
+    1e-12 where a kernel is only that close)."""
     from cosim.scenarios import execute_run, expand, load
     duration, over = SHORT[name]
     data = yaml.safe_load((REPO / "scenarios" / name).read_text())
@@ -415,9 +423,14 @@ def test_scenario_systems_are_bit_identical(name, tmp_path, monkeypatch):
     compared, failures = [], []
     run = Master.run
 
+    # the adaptive-compliance kernel equals its Python step to 1e-12, not bit for bit
+    # (numpy's exp and dot order against libm's; tests/test_kernels.py): the systems
+    # running it are compared to 1e-12 of each column's magnitude, the others bitwise
+    rel = 1e-12 if name in ("circular.yaml", "reaching.yaml") else 0.0
+
     def check(ref, res):
         try:
-            _same(ref, res)
+            _same(ref, res, rel)
         except AssertionError as exc:
             failures.append(str(exc))
 
