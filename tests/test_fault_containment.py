@@ -252,21 +252,42 @@ def test_timeout_s_is_checked_with_its_line(tmp_path, value, msg):
     assert str(ei.value).startswith(f"{f}:{line}:") and msg in str(ei.value), str(ei.value)
 
 
-def test_in_process_timeout_keeps_the_rows(tmp_path, fmus):
+@pytest.mark.parametrize("engine, duration_s, limit_s", [("python", 600.0, 1.0),
+                                                          ("compiled", 2000.0, 0.5)])
+def test_in_process_timeout_keeps_the_rows(tmp_path, fmus, monkeypatch, engine, duration_s,
+                                           limit_s):
     """In this process (the package's FMU, --isolation none) the limit stops Python
-    code: the run ends as 'timeout' with the rows it had."""
+    code and the compiled engine's loop (it checks for signals every 4096 ticks): the
+    run ends as 'timeout' with the rows it had. (The compiled loop makes 200 s of this
+    system in about 0.3 s: it gets a longer run and a shorter limit.)"""
     from cosim.scenarios import expand, load
     from cosim.scenarios.runner import execute_run
+    monkeypatch.setenv("COSIM_ENGINE", engine)
     f = tmp_path / "long.yaml"
-    f.write_text(textwrap.dedent(BASE).replace("duration: 0.5", "duration: 600.0"))
+    text = textwrap.dedent(BASE).replace("duration: 0.5", f"duration: {duration_s}")
+    if engine == "compiled":
+        # the current from a compiled controller, not a stimulus: the engine evaluates
+        # stimuli for every tick before the loop, and the limit is to strike in the loop
+        text = text.replace("  connections:\n    - stim.i -> plant.i\n", "").replace(
+            "stimuli:\n  i: {type: constant, params: {value: 0.1}}\n",
+            "controllers:\n  ref: {type: sine_reference, params: {amplitude_m: 0.1, "
+            "frequency_Hz: 1.0}, outputs: {x_ref: plant.i}}\n").replace(
+            "override: {stimuli: {i: {params: {value: 0.05}}}}",
+            "override: {controllers: {ref: {params: {amplitude_m: 0.05}}}}")
+        # (and the unit's own friction: LuGre with fc = fs = 0 fails after ~228 s of
+        # oscillating current, g(v) = 0 in its z equation)
+        text = text.replace("parameters: {fc: 0.0, fs: 0.0, sigma1: 0.0, b: 1.0e-3}",
+                            "parameters: {b: 1.0e-3}")
+        assert "sine_reference" in text and "stim.i" not in text and "fs: 0.0" not in text
+    f.write_text(text)
     (run,) = expand(load(f))
     info = execute_run(str(f), run.label, str(tmp_path / "out"), isolation="none",
-                       timeout_s=1.0)
+                       timeout_s=limit_s)
     assert info["status"] == "error" and info["error"].startswith(
-        "timeout: the run passed its wall-clock limit of 1 s"), info["error"]
+        f"timeout: the run passed its wall-clock limit of {limit_s:g} s"), info["error"]
     assert info["wall_s"] < 30
     (ph,) = info["phases"]
-    assert not ph["completed"] and 10 < ph["ticks"] < 600_000
+    assert not ph["completed"] and 10 < ph["ticks"] < int(duration_s * 1000)
 
 
 def test_a_crash_outside_the_tick_loop_names_the_role(probes, tmp_path):
