@@ -86,6 +86,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from . import coupled as _coupled
 from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, FMUTerminated, suggest
 from .roles import CONTRACTS, RoleContract, check_contract
 
@@ -138,6 +139,8 @@ class System:
         self._connections: list[_Connection] = []
         self.controllers: list[_Controller] = []
         self.stimuli: dict[str, Callable[[float], float]] = {}
+        #: coupled groups (tuples of roles) solved together (:mod:`cosim.master.coupled`)
+        self.coupled: list[tuple[str, ...]] = []
 
     # ----------------------------------------------------------- lifetime
     def close(self) -> None:
@@ -347,6 +350,23 @@ class System:
                 raise SystemError_(f"role {role!r}: {name} is a scalar; got {value!r}")
             for x in vals:
                 _check_value(role, name, v, x)
+
+    def couple(self, *roles: str) -> None:
+        """Solve ``roles`` together as one strongly coupled system (a stiff load cell or
+        wall between units): the members run as Model Exchange FMUs integrated by one
+        implicit solver, and the connections between them are continuous instead of
+        exchanged at the step (:mod:`cosim.master.coupled`). The roles must be bound
+        with ``kind='me'`` by the time the system runs."""
+        roles = tuple(roles)
+        if len(roles) < 2 or len(set(roles)) != len(roles):
+            raise SystemError_(f"a coupled group needs two or more different roles, got "
+                               f"{list(roles)}")
+        for r in roles:
+            self._role(r)
+            g = _coupled.group_of(self, r)
+            if g is not None:
+                raise SystemError_(f"role {r!r} is already in the coupled group {list(g)}")
+        self.coupled.append(roles)
 
     def connect(self, source: str, dest: str, scale: float = 1.0, sequential: bool = False,
                 check_units: bool = True):
@@ -806,6 +826,7 @@ class Master:
                                    f"({n_ticks} steps is not)")
         for c in sys_.controllers:          # reset before planning: attribute shapes
             c.block.reset()
+        _coupled.check(sys_, SystemError_)
         plan = self._plan()
         T0 = float(start_time)
 
@@ -860,6 +881,7 @@ class Master:
             wbufs = self._inputs_in_initialization(slaves, plan, T0)
             for role, slave in slaves:
                 slave.exit_initialization()
+            self.groups = _coupled.start(sys_, T0, SystemError_)
             src, ns = self._generate(slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec,
                                      srec, Ts, T0, wbufs)
         except BaseException as exc:
@@ -1151,8 +1173,9 @@ class Master:
                             f"V[{a}:{a + m}] = tgb_{g}"]
                     read_blocks.append((role, slave, els, a))
                 L_read += timed(f"fmu:{role}:get{call}", body, "        ")
-            ins = [c for c in sys_._connections
-                   if c.dest.partition(".")[0] == role and not c.sequential]
+            ins = [c for c in sys_._connections      # (inside a coupled group: continuous)
+                   if c.dest.partition(".")[0] == role and not c.sequential
+                   and not _coupled.is_internal(sys_, c)]
             fast = [c for c in ins if _fast_dest(slave, c.dest)]
             typed = [c for c in ins if c not in fast]
             seq = [c for c in sys_._connections
