@@ -183,8 +183,7 @@ class MEGroup:
         self._restart = False
         self.n_events = 0
         self.n_resets = 0
-        #: propagations and repeated passes (tests, benchmarks)
-        self.n_propagations = 0
+        #: propagations repeated because a probed source moved (tests, benchmarks)
         self.n_extra_passes = 0
         self._check_links()
         deps = [self._dependencies(i) for i in range(len(self.m))]
@@ -294,103 +293,130 @@ class MEGroup:
                 if ln.src in probed and any(m == ln.src and ws >= w
                                             for (m, _), ws in when_set.items()):
                     verify.add(k)
-        # executable form: per wave, one get per source member, one set per destination
-        self._waves = []
-        self._vals = [math.nan] * len(self.links)
-        for wave in waves:
-            gets, sets = [], []
-            srcs = sorted({self.links[k].src for k in wave})
-            for s in srcs:
-                ks = [k for k in wave if self.links[k].src == s]
-                vrs = sorted({self.links[k].svr for k in ks})
-                get, _, _ = self.m[s].real_io(vrs)
-                gets.append((get, [(k, vrs.index(self.links[k].svr), self.links[k].gain,
-                                    self.links[k].offset) for k in ks]))
-            for d in sorted({self.links[k].dst for k in wave}):
-                ks = [k for k in wave if self.links[k].dst == d]
-                _, set_, buf = self.m[d].real_io([self.links[k].dvr for k in ks])
-                sets.append((set_, buf, ks))
-            self._waves.append((gets, sets))
-        self._verify = []
-        for s in sorted({self.links[k].src for k in verify}):
-            ks = [k for k in verify if self.links[k].src == s]
-            vrs = sorted({self.links[k].svr for k in ks})
-            get, _, _ = self.m[s].real_io(vrs)
-            self._verify.append((get, [(k, vrs.index(self.links[k].svr), self.links[k].gain,
-                                        self.links[k].offset) for k in ks]))
         self.order = [[self.links[k].label for k in wave] for wave in waves]
         self.verified = sorted(self.links[k].label for k in verify)
+        self._compile(waves, sorted(verify))
+
+    # ------------------------------------------------------------------ generated code
+    def _compile(self, waves, verify):
+        """Generate the propagation and the solver callbacks as straight-line code
+        (one FMI call per source / destination member and wave, constants folded):
+        these run at every right-hand-side evaluation."""
+        ns = {"_byref": ctypes.byref, "_addressof": ctypes.addressof, "_cd": ctypes.c_double,
+              "_GroupError": GroupError, "_nan": math.nan}
+        L = self.links
+        for i, m in enumerate(self.m):
+            ns.update({f"c{i}": m.comp, f"st{i}": m.set_time, f"sx{i}": m.set_x,
+                       f"gx{i}": m.get_x, f"gd{i}": m.get_dx, f"gz{i}": m.get_z,
+                       f"gn{i}": m.get_nom, f"nx{i}": ctypes.c_size_t(m.nx),
+                       f"nz{i}": ctypes.c_size_t(m.nz)})
+
+        def fail(i, what):
+            raise RuntimeError(f"{self.m[i].name}: {what} returned an error status")
+        ns["_fail"] = fail
+        ns["V"] = self._vals = [math.nan] * len(L)
+        q = 0
+
+        def io(member, vrs, kind):
+            nonlocal q
+            q += 1
+            m = self.m[member]
+            n = len(vrs)
+            ns[f"vr{q}"] = (ctypes.c_uint32 * n)(*vrs)
+            ns[f"b{q}"] = (ctypes.c_double * n)()
+            ns[f"n{q}"] = ctypes.c_size_t(n)
+            ns[f"f{q}"] = m.get_real if kind == "get" else m.set_real
+            extra = f", n{q}" if m.fmi3 else ""
+            call = (f"if f{q}(c{member}, vr{q}, n{q}, b{q}{extra}) > 1: "
+                    f"_fail({member}, '{'getting' if kind == 'get' else 'setting'} {list(vrs)}')")
+            return q, call
+
+        def value(k, buf, j):
+            ln = L[k]
+            x = f"b{buf}[{j}]"
+            if ln.gain != 1.0:
+                x += f" * {ln.gain!r}"
+            if ln.offset != 0.0:
+                x += f" + {ln.offset!r}"
+            return x
+
+        body = []
+        for wave in waves:
+            for sm in sorted({L[k].src for k in wave}):
+                ks = [k for k in wave if L[k].src == sm]
+                vrs = sorted({L[k].svr for k in ks})
+                g, call = io(sm, vrs, "get")
+                body.append(call)
+                for k in ks:
+                    body += [f"x = {value(k, g, vrs.index(L[k].svr))}",
+                             f"if x != V[{k}]: V[{k}] = x; changed = True"]
+            for dm in sorted({L[k].dst for k in wave}):
+                ks = [k for k in wave if L[k].dst == dm]
+                d, call = io(dm, [L[k].dvr for k in ks], "set")
+                body += [f"b{d}[{j}] = V[{k}]" for j, k in enumerate(ks)] + [call]
+        checks = []
+        for sm in sorted({L[k].src for k in verify}):
+            ks = [k for k in verify if L[k].src == sm]
+            vrs = sorted({L[k].svr for k in ks})
+            g, call = io(sm, vrs, "get")
+            body.append(call)
+            checks += [f"{value(k, g, vrs.index(L[k].svr))} != V[{k}]" for k in ks]
+        src = ["def propagate():", "    changed = False"]
+        if checks:
+            src += [f"    for _pass in range({_MAX_PASSES}):"] + ["        " + x for x in body]
+            src += [f"        if not ({' or '.join(checks)}):", "            return changed",
+                    "        _extra()",
+                    "    raise _GroupError(_unsettled)"]
+            ns["_unsettled"] = (f"coupled group {self.names}: the connections inside the "
+                                f"group did not settle in {_MAX_PASSES} passes (an algebraic "
+                                f"loop the start-up probe did not see)")
+        else:
+            src += ["    " + x for x in body] + ["    return changed"]
+
+        def extra():
+            self.n_extra_passes += 1
+        ns["_extra"] = extra
+        # solver callbacks: p is the solver's POINTER(c_double); members after the first
+        # get their slice as byref(p.contents, byte offset)
+        def sliced(name, fn, count, offs, after=()):
+            out = [f"def {name}(p, n):"]
+            for i, m in enumerate(self.m):
+                k = getattr(m, count)
+                if not k:
+                    continue
+                arg = "p" if offs[i] == 0 else f"_byref(p.contents, {8 * offs[i]})"
+                out.append(f"    if {fn}{i}(c{i}, {arg}, {count}{i}) > 1: _fail({i}, '{fn}')")
+            return out + ["    " + x for x in after] + ["    return None"]
+        src += ["def set_time(t):", "    T = _cd(t)"]
+        src += [f"    if st{i}(c{i}, T) > 1: _fail({i}, 'setTime')" for i in range(len(self.m))]
+        src += sliced("set_x", "sx", "nx", self.xoff, ["propagate()"])
+        src += sliced("get_x", "gx", "nx", self.xoff)
+        src += sliced("get_dx", "gd", "nx", self.xoff)
+        src += sliced("get_nom", "gn", "nx", self.xoff)
+        src += sliced("get_z", "gz", "nz", self.zoff)
+        self.source = "\n".join(src) + "\n"
+        exec(compile(self.source, f"<coupled group {self.names}>", "exec"), ns)
+        self._propagate = ns["propagate"]
+        self._cb = {k: ns[k] for k in ("set_time", "set_x", "get_x", "get_dx", "get_nom",
+                                      "get_z")}
 
     # ------------------------------------------------------------------ propagation
     def propagate(self) -> bool:
         """Set every in-group input from its source (dependency order). Returns True if
         a value changed."""
-        vals = self._vals
-        changed = False
-        self.n_propagations += 1
-        for n in range(_MAX_PASSES):
-            for gets, sets in self._waves:
-                for get, items in gets:
-                    buf = get()
-                    for k, j, g, o in items:
-                        x = buf[j] * g + o
-                        if x != vals[k]:
-                            vals[k] = x
-                            changed = True
-                for set_, buf, ks in sets:
-                    for q, k in enumerate(ks):
-                        buf[q] = vals[k]
-                    set_()
-            moved = False
-            for get, items in self._verify:
-                buf = get()
-                for k, j, g, o in items:
-                    if buf[j] * g + o != vals[k]:
-                        moved = True
-            if not moved:
-                return changed
-            self.n_extra_passes += 1
-        raise GroupError(f"coupled group {self.names}: the connections inside the group "
-                         f"did not settle in {_MAX_PASSES} passes (an algebraic loop the "
-                         f"start-up probe did not see)")
+        return self._propagate()
 
     # ------------------------------------------------------------------ solver callbacks
-    @staticmethod
-    def _addr(p):
-        return ctypes.cast(p, ctypes.c_void_p).value
-
     def _cb_set_time(self, t):
-        T = ctypes.c_double(t)
-        for m in self.m:
-            if m.set_time(m.comp, T) > 1:
-                raise RuntimeError(f"{m.name}: setTime({t}) failed")
-
-    def _cb_set_x(self, p, n):
-        a = self._addr(p)
-        for m, o in zip(self.m, self.xoff):
-            if m.nx and m.set_x(m.comp, ctypes.c_void_p(a + 8 * o), ctypes.c_size_t(m.nx)) > 1:
-                raise RuntimeError(f"{m.name}: setContinuousStates failed")
-        self.propagate()
-
-    def _gather(self, fn_name, off, count):
-        def cb(p, n):
-            a = self._addr(p)
-            for m, o in zip(self.m, off):
-                k = getattr(m, count)
-                if k and getattr(m, fn_name)(m.comp, ctypes.c_void_p(a + 8 * o),
-                                             ctypes.c_size_t(k)) > 1:
-                    raise RuntimeError(f"{m.name}: {fn_name} failed")
-        return cb
+        self._cb["set_time"](t)
 
     def _start_solver(self):
         from fmpy.sundials import CVodeSolver
+        cb = self._cb
         self.solver = CVodeSolver(
-            nx=self.nx, nz=self.nz,
-            get_x=self._gather("get_x", self.xoff, "nx"), set_x=self._cb_set_x,
-            get_dx=self._gather("get_dx", self.xoff, "nx"),
-            get_z=self._gather("get_z", self.zoff, "nz"),
-            get_nominals=self._gather("get_nom", self.xoff, "nx"),
-            set_time=self._cb_set_time, input=_NoInput(), startTime=self.time,
+            nx=self.nx, nz=self.nz, get_x=cb["get_x"], set_x=cb["set_x"],
+            get_dx=cb["get_dx"], get_z=cb["get_z"], get_nominals=cb["get_nom"],
+            set_time=cb["set_time"], input=_NoInput(), startTime=self.time,
             relativeTolerance=self.rtol,
             maxStep=self.max_step if self.max_step is not None else math.inf)
 
