@@ -429,21 +429,46 @@ class MEGroup:
         ts = [m.me.next_event for m in self.m if m.me.next_event_defined]
         return min(ts) if ts else math.inf
 
-    def _event(self, t):
-        """Every member in event mode; their event iterations alternate with the
-        propagation until nothing changes; continuous-time mode; solver restart."""
-        for m in self.m:
-            m.f.enterEventMode()
+    def _event(self, t, due: set):
+        """The members in ``due`` (their time, state or step event) enter event mode;
+        their event iterations alternate with the propagation until nothing changes.
+        A propagated value that moves the indicators of another member across zero
+        (z > 0 on one side, z <= 0 on the other) brings that member into event mode
+        too (as an input change does, :class:`~cosim.fmi.me.MEIntegrator`); the others
+        stay in continuous-time mode (entering event mode without an event of their
+        own would let a model act at instants it did not ask for). Then continuous-time
+        mode and a solver restart."""
+        idle = [i for i in range(len(self.m)) if i not in due and self.m[i].nz]
+        z0 = {}
+        for i in idle:
+            m = self.m[i]
+            z0[i] = (ctypes.c_double * m.nz)()
+            m.f.getEventIndicators(z0[i], m.nz)
+        active = sorted(due)
+        for i in active:
+            self.m[i].f.enterEventMode()
         for _ in range(_MAX_PASSES):
-            for m in self.m:
-                m.me._event_iteration(t)
+            for i in active:
+                self.m[i].me._event_iteration(t)
             if not self.propagate():
                 break
+            more = []
+            for i in idle:
+                if i in active:
+                    continue
+                m = self.m[i]
+                z1 = (ctypes.c_double * m.nz)()
+                m.f.getEventIndicators(z1, m.nz)
+                if any((a > 0) != (b > 0) for a, b in zip(z0[i], z1)):
+                    more.append(i)
+            for i in more:
+                self.m[i].f.enterEventMode()
+            active = sorted(set(active) | set(more))
         else:
             raise GroupError(f"coupled group {self.names}: the event iteration at t = {t} s "
                              f"did not settle in {_MAX_PASSES} rounds")
-        for m in self.m:
-            m.f.enterContinuousTimeMode()
+        for i in active:
+            self.m[i].f.enterContinuousTimeMode()
         self.propagate()
         self._reset(t)
         self.n_events += 1
@@ -469,20 +494,25 @@ class MEGroup:
                 nxt = self._next_event()
                 if time < nxt < tend - eps:
                     target = nxt
-                state_event, _, time = self.solver.step(time, target)
+                state_event, roots, time = self.solver.step(time, target)
                 self._cb_set_time(time)
                 self.propagate()
-                step_event = False
-                for m in self.m:
+                due = set()
+                if state_event:
+                    due |= {i for i, (m, o) in enumerate(zip(self.m, self.zoff))
+                            if m.nz and any(roots[o:o + m.nz])}
+                for i, m in enumerate(self.m):
                     if m.me._needs_completed:
                         r = m.f.completedIntegratorStep()
                         ev, term = r if isinstance(r, tuple) else (r, False)
                         if term:
                             raise m.me._terminated(time)
-                        step_event = step_event or ev
-                time_event = abs(time - nxt) <= eps
-                if state_event or step_event or time_event:
-                    self._event(time)
+                        if ev:
+                            due.add(i)
+                    if m.me.next_event_defined and abs(time - m.me.next_event) <= eps:
+                        due.add(i)
+                if due:
+                    self._event(time, due)
         except self.error_type:
             raise
         except Exception as exc:
