@@ -566,3 +566,42 @@ def test_sampled_reading_of_a_member_keeps_its_time_events():
     n_rig = np.asarray(ref["rig.f_meas"]) - np.asarray(ref["rig.f_lc"])
     assert np.std(n_rig) > 0.01
     assert np.max(np.abs(n_sep + n_rig)) < 1e-4
+
+
+@pytest.mark.slow
+def test_bilateral_separate_gives_the_rigs_verdicts_and_metrics(tmp_path):
+    """bilateral.yaml (WallUnitRig) and bilateral_separate.yaml (BallScrewUnit + RigidWall
+    in a group), both cases and every negative control, without the observer-bandwidth
+    sweep (BL-6; its g list emptied in both copies: the full files are compared in
+    docs/decisions.md): BL-1..BL-5 the rig's verdicts, values within TOL_METRIC, except
+    BL-4's wall-force vibration ratio and the contact_vibration metric (the HF wall
+    force of the first contact second: the impact transient, where the rig's own solver
+    and CVode land the contact one tick apart; measured in docs/decisions.md), held to
+    15 %."""
+    from cosim.scenarios import run_scenario
+    out = {}
+    for name, f in (("rig", "bilateral.yaml"), ("separate", "bilateral_separate.yaml")):
+        text = (REPO / "scenarios" / f).read_text()
+        old = "    g_rad_s: [100.0, 250.0, 500.0, 1000.0, 1500.0, 3000.0, 6000.0]\n"
+        assert old in text
+        p = tmp_path / f
+        p.write_text(text.replace(old, "    g_rad_s: []\n"))
+        out[name] = run_scenario(p, tmp_path / name, fmu_dir=FMUS)
+    ref, got = out["rig"], out["separate"]
+    by_id = {r["id"]: r for r in ref["requirements"]}
+    loose = {"BL-4": 0.15}
+    for r in got["requirements"]:
+        if r["id"] == "BL-6":
+            continue
+        q = by_id[r["id"]]
+        assert r["verdict"] == q["verdict"] == "pass", r["id"]
+        assert _close(r["value"], q["value"], loose.get(r["id"], TOL_METRIC)), \
+            (r["id"], r["value"], q["value"])
+        assert r["negative_control"]["held"] is False
+        assert _close(r["negative_control"]["value"], q["negative_control"]["value"],
+                      loose.get(r["id"], TOL_METRIC)), r["id"]
+    for name in ("free_tracking_rms", "contact_force", "force_transparency",
+                 "free_current_noise", "contact_vibration"):
+        for case, v in ref["metrics"][name].items():
+            tol = 0.15 if name == "contact_vibration" else TOL_METRIC
+            assert _close(got["metrics"][name][case], v, tol), (name, case)

@@ -23,7 +23,7 @@ evaluated once every in-group input its source output depends on has been set. T
 dependency of an output on an input is the FMU's declared one (ModelStructure
 ``dependencies``); an FMU that declares none (the standard then means "depends on
 every input") is probed once at the start: each in-group input is moved by
-+-1e-3, +-1, +-1e3 (times max(1, |u|)) and the in-group outputs of the member read
++-1e-3 and +-1 (times max(1, |u|)) and the in-group outputs of the member read
 back; an output that never moves does not depend on that input. Probing can miss a
 dependency that is flat around the start values, so for those members the
 propagation is checked at every evaluation: a source whose member had an input set
@@ -54,7 +54,7 @@ from dataclasses import dataclass
 
 from .me import MEIntegrator, _NoInput
 
-_PROBES = (1e-3, -1e-3, 1.0, -1.0, 1e3, -1e3)
+_PROBES = (1e-3, -1e-3, 1.0, -1.0)
 _MAX_PASSES = 20
 
 
@@ -243,8 +243,12 @@ class MEGroup:
                 try:
                     set_i()
                     y = list(get_o())
-                except Exception:
-                    y = [math.nan] * len(outs)
+                except Exception as exc:
+                    raise GroupError(
+                        f"{self.m[i].name}: probing whether its outputs depend on its inputs "
+                        f"inside the coupled group failed (input vr {u} moved to "
+                        f"{ibuf[k]!r}: {exc}); declare the outputs' dependencies in the "
+                        f"FMU's ModelStructure") from None
                 for j, o in enumerate(outs):
                     if o not in declared and not y[j] == y0[j]:
                         deps[o].add(u)

@@ -30,6 +30,12 @@ k = 0 .. N with N = duration / Ts (which must be an integer). In tick k:
    sensor FMU on a plant output): those are read from their source FMU after its
    doStep, i.e. at t_{k+1}, and set just before the destination's doStep.
 
+Roles declared a coupled group (:meth:`System.couple`, a stiff load cell or wall
+between units) are the exception to 5-6 among themselves: they run as Model Exchange
+FMUs integrated together by one implicit solver, stepped once per tick at the group's
+last role, and the connections between them are continuous inside the step
+(:mod:`cosim.master.coupled`); their connections to anything else follow 1-6.
+
 Hence a connection FMU A -> FMU B carries A's value at t_k into B over
 [t_k, t_{k+1}): B's outputs first reflect A(t_k) at tick k + 1 (one step of delay),
 and B's input, if read back, shows A(t_k) at tick k + 1. A controller output of
@@ -677,6 +683,8 @@ class Master:
         self.timing = bool(timing)
         #: the generated tick-loop source of the last run (for inspection)
         self.source: str | None = None
+        #: the coupled groups' integrators of the last run (cosim.fmi.me_group.MEGroup)
+        self.groups: list = []
 
     # ----------------------------------------------------------------- plan
     def _plan(self):
