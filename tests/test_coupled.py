@@ -197,8 +197,10 @@ def test_explicit_exchange_of_the_separate_fmus_fails_where_the_group_holds():
         over = {"system": {"fmus": {"cell": {"parameters": {"k_lc": k}}}}}
         grp, rec = _build("zero_force_separate.yaml", "load_cell", over)
         assert grp.coupled == [("unit", "cell", "partner")]
-        f_grp = np.asarray(Master(grp, rec).run(2.0)["cell.f_lc"])
+        m = Master(grp, rec)
+        f_grp = np.asarray(m.run(2.0)["cell.f_lc"])
         assert np.max(np.abs(f_grp - f_rig)) / rng < TOL_FORCE
+        assert m.groups[0].n_extra_passes == 0
         over["system"]["coupled"] = None
         exp, rec = _build("zero_force_separate.yaml", "load_cell", over)
         assert exp.coupled == []
@@ -369,6 +371,7 @@ def test_unit_from_another_exporter_in_the_group(hand_unit):
                         "unit.v -> cell.v_b"], ["cell.f_lc -> partner.f_ext",
                                                 "cell.f_lc -> unit.f_ext"]]
     assert g.verified == ["partner.v -> cell.v_a", "partner.x -> cell.x_a"]   # probed
+    assert g.n_extra_passes == 0          # the probe found the order: never re-propagated
 
 
 # ------------------------------------------------------------------ the scenarios
@@ -568,16 +571,26 @@ def test_sampled_reading_of_a_member_keeps_its_time_events():
     assert np.max(np.abs(n_sep + n_rig)) < 1e-4
 
 
+#: bilateral: relative tolerance per requirement / metric, absolute for the force
+#: transparency (a difference near zero, limit 0.25). The hold phase is a stuck
+#: equilibrium (LuGre stiction, encoder quantization) that any solver change moves: the
+#: rig itself run as Model Exchange instead of Co-Simulation moves the encoder case's
+#: transparency by 0.026 (18 %) and its contact force by 2.2 %. Measured group vs rig
+#: (full files, docs/decisions.md): BL-1 1.1 %, BL-2 0.6 % (aakf contact force 7.6 %),
+#: BL-3 0.007 (aakf transparency 0.069), BL-4 0.02 %, BL-5 5.3 %, current noise 3 %.
+TOL_BILATERAL = {"BL-1": 0.05, "BL-2": 0.10, "BL-4": 0.10, "BL-5": 0.10,
+                 "free_tracking_rms": 0.05, "contact_force": 0.10, "free_current_noise": 0.10,
+                 "contact_vibration": 0.10}
+TOL_TRANSPARENCY_ABS = 0.1
+
+
 @pytest.mark.slow
 def test_bilateral_separate_gives_the_rigs_verdicts_and_metrics(tmp_path):
     """bilateral.yaml (WallUnitRig) and bilateral_separate.yaml (BallScrewUnit + RigidWall
     in a group), both cases and every negative control, without the observer-bandwidth
-    sweep (BL-6; its g list emptied in both copies: the full files are compared in
-    docs/decisions.md): BL-1..BL-5 the rig's verdicts, values within TOL_METRIC, except
-    BL-4's wall-force vibration ratio and the contact_vibration metric (the HF wall
-    force of the first contact second: the impact transient, where the rig's own solver
-    and CVode land the contact one tick apart; measured in docs/decisions.md), held to
-    15 %."""
+    sweep (BL-6; its g list emptied in both copies: the full files, BL-6 included, are
+    compared in docs/decisions.md): BL-1..BL-5 the rig's verdicts, values within
+    TOL_BILATERAL."""
     from cosim.scenarios import run_scenario
     out = {}
     for name, f in (("rig", "bilateral.yaml"), ("separate", "bilateral_separate.yaml")):
@@ -589,19 +602,20 @@ def test_bilateral_separate_gives_the_rigs_verdicts_and_metrics(tmp_path):
         out[name] = run_scenario(p, tmp_path / name, fmu_dir=FMUS)
     ref, got = out["rig"], out["separate"]
     by_id = {r["id"]: r for r in ref["requirements"]}
-    loose = {"BL-4": 0.15}
+
+    def close(key, a, b):
+        if key in ("BL-3", "force_transparency"):
+            return abs(a - b) <= TOL_TRANSPARENCY_ABS
+        return _close(a, b, TOL_BILATERAL[key])
     for r in got["requirements"]:
         if r["id"] == "BL-6":
             continue
         q = by_id[r["id"]]
         assert r["verdict"] == q["verdict"] == "pass", r["id"]
-        assert _close(r["value"], q["value"], loose.get(r["id"], TOL_METRIC)), \
-            (r["id"], r["value"], q["value"])
-        assert r["negative_control"]["held"] is False
-        assert _close(r["negative_control"]["value"], q["negative_control"]["value"],
-                      loose.get(r["id"], TOL_METRIC)), r["id"]
+        assert close(r["id"], r["value"], q["value"]), (r["id"], r["value"], q["value"])
+        nc, nq = r["negative_control"], q["negative_control"]
+        assert nc["held"] is False and close(r["id"], nc["value"], nq["value"]), r["id"]
     for name in ("free_tracking_rms", "contact_force", "force_transparency",
                  "free_current_noise", "contact_vibration"):
         for case, v in ref["metrics"][name].items():
-            tol = 0.15 if name == "contact_vibration" else TOL_METRIC
-            assert _close(got["metrics"][name][case], v, tol), (name, case)
+            assert close(name, got["metrics"][name][case], v), (name, case)
