@@ -619,3 +619,23 @@ def test_bilateral_separate_gives_the_rigs_verdicts_and_metrics(tmp_path):
                  "free_current_noise", "contact_vibration"):
         for case, v in ref["metrics"][name].items():
             assert close(name, got["metrics"][name][case], v), (name, case)
+
+
+def test_member_error_in_the_right_hand_side_stops_the_run_with_its_name(tmp_path):
+    """The bouncing ball's getDerivatives returns Error once t > 0.05 s with g < 0 (CVode
+    evaluates there from the step starting at 0.045 s): the group stops CVode and the
+    run fails naming the group, the member and the call (not a CVode error with the
+    cause lost in a callback)."""
+    from tests.test_fmi_me import BB_C, BB_XML
+    bb = compile_fmu(tmp_path, "bb", BB_C, BB_XML, "2.0")
+    s = System(1e-3)
+    s.add_fmu("ball", bb, kind="me", parameters={"g": -1.0})
+    s.add_fmu("wall", _fmu("RigidWall"), kind="me")
+    s.connect("ball.h", "wall.x", check_units=False)
+    s.couple("ball", "wall")
+    with pytest.raises(FMUError, match=r"role wall: .*coupled group \['ball', 'wall'\]: "
+                                       r"integration from t = 0\.0[45]\d+ s failed \(ball: "
+                                       r"getDerivatives "
+                                       r"returned an error status\)") as e:
+        Master(s, ["ball.h"]).run(0.2)
+    assert 45 <= e.value.result.ticks <= 52     # the rows before the failure are kept

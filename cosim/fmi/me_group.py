@@ -389,7 +389,10 @@ class MEGroup:
                 if not k:
                     continue
                 arg = "p" if offs[i] == 0 else f"_byref(p.contents, {8 * offs[i]})"
-                out.append(f"    if {fn}{i}(c{i}, {arg}, {count}{i}) > 1: _fail({i}, '{fn}')")
+                what = {"sx": "setContinuousStates", "gx": "getContinuousStates",
+                        "gd": "getDerivatives", "gn": "getNominalsOfContinuousStates",
+                        "gz": "getEventIndicators"}[fn]
+                out.append(f"    if {fn}{i}(c{i}, {arg}, {count}{i}) > 1: _fail({i}, '{what}')")
             return out + ["    " + x for x in after] + ["    return None"]
         src += ["def set_time(t):", "    T = _cd(t)"]
         src += [f"    if st{i}(c{i}, T) > 1: _fail({i}, 'setTime')" for i in range(len(self.m))]
@@ -416,8 +419,28 @@ class MEGroup:
 
     def _start_solver(self):
         from fmpy.sundials import CVodeSolver
+
+        class Solver(CVodeSolver):
+            """A member's error status in a right-hand side or root evaluation stops
+            CVode (return -1, unrecoverable) and is kept for the message, instead of
+            vanishing in the ctypes callback while CVode goes on."""
+            failure = None
+
+            def f(self, *a):
+                try:
+                    return super().f(*a)
+                except Exception as exc:
+                    self.failure = self.failure or exc
+                    return -1
+
+            def g(self, *a):
+                try:
+                    return super().g(*a)
+                except Exception as exc:
+                    self.failure = self.failure or exc
+                    return -1
         cb = self._cb
-        self.solver = CVodeSolver(
+        self.solver = Solver(
             nx=self.nx, nz=self.nz, get_x=cb["get_x"], set_x=cb["set_x"],
             get_dx=cb["get_dx"], get_z=cb["get_z"], get_nominals=cb["get_nom"],
             set_time=cb["set_time"], input=_NoInput(), startTime=self.time,
@@ -520,8 +543,9 @@ class MEGroup:
         except self.error_type:
             raise
         except Exception as exc:
+            cause = getattr(self.solver, "failure", None) or exc
             raise self.error(f"coupled group {self.names}: integration from t = {time:.6f} s "
-                             f"failed ({exc})", None, time) from None
+                             f"failed ({cause})", None, time) from None
         self.time = tend
         for m in self.m:
             m.me.time = tend
