@@ -689,6 +689,7 @@ class Master:
     # ----------------------------------------------------------------- plan
     def _plan(self):
         sys_ = self.system
+        _coupled.check(sys_, SystemError_)     # (also at a scenario's check_build)
         ctrl = {c.name: c for c in sys_.controllers}
         fmu_reads: dict[str, list[str]] = {r: [] for r in sys_.roles}
         stim_used: list[str] = []
@@ -834,7 +835,6 @@ class Master:
                                    f"({n_ticks} steps is not)")
         for c in sys_.controllers:          # reset before planning: attribute shapes
             c.block.reset()
-        _coupled.check(sys_, SystemError_)
         plan = self._plan()
         T0 = float(start_time)
 
