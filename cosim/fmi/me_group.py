@@ -210,17 +210,14 @@ class MEGroup:
                 raise GroupError(f"{ln.label}: a member connected to itself")
 
     def _dependencies(self, i):
-        """member i: {output vr: set of in-group input vrs it depends on, or None when
-        taken from probing} -> (deps, probed)."""
+        """Member i's in-group outputs: ({output vr: in-group input vrs it depends on},
+        probed: True if any came from the probe rather than the ModelStructure)."""
         me = self.m[i].me
         outs = sorted({ln.svr for ln in self.links if ln.src == i})
         ins = sorted({ln.dvr for ln in self.links if ln.dst == i})
         if not outs:
             return {}, False
         declared = {}
-        var_by_vr = {}
-        for v in me.md.modelVariables:
-            var_by_vr.setdefault(v.valueReference, v)
         for u in getattr(me.md, "outputs", []) or []:
             if u.variable.valueReference in outs and u.dependencies is not None:
                 declared[u.variable.valueReference] = {
@@ -230,7 +227,7 @@ class MEGroup:
         if not ins:
             return {o: set() for o in outs}, False
         # probe: move each in-group input, read the in-group outputs back, restore
-        get_o, _, obuf = self.m[i].real_io(outs)
+        get_o, _, _ = self.m[i].real_io(outs)
         get_i, set_i, ibuf = self.m[i].real_io(ins)
         get_i()
         u0 = list(ibuf)
