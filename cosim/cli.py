@@ -3,6 +3,7 @@
     cosim fmus build [MODEL ...] [--force]     Modelica -> binary FMUs in fmus/
     cosim fmus check FMU [--simulate] [--strict]  interface + validation of any FMU
     cosim fmus simulate FMU [--input CSV] [--start NAME=VALUE ...] --out FILE.csv|.parquet
+    cosim roles [NAME]                         the role contracts an FMU can play
     cosim demo --out DIR                       build FMUs, run a short demonstration
     cosim estimate --log LOG.csv --out OUT.csv aaKF + encoder differencing over a trial log
     cosim identify --log LOG.csv --out OUT.json RLS identification of J, b, fc over a log
@@ -120,6 +121,35 @@ def _cmd_fmus_simulate(a) -> int:
     return 0
 
 
+def _cmd_roles(a) -> int:
+    """Print each role contract (or the one named): its variables, their causality,
+    unit and meaning: what an FMU must offer, directly or through a role binding
+    (docs/bring-your-own-fmu.md)."""
+    from .master.fmu import suggest
+    from .master.roles import CONTRACTS
+    names = [a.name] if a.name else list(CONTRACTS)
+    if a.name and a.name not in CONTRACTS:
+        close = suggest(a.name, CONTRACTS)
+        raise CliError(f"unknown role contract {a.name!r}"
+                       + (f"; did you mean {', '.join(map(repr, close))}?" if close else "")
+                       + f" (contracts: {', '.join(CONTRACTS)})")
+    for k, name in enumerate(names):
+        c = CONTRACTS[name]
+        rows = c.variables()
+        w = max(len(n) for n, *_ in rows)
+        wu = max(len(u or "1") for _, _, u, _ in rows)
+        if k:
+            print()
+        print(f"{c.name}: {c.description}")
+        print(f"  {'variable':{w}s}  causality  {'unit':{wu}s}  meaning")
+        for n, caus, u, meaning in rows:
+            print(f"  {n:{w}s}  {caus:9s}  {u or '1':{wu}s}  {meaning}")
+    if not a.name:
+        print("\nAn FMU with other names or units plays a role through a binding "
+              "(map/units; docs/bring-your-own-fmu.md).")
+    return ec.OK
+
+
 def _cmd_demo(a) -> int:
     from .demo import run_demo
     from .fileio import ensure_out_dir
@@ -166,6 +196,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="switch the FMU's debug logging on and print its messages")
     sm.add_argument("--out", required=True, help="FILE.csv or FILE.parquet")
     sm.set_defaults(func=_cmd_fmus_simulate)
+
+    ro = sub.add_parser("roles", help="the role contracts: variables, causality, unit, meaning")
+    ro.add_argument("name", nargs="?", help="one contract (default: all)")
+    ro.set_defaults(func=_cmd_roles)
 
     d = sub.add_parser("demo", help="build the FMUs and run a short demonstration")
     d.add_argument("--out", default="out/demo")

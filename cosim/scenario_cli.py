@@ -1,7 +1,14 @@
 """``cosim run`` and ``cosim suite`` (scenario files, see docs/scenario-format.md).
 
-    cosim run SCENARIO --out DIR [--fmu ROLE=PATH ...]
-    cosim suite PATH... --out DIR [--scheduler ADDRESS] [--workers N] [--fmu ROLE=PATH ...]
+    cosim run SCENARIO --out DIR [--fmu ROLE=PATH ...] [--map ROLE.VAR=FMU_VAR[:UNIT] ...]
+              [--binding FILE.yaml] [--isolation auto|process|none] [--timeout SECONDS]
+    cosim suite PATH... --out DIR [--scheduler ADDRESS] [--workers N | --serial]
+                [--fmu ROLE=PATH ...] [--map ...] [--binding ...]
+                [--isolation auto|process|none] [--timeout SECONDS]
+
+``--fmu`` swaps an FMU in for a role; ``--map`` / ``--binding`` bind it to the role's
+contract when its names or units differ (:mod:`cosim.master.binding`,
+docs/bring-your-own-fmu.md).
 
 Each runs the scenarios (:mod:`cosim.scenarios`: runs, verdict.json, summary.json,
 junit.xml) and then draws the pages from what was stored (:mod:`cosim.report`).
@@ -73,6 +80,60 @@ def _ensure_fmus(a) -> int | None:
     return None
 
 
+def _swaps(a) -> dict:
+    """role -> :class:`~cosim.scenarios.build.FMUSwap` from ``--fmu``, ``--binding``
+    files and ``--map`` options (a --map entry over the file's, --fmu's path over the
+    file's ``fmu``)."""
+    import yaml
+
+    from cosim.master.binding import BindingError, RoleBinding, parse_map_option
+    from cosim.scenarios.build import FMUSwap
+    from cosim.scenarios.runner import parse_fmu_swaps
+    from cosim.scenarios.schema import ScenarioError
+    paths = parse_fmu_swaps(getattr(a, "fmu", None))
+    bindings: dict[str, RoleBinding] = {}
+    for f in getattr(a, "binding", None) or []:
+        f = Path(f)
+        try:
+            doc = yaml.safe_load(f.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise ScenarioError(f"--binding {f}: {exc}") from None
+        if not isinstance(doc, dict):
+            raise ScenarioError(f"--binding {f}: expected a mapping role -> {{fmu: PATH, "
+                                f"map: {{...}}, units: {{...}}}}")
+        for role, spec in doc.items():
+            if not isinstance(spec, dict):
+                raise ScenarioError(f"--binding {f}: {role}: expected a mapping with fmu, "
+                                    f"map, units")
+            spec = dict(spec)
+            fmu = spec.pop("fmu", None)
+            try:
+                bindings[role] = bindings.get(role, RoleBinding()).merged(
+                    RoleBinding.from_spec(spec, f"--binding {f}: {role}"))
+            except BindingError as exc:
+                raise ScenarioError(str(exc)) from None
+            if fmu is not None and role not in paths:
+                p = Path(fmu) if Path(fmu).is_absolute() else f.parent / fmu
+                if not p.is_file():
+                    raise ScenarioError(f"--binding {f}: {role}.fmu: FMU file {p} does not "
+                                        f"exist")
+                paths[role] = str(p.resolve())
+    for item in getattr(a, "map", None) or []:
+        try:
+            role, cvar, fvar, unit = parse_map_option(item)
+        except BindingError as exc:
+            raise ScenarioError(str(exc)) from None
+        b = RoleBinding({cvar: fvar} if fvar != cvar else {}, {cvar: unit} if unit else {})
+        bindings[role] = bindings.get(role, RoleBinding()).merged(b)
+    missing = sorted(set(bindings) - set(paths))
+    if missing:
+        raise ScenarioError(f"--map/--binding for role(s) {missing} without an FMU swapped in "
+                            f"(--fmu ROLE=PATH, or fmu: in the binding file); a scenario's own "
+                            f"FMU is bound in the scenario file (map:/units: in its fmus entry)")
+    return {r: FMUSwap(p, bindings[r].to_dict() if r in bindings else None)
+            for r, p in paths.items()}
+
+
 def _guarded(a, cmd: str, work):
     """Run ``work(out, swaps)`` for ``cosim run``/``cosim suite``: the output folder
     checked, the package's FMUs built, bad input -> exit 2, Ctrl-C -> what was kept and
@@ -80,7 +141,6 @@ def _guarded(a, cmd: str, work):
     from cosim.master.fmu import FMUError
     from cosim.master.system import SystemError_
     from cosim.scenarios.registry import RegistryError
-    from cosim.scenarios.runner import parse_fmu_swaps
     from cosim.scenarios.schema import ScenarioError
     from cosim.scenarios.store import finished_runs
     from cosim.scenarios.suite import SuiteError
@@ -90,7 +150,7 @@ def _guarded(a, cmd: str, work):
         return rc, None
     before = set(finished_runs(out))
     try:
-        return None, work(out, parse_fmu_swaps(a.fmu))
+        return None, work(out, _swaps(a))
     except (ScenarioError, RegistryError, SystemError_, FMUError, SuiteError) as exc:
         return _err(str(exc)), None
     except KeyboardInterrupt:
@@ -102,7 +162,8 @@ def _cmd_run(a) -> int:
     from cosim.scenarios.runner import run_scenario
 
     def work(out, swaps):
-        v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache)
+        v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
+                         isolation=a.isolation, timeout_s=a.timeout)
         render_scenario(a.scenario, out)
         return v
     rc, v = _guarded(a, "cosim run", work)
@@ -127,8 +188,9 @@ def _cmd_suite(a) -> int:
     def work(out, swaps):
         s = run_suite(a.paths, out, scheduler=a.scheduler, workers=a.workers,
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
-                      progress=not a.no_progress,
-                      ship=False if a.shared_fs else None)
+                      progress=not a.no_progress, serial=a.serial,
+                      ship=False if a.shared_fs else None,
+                      isolation=a.isolation, timeout_s=a.timeout)
         render_suite(out)
         return s
     rc, s = _guarded(a, "cosim suite", work)
@@ -147,10 +209,12 @@ def add_commands(sub) -> None:
     r.add_argument("--out", required=True, help="output folder")
     r.add_argument("--fmu", action="append", metavar="ROLE=PATH",
                    help="use this FMU for ROLE (checked against the role's contract)")
+    _binding_options(r)
     r.add_argument("--fmus", default=None, help="folder of the default FMUs (default: fmus/)")
     r.add_argument("--no-cache", action="store_true", help="rerun finished runs")
     r.add_argument("--no-build", action="store_true",
                    help="do not (re)build the package's FMUs from Modelica first")
+    _isolation_args(r)
     r.set_defaults(func=_cmd_run)
     s = sub.add_parser("suite", help="run scenario files/folders on Dask: summary.json, "
                        "junit.xml, report.html")
@@ -166,9 +230,50 @@ def add_commands(sub) -> None:
                    help="local cluster worker processes (default: the machine's cores)")
     s.add_argument("--fmu", action="append", metavar="ROLE=PATH",
                    help="use this FMU for ROLE in every scenario that has the role")
+    _binding_options(s)
     s.add_argument("--fmus", default=None, help="folder of the default FMUs (default: fmus/)")
     s.add_argument("--no-cache", action="store_true", help="rerun finished runs")
     s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     s.add_argument("--no-build", action="store_true",
                    help="do not (re)build the package's FMUs from Modelica first")
+    s.add_argument("--serial", action="store_true",
+                   help="run every run in this process, one after the other (no Dask)")
+    _isolation_args(s)
     s.set_defaults(func=_cmd_suite)
+
+
+def _binding_options(p) -> None:
+    p.add_argument("--map", action="append", metavar="ROLE.VAR=FMU_VAR[:UNIT]",
+                   help="bind a swapped-in FMU's variable (and the unit of its values) to "
+                        "the role's contract variable VAR, e.g. master.theta=motor.phi:deg "
+                        "(`cosim roles` lists the contracts); repeat per variable")
+    p.add_argument("--binding", action="append", metavar="FILE.yaml",
+                   help="role bindings from a file: ROLE: {fmu: PATH, map: {VAR: FMU_VAR}, "
+                        "units: {VAR: UNIT}} (docs/bring-your-own-fmu.md)")
+
+
+def _isolation_args(p) -> None:
+    from cosim.scenarios.isolate import DEFAULT_TIMEOUT_S
+    p.add_argument("--isolation", choices=("auto", "process", "none"), default="auto",
+                   help="run each run in a supervised child process, so that an FMU that "
+                        "crashes or hangs ends only its run, with a record (signal, role, "
+                        "FMU, last time, the rows before it): auto (default) = when one of "
+                        "the run's FMUs is not the project's own; process = always; none = "
+                        "never")
+    p.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
+                   help=f"wall-clock limit per run for scenarios without timeout_s "
+                        f"(default {DEFAULT_TIMEOUT_S:g} s; 0 = none); a run past it ends "
+                        f"as 'error: timeout' and the others go on. Enforced on a hung FMU "
+                        f"call only for runs in a child process")
+
+
+def _seconds(text: str) -> float:
+    import argparse
+    import math
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v

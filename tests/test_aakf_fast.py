@@ -327,3 +327,26 @@ def test_bank_matches_reference_bank(logs, opts):
             assert np.max(np.abs(f - r)) <= 1e-9 * np.max(np.abs(r)), (scen, key)
         assert bank.weights.sum() == pytest.approx(1.0)
 
+
+
+def test_stacked_gain_sequences_are_bitwise_the_per_step_recursion():
+    """A bank's members extend their gain sequences together (one numpy call per
+    operation on a stack, aakf._extend_together): K_k, P_k|k-1, P_k|k are bitwise those
+    of the per-step recursion of the reference, across a chunk boundary, including a
+    member whose sequence was already ahead (extended alone)."""
+    p = AakfParams(sigma_a_bank=(77.0, 770.0, 7700.0), sigma_b=1.3e-3)
+    bank = AaKF(p)
+    ahead = bank.members[2]._seq
+    if ahead.n == 0:
+        ahead.extend()                           # alone, one chunk ahead of the others
+    refs = [_ReferenceAaKF(f.params) for f in bank.members]
+    m = {"theta_enc": 0.0, "acc_meas": 0.0}
+    n = aakf_mod._RICCATI_CHUNK + 60
+    for k in range(n):
+        bank.step(m)
+        for f, r in zip(bank.members, refs):
+            r.step(m)
+            if k % 97 == 0 or k >= aakf_mod._RICCATI_CHUNK - 2:
+                assert np.array_equal(f.gain, r.gain), (k, f.params.sigma_a)
+                assert np.array_equal(f.P_pred, r.P_pred) and np.array_equal(f.P, r.P), k
+    assert all(f._seq.n >= n for f in bank.members)

@@ -482,11 +482,11 @@ def test_accelerometer_as_ballscrew_lists_every_difference(fmus):
     with pytest.raises(SystemError_) as ei:
         s.add_fmu("plant", fmus["Accelerometer"], contract="ballscrew")
     msg = str(ei.value)
-    assert "Accelerometer.fmu" in msg and "'ballscrew'" in msg and "7 differences" in msg
+    assert "Accelerometer.fmu" in msg and "'ballscrew'" in msg and "8 differences" in msg
     for line in ("missing input 'i' [A]", "missing input 'f_ext' [N]",
                  "missing output 'theta' [rad]", "missing output 'w' [rad/s]",
                  "missing output 'x' [m]", "missing output 'v' [m/s]",
-                 "missing output 'a' [m/s2]"):
+                 "missing output 'a' [m/s2]", "missing output 'theta_enc' [rad]"):
         assert line in msg, line
     assert "a_true" in msg and "acc_meas" in msg          # what the FMU offers instead
     assert "plant" not in s.roles                          # nothing half-bound

@@ -80,6 +80,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from .ckernel import CKernel
+
 
 @dataclass(frozen=True)
 class AdaptiveComplianceParams:
@@ -311,6 +313,58 @@ class AdaptiveComplianceController:
             fx = fy = 0.0
         return {"f_" + ax: fx, "f_" + ay: fy, "kp_" + ax: kpx, "kp_" + ay: kpy,
                 "kd_" + ax: kdx, "kd_" + ay: kdy, "err_" + ax: ex, "err_" + ay: ey}
+
+    # --- compiled step (cosim/algorithms/c/adaptive_compliance.c; reference: _step_2d) ---
+    def c_kernel(self, ticks: int | None = None) -> CKernel | None:
+        """The compiled step ``adaptive_compliance`` of the 2-axis controller (None for
+        N = 1); equal to :meth:`_step_2d` within 1e-12 (libm exp and left-to-right sums
+        where numpy has its own exp and blocked dot products). ``ticks``: unused here
+        (the trials' AssistController sizes its snapshot buffer with it)."""
+        return self._c_kernel(0, 0)
+
+    def _c_kernel(self, snapshot_every: int, room: int) -> CKernel | None:
+        p = self.params
+        if p.n_dof != 2 or p.cells_per_axis > 64:
+            return None
+        prev = self.err_prev
+        st = [float(prev is not None), *((float(prev[0]), float(prev[1])) if prev is not None
+                                        else (0.0, 0.0)),
+              float(self.motors_on), *(float(v) for v in self.kp),
+              *(float(v) for v in self.kd), float(getattr(self, "_tick", 0)), 0.0]
+        return CKernel(
+            name="adaptive_compliance",
+            params=(p.Ts_s, p.k_N_per_m2s, p.tau_s, p.a_min_N_per_m, p.xi,
+                    float(self._phys), float(self.masses[0]), float(self.masses[1]),
+                    float(self.grid.prefactor), float(self._h[0]), float(self._h[1]),
+                    float(p.cells_per_axis), *self._cx[0].tolist(), *self._cx[1].tolist(),
+                    float(snapshot_every), float(room)),
+            state=[*self.a.ravel().tolist(), *st, *[0.0] * (room * (1 + self.a.size))],
+            inputs=self.inputs, outputs=self.outputs)
+
+    def c_kernel_sync(self, state) -> None:
+        """Write the state of a compiled run back (heights, last error, kp, kd)."""
+        self._c_kernel_sync(state)
+
+    def _c_kernel_sync(self, state) -> tuple[int, list]:
+        """... and return (ticks stepped, [(tick, a) snapshots taken by the kernel])."""
+        n = self.a.size
+        self.a = np.array(state[:n], float).reshape(self.a.shape)
+        st = [float(v) for v in state[n:n + 10]]
+        self.err_prev = (st[1], st[2]) if st[0] else None
+        self.kp = np.array(st[4:6])
+        self.kd = np.array(st[6:8])
+        snaps, at = [], n + 10
+        for _ in range(int(st[9])):
+            snaps.append((int(state[at]), np.array(state[at + 1:at + 1 + n], float)
+                          .reshape(self.a.shape)))
+            at += 1 + n
+        return int(st[8]), snaps
+
+    def c_kernel_error(self, code: int) -> Exception:
+        if code == 2:
+            return RuntimeError("compiled adaptive-compliance step: no room for the next map "
+                                "snapshot (c_kernel(ticks=...) was smaller than the run)")
+        return RuntimeError(f"compiled adaptive-compliance step returned {code}")
 
     def step_reference(self, measurements: Mapping[str, float]) -> dict[str, float]:
         """eq. 62-74 for any N, written as the thesis writes them (vector form)."""

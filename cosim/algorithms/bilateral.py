@@ -55,8 +55,9 @@ contact with very stiff, undamped environments.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Mapping, Sequence
 
+from .ckernel import CKernel
 from .zero_force import BallscrewDrive, _saturate
 
 
@@ -143,3 +144,25 @@ class BilateralController:
         }
         self.last = out
         return out
+
+    # --- compiled step (cosim/algorithms/c/bilateral.c; this class stays the reference) ---
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``bilateral`` (bit-identical to :meth:`step`; ``ticks`` unused)."""
+        p = self.params
+        last = [float(self.last[k]) for k in self.outputs] if self.last else [0.0] * 6
+        return CKernel(
+            name="bilateral",
+            params=(p.Kp_per_s2, p.Kv_per_s, p.force_gain, p.common_mode_damping_per_s,
+                    p.drive.mass_equivalent_kg, p.drive.force_constant_N_per_A,
+                    float(p.use_dob), float(p.i_max_A is not None),
+                    0.0 if p.i_max_A is None else p.i_max_A),
+            state=[float(bool(self.last)), *last], inputs=self.inputs,
+            outputs=tuple(self.outputs))
+
+    def c_kernel_sync(self, state: Sequence[float]) -> None:
+        """Write the state of a compiled run back (``last``, the last outputs)."""
+        self.last = ({k: float(v) for k, v in zip(self.outputs, state[1:7])}
+                     if state[0] else {})
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"compiled bilateral step returned {code} (it has no error codes)")

@@ -2,10 +2,11 @@
 ``cosim/algorithms/c/cosim_kernel.h``).
 
 A controller class keeps its readable Python ``step`` as the reference. It may also
-offer a compiled step: ``c_kernel()`` returns a :class:`CKernel` (which C function,
+offer a compiled step: ``c_kernel(ticks=None)`` returns a :class:`CKernel` (which C function,
 the packed parameters and state, the order of inputs and outputs), or None when the
 configuration at hand has no compiled step; ``c_kernel_sync(state)`` writes the
-state of a compiled run back into the object, so that attributes read after (or
+state of a compiled run back into the object (``ticks``: how many steps the run
+will make, when the master knows it; a kernel may size tables by it), so that attributes read after (or
 during) the run are the same as with the Python step; ``c_kernel_error(code)``
 returns the exception the Python step would have raised for a nonzero return code.
 

@@ -92,7 +92,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Mapping, Sequence
+
+from .ckernel import CKernel
 
 
 def _lpf_pole(g_rad_s: float, Ts_s: float) -> float:
@@ -169,6 +171,29 @@ class DOB:
             self._i_tot_prev = i_tot
             out["i_tot"] = i_tot
         return out
+
+    # --- compiled step (cosim/algorithms/c/dob.c; this class stays the reference) ---
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``dob`` (bit-identical to :meth:`step`; ``ticks`` unused)."""
+        prm = self.params
+        return CKernel(
+            name="dob",
+            params=(prm.Ktn_Nm_per_A, prm.Jn_kg_m2, prm.Ts_s, self.p,
+                    float(prm.i_cmd_is_total_previous)),
+            state=[self.tau_hat, self.d_raw, _or0(self._w_prev), float(self._w_prev is not None),
+                   _or0(self._i_tot_prev), float(self._i_tot_prev is not None)],
+            inputs=("i_cmd", "w"), outputs=tuple(self.outputs) + ("d_raw",),
+            attributes=("d_raw",))
+
+    def c_kernel_sync(self, state: Sequence[float]) -> None:
+        """Write the state of a compiled run back (later :meth:`step` calls continue
+        as if every step had run in Python)."""
+        self.tau_hat, self.d_raw = float(state[0]), float(state[1])
+        self._w_prev = float(state[2]) if state[3] else None
+        self._i_tot_prev = float(state[4]) if state[5] else None
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"compiled DOB step returned {code} (it has no error codes)")
 
     def transfer_functions(self):
         """Discrete LTI of the implementation: (I_tot -> I_cmp, w -> I_cmp), python-control.
@@ -285,3 +310,32 @@ class RFOB:
         self._i_prev = i_in
         f_ext = self.tau_hat * 2.0 * math.pi / prm.lead_m  # tau = f lead/(2 pi)
         return {"tau_ext_hat": self.tau_hat, "f_ext_hat": f_ext, "f_int_hat": -f_ext}
+
+    # --- compiled step (cosim/algorithms/c/rfob.c; this class stays the reference) ---
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``rfob`` with the parameters in use now (a later
+        :meth:`set_parameters` needs a new kernel); bit-identical to :meth:`step`; ``ticks``
+        unused."""
+        prm = self.params
+        return CKernel(
+            name="rfob",
+            params=(prm.Ts_s, self.p, self.fc, prm.w_eps_rad_s, self.a1, self.b0, self.Kt,
+                    prm.tau_load_Nm, prm.lead_m, float(prm.i_cmd_is_previous)),
+            state=[self.tau_hat, self.tau_raw, _or0(self._w_prev), float(self._w_prev is not None),
+                   _or0(self._i_prev), float(self._i_prev is not None)],
+            inputs=("i_cmd", "w"), outputs=tuple(self.outputs) + ("tau_raw",),
+            attributes=("tau_raw",))
+
+    def c_kernel_sync(self, state: Sequence[float]) -> None:
+        """Write the state of a compiled run back (see :meth:`DOB.c_kernel_sync`)."""
+        self.tau_hat, self.tau_raw = float(state[0]), float(state[1])
+        self._w_prev = float(state[2]) if state[3] else None
+        self._i_prev = float(state[4]) if state[5] else None
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"compiled RFOB step returned {code} (it has no error codes)")
+
+
+def _or0(v: float | None) -> float:
+    """A state slot of a compiled step: the value, or 0.0 with its 'has' flag 0."""
+    return 0.0 if v is None else float(v)

@@ -49,7 +49,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Mapping, Sequence
+
+from .ckernel import CKernel
+
+from .ckernel import CKernel
 
 
 # --------------------------------------------------------------------------- drive
@@ -167,6 +171,24 @@ class ZeroForceController:
         i_tot = _saturate(i_c + i_cmp, p.i_max_A)            # eq. 5: I_tot = I_c + I_cmp
         return {"i_cmd": i_tot, "f_cntr": self.f_cntr}
 
+    # --- compiled step (cosim/algorithms/c/zero_force.c; this class stays the reference) ---
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``zero_force`` (bit-identical to :meth:`step`; ``ticks`` unused)."""
+        p = self.params
+        return CKernel(
+            name="zero_force",
+            params=(p.force_gain, p.drive.force_constant_N_per_A, float(p.enabled),
+                    float(p.use_dob), float(p.use_force_reference),
+                    float(p.i_max_A is not None), 0.0 if p.i_max_A is None else p.i_max_A),
+            state=[self.f_cntr], inputs=self.inputs, outputs=tuple(self.outputs))
+
+    def c_kernel_sync(self, state: Sequence[float]) -> None:
+        """Write the state of a compiled run back (``f_cntr`` of the last step)."""
+        self.f_cntr = float(state[0])
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"compiled zero-force step returned {code} (it has no error codes)")
+
 
 # --------------------------------------------------------------------------- reference
 def sine_reference(t_s: float, amplitude_m: float, frequency_Hz: float,
@@ -209,6 +231,18 @@ class SineReference:
         x, v, a = sine_reference(self.k * p.Ts_s, p.amplitude_m, p.frequency_Hz, p.offset_m)
         self.k += 1
         return {"x_ref": x, "v_ref": v, "a_ref": a}
+
+    # compiled twin (c/sine_reference.c, cosim_kernel.h); step() above is the reference
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        p = self.params
+        return CKernel("sine_reference", (p.amplitude_m, p.frequency_Hz, p.offset_m, p.Ts_s),
+                       [float(self.k)], (), self.outputs)
+
+    def c_kernel_sync(self, state) -> None:
+        self.k = int(state[0])
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"sine_reference: unexpected error code {code}")
 
 
 # --------------------------------------------------------------------------- position
@@ -293,3 +327,21 @@ class PositionController:
         if i_cmd == i_unsat:                      # clamping anti-windup
             self.integral += e * p.Ts_s
         return {"i_cmd": i_cmd, "e": e}
+
+    # compiled twin (c/position_controller.c, cosim_kernel.h); step() above is the reference
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        p = self.params
+        params = (p.Kp_N_per_m, p.Kd_Ns_per_m, p.Ki_N_per_ms, p.feedforward_mass_kg,
+                  float(p.use_velocity_input), float(p.derivative_on_error),
+                  float(p.i_max_A is not None), p.i_max_A or 0.0, p.Ts_s,
+                  p.drive.force_constant_N_per_A)
+        state = [self.integral, 0.0 if self.x_prev is None else self.x_prev,
+                 0.0 if self.x_prev is None else 1.0]
+        return CKernel("position_controller", params, state, self.inputs, self.outputs)
+
+    def c_kernel_sync(self, state) -> None:
+        self.integral = state[0]
+        self.x_prev = state[1] if state[2] else None
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"position_controller: unexpected error code {code}")

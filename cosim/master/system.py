@@ -56,6 +56,16 @@ An FMU stepped every d base steps (a fixed internal step, or a DefaultExperiment
 stepSize it cannot vary from) gets its inputs at t_k (k % d == 0) and is stepped to
 t_{k+d} in tick k + d - 1: its outputs are held in between.
 
+Faults
+------
+``System.faults`` (``add_fault``; empty by default) are applied by this loop where the
+value flows (:mod:`cosim.master.faults`): an FMU output's after step 1, a stimulus'
+after step 2, a controller output's right after that controller's step 3, a
+connection's (named by its destination input) on the value set in step 5 (or just
+before the destination's doStep for a sequential one). What is recorded is the
+faulted value; a connection fault leaves its source's recording true. The values
+exchanged in initialisation mode are never faulted.
+
 Errors
 ------
 An FMU error status (get/set/doStep), a non-finite FMU value or stimulus, a
@@ -72,7 +82,9 @@ terminateSimulation) ends the run normally: the tick is completed and recorded, 
 Speed
 -----
 ``Master.run`` resolves every name once and generates one specialised Python
-function for the tick loop (see :attr:`Master.source`): values live in a flat list,
+function for the tick loop (see :attr:`Master.source`), the reference that the
+compiled engine (:mod:`cosim.master.engine`) reproduces bit for bit when it runs the
+ticks instead (``Master(engine=...)``): values live in a flat list,
 FMUs are called through their raw ctypes function pointers with preallocated
 buffers (statuses checked inline), controller inputs are dict displays, and rows are
 appended to a flat ``array('d')``. Non-finite checks are one ``sum`` per group of
@@ -85,6 +97,7 @@ import dataclasses
 import json
 import keyword
 import math
+import os
 import re
 import time as _time
 from pathlib import Path
@@ -93,8 +106,10 @@ from typing import Callable, Mapping
 import numpy as np
 
 from . import coupled as _coupled
+from .faults import Fault, FaultKind
 from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, FMUTerminated, suggest
 from .roles import CONTRACTS, RoleContract, check_contract
+from .units import unit_conversion
 
 
 class SystemError_(ValueError):
@@ -147,6 +162,8 @@ class System:
         self.stimuli: dict[str, Callable[[float], float]] = {}
         #: coupled groups (tuples of roles) solved together (:mod:`cosim.master.coupled`)
         self.coupled: list[tuple[str, ...]] = []
+        #: faults the master injects (:mod:`cosim.master.faults`), applied in this order
+        self.faults: list[Fault] = []
 
     # ----------------------------------------------------------- lifetime
     def close(self) -> None:
@@ -167,11 +184,16 @@ class System:
     def add_fmu(self, role: str, path, contract: str | RoleContract | None = None,
                 parameters: Mapping[str, float] | None = None, kind: str = "auto",
                 rtol: float = 1e-6, tolerance: float | None = None,
-                debug_logging: bool | list = False, step_multiple: int | None = None
-                ) -> FMUSlave:
+                debug_logging: bool | list = False, step_multiple: int | None = None,
+                binding=None) -> FMUSlave:
         """Bind an FMU to ``role``. With a ``contract`` (a name of
         :data:`~cosim.master.roles.CONTRACTS` or a RoleContract) the FMU's interface is
-        checked and every difference reported at once. ``parameters``: name -> value,
+        checked and every difference reported at once. ``binding``: how an FMU with
+        other names or units plays the contract (a
+        :class:`~cosim.master.binding.RoleBinding` or ``{"map": {contract var: FMU
+        var}, "units": {contract var: unit of the FMU's values}}``): the system then
+        sees the contract's names and units, the values converted where the master
+        reads and writes the FMU. ``parameters``: name -> value,
         set before initialisation (parameters, start values of inputs and of any
         variable with ``initial`` exact or approx; an FMI 3 array takes a sequence;
         checked here against the standard's rules). ``kind``: 'auto' (Co-Simulation
@@ -190,7 +212,7 @@ class System:
             raise SystemError_(f"role {role!r} is bound twice")
         if role == "stim" or role in [c.name for c in self.controllers]:
             raise SystemError_(f"name {role!r} already used")
-        slave, c = self._load(role, path, contract, kind, rtol)
+        slave, c = self._load(role, path, contract, kind, rtol, binding)
         try:
             self._configure(role, slave, tolerance, debug_logging, step_multiple)
             self._check_params(role, slave, parameters or {})
@@ -235,17 +257,18 @@ class System:
                     parameters: Mapping[str, float] | None = None, kind: str = "auto",
                     keep_parameters: bool = False, rtol: float = 1e-6,
                     tolerance: float | None = None, debug_logging: bool | list = False,
-                    step_multiple: int | None = None) -> FMUSlave:
+                    step_multiple: int | None = None, binding=None) -> FMUSlave:
         """Swap the FMU playing ``role`` for another (e.g. a user's plant model), keeping
         connections, wiring and recordings. Atomic: the contract of the role
         (``"same"``), every variable the system uses by name, every connection to or
         from the role (type, causality, variability, unit) and the parameters are
         checked first; on any failure the old FMU, its parameters and its contract stay
-        and the new one is unloaded."""
+        and the new one is unloaded. ``binding``: the new FMU's role binding (as in
+        :meth:`add_fmu`; the old FMU's binding was for the old FMU and is not kept)."""
         old = self._role(role)
         if contract == "same":
             contract = self.contracts.get(role)
-        slave, c = self._load(role, path, contract, kind, rtol)
+        slave, c = self._load(role, path, contract, kind, rtol, binding)
         try:
             self._configure(role, slave, tolerance, debug_logging, step_multiple)
             used = self._names_used_of(role)
@@ -277,31 +300,50 @@ class System:
         old.close()
         return slave
 
-    def _load(self, role, path, contract, kind, rtol=1e-6):
-        try:
-            slave = FMUSlave(path, role=role, kind=kind, rtol=rtol)
-        except FMUError:
-            raise
+    def _load(self, role, path, contract, kind, rtol=1e-6, binding=None):
+        """The FMU of ``role``, seen through its ``binding`` if one is given, checked
+        against ``contract``: every difference of both at once."""
+        from .binding import BindingError, BoundSlave, RoleBinding
         c = None
+        if isinstance(contract, str):
+            if contract not in CONTRACTS:
+                close = suggest(contract, CONTRACTS)
+                raise SystemError_(f"unknown role contract {contract!r} (contracts: "
+                                   f"{sorted(CONTRACTS)}"
+                                   + (f"; did you mean {close}?)" if close else ")"))
+            c = CONTRACTS[contract]
+        elif contract is not None:
+            c = contract
         try:
-            if contract is not None:
-                if isinstance(contract, str):
-                    if contract not in CONTRACTS:
-                        close = suggest(contract, CONTRACTS)
-                        raise SystemError_(f"unknown role contract {contract!r} (contracts: "
-                                           f"{sorted(CONTRACTS)}"
-                                           + (f"; did you mean {close}?)" if close else ")"))
-                    c = CONTRACTS[contract]
-                else:
-                    c = contract
-                diffs = check_contract(slave, c)
+            binding = RoleBinding.from_spec(binding, f"role {role!r}: binding")
+        except BindingError as exc:
+            raise SystemError_(str(exc)) from None
+        if binding and c is None:
+            raise SystemError_(f"role {role!r}: a binding (map/units) needs the role's "
+                               f"contract: it maps the contract's variables")
+        if binding:
+            slave = BoundSlave(path, binding, c, role=role, kind=kind, rtol=rtol)
+        else:
+            slave = FMUSlave(path, role=role, kind=kind, rtol=rtol)
+        try:
+            if c is not None:
+                diffs = list(getattr(slave, "binding_diffs", []))
+                diffs += check_contract(slave, c, getattr(slave, "binding_reported", ()))
                 if diffs:
-                    raise SystemError_(f"role {role!r}: {Path(path).name} does not fit the "
-                                       f"{c.name!r} contract ({len(diffs)} difference"
-                                       f"{'s' if len(diffs) > 1 else ''}):\n  - "
-                                       + "\n  - ".join(diffs)
-                                       + f"\n  (the FMU's inputs: {slave.names('input')}; "
-                                       f"outputs: {slave.names('output')})")
+                    fv = getattr(slave, "fmu_variables", slave.variables)   # its own names
+                    ins = [n for n, v in fv.items() if v.causality == "input"]
+                    outs = [n for n, v in fv.items() if v.causality == "output"]
+                    raise SystemError_(
+                        f"role {role!r}: {Path(path).name} does not fit the {c.name!r} "
+                        f"contract" + (" with its binding" if binding else "")
+                        + f" ({len(diffs)} difference{'s' if len(diffs) > 1 else ''}):\n  - "
+                        + "\n  - ".join(diffs)
+                        + f"\n  (the FMU's inputs: {ins}; outputs: {outs})"
+                        + ("" if binding else
+                           f"\n  (an FMU with other names or units plays the role through a "
+                           f"binding: map/units in the scenario's fmus entry, --map or "
+                           f"--binding on the command line; `cosim roles {c.name}` lists the "
+                           f"contract)"))
         except BaseException:
             slave.close()
             raise
@@ -551,6 +593,22 @@ class System:
                                  if c.source.partition(".")[0] != name]
             raise
 
+    def add_fault(self, signal: str, kind: FaultKind, name: str = "") -> Fault:
+        """Schedule a fault (:mod:`cosim.master.faults`) on ``signal``: an FMU output
+        ('role.out', faulted after it is read: every reader sees it), a connection by
+        its destination ('role.in', faulted just before it is set: only that input sees
+        it), a controller output ('ctrl.out', after its step) or a stimulus
+        ('stim.name'). Names and types are checked when the master plans the run."""
+        if not isinstance(kind, FaultKind):
+            raise SystemError_(f"fault on {signal!r}: {kind!r} is not a fault kind "
+                               f"(cosim.master.faults)")
+        if not isinstance(signal, str) or "." not in signal:
+            raise SystemError_(f"fault {name or signal!r}: signal {signal!r} is not of the form "
+                               f"'role.var', 'controller.output' or 'stim.name'")
+        f = Fault(signal, kind, name)
+        self.faults.append(f)
+        return f
+
     # ----------------------------------------------------------- helpers
     def _role(self, role: str) -> FMUSlave:
         try:
@@ -577,7 +635,15 @@ class System:
         return slave, v
 
     def provenance(self) -> list[dict]:
-        return [dict(role=r, **dataclasses.asdict(s.info)) for r, s in self.roles.items()]
+        """Per role: the FMU (path, sha256, FMI version, kind, model, generation tool)
+        and, for an FMU bound with a role binding, the binding (``cosim roles``)."""
+        out = []
+        for r, s in self.roles.items():
+            p = dict(role=r, **dataclasses.asdict(s.info))
+            if getattr(s, "binding", None):
+                p["binding"] = {**s.binding.to_dict(), "lines": s.describe_binding()}
+            out.append(p)
+        return out
 
 
 # =========================================================================== result
@@ -675,12 +741,33 @@ class Master:
     attributes 'ctrl.attr' holding a number, or one element of an array attribute,
     'ctrl.attr[i]' / 'ctrl.attr[i,j]', e.g. 'aakf.P[0,0]'). ``timing=True`` measures
     the wall time of every FMU call and controller (slower; see RunResult.timing).
+    ``engine``: 'auto' (default, or ``$COSIM_ENGINE``) runs the ticks in the compiled
+    engine when it can (:mod:`cosim.master.engine`: bit-identical results, the same
+    errors), 'python' always in the generated Python loop, 'compiled' refuses a system
+    the engine cannot run; :attr:`engine_used` says which ran.
     """
 
-    def __init__(self, system: System, record: list[str] | None = None, timing: bool = False):
+    def __init__(self, system: System, record: list[str] | None = None, timing: bool = False,
+                 engine: str | None = None):
         self.system = system
         self.record = list(record or [])
         self.timing = bool(timing)
+        from .engine import MODES
+        engine = engine if engine is not None else (os.environ.get("COSIM_ENGINE") or "auto")
+        if engine not in MODES:
+            raise SystemError_(f"engine must be one of {list(MODES)} (argument or $COSIM_ENGINE), "
+                               f"not {engine!r}")
+        #: 'auto' (the compiled engine when it can run the system), 'python', 'compiled'
+        self.engine = engine
+        #: how the last run was made: 'python', 'compiled-loop' (every controller
+        #: compiled: one C call for all ticks) or 'compiled-calls' (C for the FMI calls,
+        #: Python controllers); and why (cosim.master.engine)
+        self.engine_used: str | None = None
+        self.engine_reason: str | None = None
+        #: benchmarks: the engine measures the FMUs' own doStep time (``_engine_program.
+        #: step_seconds``, per role in order) when this is set before run()
+        self._time_steps = False
+        self._engine_program = None
         #: the generated tick-loop source of the last run (for inspection)
         self.source: str | None = None
         #: the coupled groups' integrators of the last run (cosim.fmi.me_group.MEGroup)
@@ -791,6 +878,10 @@ class Master:
         for c in sys_.controllers:
             for key, src in c.wiring.items():
                 source(src, f"controller {c.name!r} input {key!r}")
+        dests = {c.dest for c in sys_._connections}
+        for f in sys_.faults:            # a faulted output is read even if nothing else does
+            if f.signal not in dests:
+                source(f.signal, f"fault {f.name or f.signal!r}")
         rec_names = []
         extra = [f"{c.name}.{r}" for c in sys_.controllers for r in c.record]
         for r in self.record + extra:
@@ -799,8 +890,10 @@ class Master:
             for n in source(r, "record", allow_attr=True) or [r]:
                 if n not in rec_names:
                     rec_names.append(n)
-        return _Plan(fmu_reads, typed_reads, text_reads, stim_used, ctrl_used, attrs,
+        plan = _Plan(fmu_reads, typed_reads, text_reads, stim_used, ctrl_used, attrs,
                      rec_names, alias)
+        _fault_hooks(sys_, plan)           # the faults' names and types, before any run
+        return plan
 
     # ----------------------------------------------------------------- run
     def run(self, duration: float, raise_on_error: bool = True,
@@ -835,6 +928,8 @@ class Master:
                                    f"({n_ticks} steps is not)")
         for c in sys_.controllers:          # reset before planning: attribute shapes
             c.block.reset()
+        for f in sys_.faults:
+            f.reset()
         plan = self._plan()
         T0 = float(start_time)
 
@@ -882,6 +977,14 @@ class Master:
         self._stop = None
 
         slaves = list(sys_.roles.items())
+        mode, why, kernels = "python", "engine='python'", None
+        if self.engine != "python":
+            from . import engine as _engine
+            mode, why, kernels = _engine.choose(self, plan, n_ticks + 1)  # steps k = 0..N
+            if mode == "python" and self.engine == "compiled":
+                raise SystemError_(f"engine='compiled': the compiled engine cannot run this "
+                                   f"system: {why}")
+        self.engine_used, self.engine_reason = mode, why
         try:
             for role, slave in slaves:
                 slave.instantiate(sys_.params.get(role), start_time=T0,
@@ -891,7 +994,13 @@ class Master:
                 slave.exit_initialization()
             self.groups = _coupled.start(sys_, T0, SystemError_)
             src, ns = self._generate(slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec,
-                                     srec, Ts, T0, wbufs)
+                                     srec, Ts, T0, wbufs, engine_calls=mode == "compiled-calls")
+            if mode != "python":
+                _engine.attach(self, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end,
+                               rec, kernels, n_ticks, Ts, T0)
+                if mode == "compiled-loop":
+                    src = ("# not run: the compiled engine runs this loop (compiled-loop)\n"
+                           + src)
         except BaseException as exc:
             for _, s in slaves:
                 s.terminate()
@@ -1085,10 +1194,12 @@ class Master:
 
     # ----------------------------------------------------------------- codegen
     def _generate(self, slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec, srec, Ts, T0,
-                  wbufs):
+                  wbufs, engine_calls=False):
         """Source and namespace of the specialised tick loop ``_loop(k0, N)`` (and of
         ``_steps(k, j0)``, the doSteps of tick k after FMU j0, to finish a tick in which
-        an FMU ended the simulation)."""
+        an FMU ended the simulation). ``engine_calls``: the FMI calls of a tick are two
+        calls of the compiled engine (``_e_read``, ``_e_ws``, set by
+        :func:`cosim.master.engine.attach`), the rest stays in Python."""
         import ctypes
         sys_ = self.system
         timing = self.timing
@@ -1107,6 +1218,7 @@ class Master:
         # raw ctypes calls take ctypes objects (see FMUSlave.raw): counts are c_size_t
         # constants, the communication point is _tc (set once per tick)
         labels: list[str] = []
+        L_fault, L_fault_ctrl, _fwrap = _fault_hooks(sys_, plan, slot, ns)
 
         def timed(label: str, body: list[str], indent: str) -> list[str]:
             if not timing:
@@ -1210,7 +1322,7 @@ class Master:
                     ex = ", _n1" if sio.fmi3 else ""
                     L_seq += [f"if (st := sget_{j}_{q}(sc_{j}_{q}, srvr_{j}_{q}, _n1, srb_{j}_{q}{ex})) > 1: "
                               f"_fail_fmu({si}, 'get', t, st)",
-                              f"swb_{j}[{q}] = {_affine(f'srb_{j}_{q}[0]', c)}"]
+                              f"swb_{j}[{q}] = {_fwrap(c, _affine(f'srb_{j}_{q}[0]', c))}"]
                 ex = f", swn_{j}" if io.fmi3 else ""
                 L_seq += [f"if (st := sset_{j}(c_{j}, swvr_{j}, swn_{j}, swb_{j}{ex})) > 1: "
                           f"_fail_fmu({j}, 'set', t, st)"]
@@ -1223,7 +1335,7 @@ class Master:
                 ns[f"wvr_{j}"] = (ctypes.c_uint32 * n)(*vrs)
                 ns[f"wb_{j}"] = (ctypes.c_double * n)()
                 ns[f"wn_{j}"] = ctypes.c_size_t(n)
-                terms = [_affine(f"V[{S(c.source)}]", c) for c in fast]
+                terms = [_fwrap(c, _affine(f"V[{S(c.source)}]", c)) for c in fast]
                 extra = f", wn_{j}" if io.fmi3 else ""
                 assign = (f"wb_{j}[:] = ({', '.join(terms)})" if n > 1 else f"wb_{j}[0] = {terms[0]}")
                 W += [assign,
@@ -1262,6 +1374,7 @@ class Master:
                         conv_errs.append((c, dv))
                         x = (f"({x} != 0)" if dv.kind == "bool" else
                              f"_toint({x}, {len(conv_errs) - 1}, t)")
+                    x = _fwrap(c, x)
                     W.append(f"tsb_{g}[{off[dv.name] + (el or 0)}] = {x}")
                 ex = f", tsm_{g}" if io.fmi3 else ""
                 W.append(f"if (st := ts_{g}(c_{j}, tsvr_{g}, tsn_{g}, tsb_{g}{ex})) > 1: "
@@ -1318,6 +1431,7 @@ class Master:
                 for o in ctrl_used[c.name]:
                     body.append(f"    V[{slot[c.name + '.' + o]}] = o[{o!r}]")
                 body += ["except Exception as e:", f"    _fail_ctrl({i}, t, e, o)"]
+            body += L_fault_ctrl.get(c.name, [])
             L_ctrl += timed(f"ctrl:{c.name}", body, "        ")
         # attributes: identifiers and integer indices were validated by _ATTR
         L_attr = []
@@ -1344,6 +1458,10 @@ class Master:
                       "except TypeError:", "    x = math.nan",
                       "if x - x: _nonfinite_ctrl(t)"]
 
+        if engine_calls:     # cosim.master.engine: the same FMI calls, compiled
+            L_read = ["        if _e_read(k): _e_fail()"]
+            L_write = ["        if _e_ws(k): _e_fail()"]
+            L_step = []
         lines = ["def _loop(k0, N):", "    V = _V"]
         if timing:
             lines.append("    _T = _T_list")
@@ -1353,6 +1471,7 @@ class Master:
                   "        V[0] = t"]
         lines += L_read
         lines += L_stim
+        lines += ["        " + x for x in L_fault]
         lines += ["        " + x for x in checks]
         lines += L_ctrl
         lines += ["        " + x for x in L_cchk]
@@ -1360,7 +1479,7 @@ class Master:
         lines += timed("record", L_rec, "        ")
         lines += ["        if k == N:", "            break"]
         lines += L_write
-        if any(s.kind == "cs" for _, s in slaves):
+        if any(s.kind == "cs" for _, s in slaves) and not engine_calls:
             lines.append("        _tc.value = t")
         lines += L_step
         # the rest of a tick after FMU j0 ended the simulation in its doStep
@@ -1508,6 +1627,57 @@ class Master:
         return src, ns
 
 
+def _fault_hooks(sys_, plan, slot=None, ns=None):
+    """Where the faults of ``sys_.faults`` act in the generated tick loop (see
+    :mod:`cosim.master.faults`): lines applying FMU-output and stimulus faults after
+    the reads and stimuli, lines per controller applying its output faults after its
+    step, and ``wrap(connection, expr)`` applying a connection's faults to the value
+    it sets. A connection's fault is named by its destination input. Without ``ns``
+    only checks (at planning)."""
+    dests = {c.dest: c for c in sys_._connections}
+    dests.update({plan.alias[c.dest]: c for c in sys_._connections if c.dest in plan.alias})
+    seq = {plan.alias.get(c.source, c.source): c for c in sys_._connections if c.sequential}
+    ctrl_names = [c.name for c in sys_.controllers]
+    L_in: list[str] = []
+    L_ctrl: dict[str, list[str]] = {}
+    on_conn: dict[int, list[str]] = {}
+    for i, f in enumerate(sys_.faults):
+        fn = f"_flt{i}"
+        if ns is not None:
+            ns[fn] = f.apply
+        what = f"fault {f.name or f.signal!r}"
+        name = plan.alias.get(f.signal, f.signal)
+        head, _, tail = f.signal.partition(".")
+        if head in sys_.roles:
+            v, _ = sys_.roles[head].element(tail)
+            if v.kind != "real":
+                raise SystemError_(f"{what}: {f.signal} is a {v.fmi_type}: faults act on "
+                                   f"Real values")
+        if name in dests:
+            on_conn.setdefault(id(dests[name]), []).append(fn)
+            continue
+        if head in sys_.roles and v.causality == "input":
+            raise SystemError_(f"{what}: input {f.signal} is not driven by a connection or "
+                               f"a controller: fault its source")
+        if name in seq:
+            c = seq[name]
+            raise SystemError_(f"{what}: {f.signal} feeds {c.dest} sequentially (read "
+                               f"after the FMU's doStep, not from the tick's values): "
+                               f"fault the connection instead (signal: {c.dest})")
+        if ns is None:
+            continue
+        if head in ctrl_names:
+            L_ctrl.setdefault(head, []).append(f"V[{slot[name]}] = {fn}(t, V[{slot[name]}])")
+        else:
+            L_in.append(f"V[{slot[name]}] = {fn}(t, V[{slot[name]}])")
+
+    def wrap(c, expr: str) -> str:
+        for fn in on_conn.get(id(c), ()):
+            expr = f"{fn}(t, {expr})"
+        return expr
+    return L_in, L_ctrl, wrap
+
+
 def _finite(x) -> bool:
     try:
         return math.isfinite(x)
@@ -1580,39 +1750,12 @@ def _check_value(role, name, v, x):
             raise SystemError_(f"{where} = {x!r} is not bytes")
 
 
-def _unit_of(slave, unit: str):
-    """(exponents, factor, offset) of ``unit`` from the FMU's UnitDefinitions, or None."""
-    for u in slave.md.unitDefinitions:
-        if u.name == unit and u.baseUnit is not None:
-            b = u.baseUnit
-            return ((b.kg, b.m, b.s, b.A, b.K, b.mol, b.cd, b.rad), float(b.factor),
-                    float(b.offset))
-    return None
-
-
-def _norm(u: str) -> str:
-    return (u or "").replace(" ", "")
-
-
 def _unit_conversion(both, sslave, su, dslave, du):
     """(gain, offset) taking a value in the source's unit to the destination's, or
-    SystemError_ when the units are of different dimensions (FMI 2.0 section 2.2.2,
-    FMI 3.0 section 2.4.3: value in base units = factor * value + offset)."""
-    if not su or not du or _norm(su) == _norm(du):
-        return 1.0, 0.0
-    a, b = _unit_of(sslave, su), _unit_of(dslave, du)
-    if a is None or b is None:
-        raise SystemError_(f"{both}: units differ ({su!r} -> {du!r}) and "
-                           f"{'the source' if a is None else 'the destination'} FMU defines "
-                           f"no BaseUnit for {su if a is None else du!r} to compare them; "
-                           f"connect(..., check_units=False) to connect them as they are")
-    names = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
-    if a[0] != b[0]:
-        def dim(e):
-            return ".".join(f"{n}{x if x != 1 else ''}" for n, x in zip(names, e) if x) or "1"
-        raise SystemError_(f"{both}: units {su!r} ({dim(a[0])}) and {du!r} ({dim(b[0])}) "
-                           f"are of different dimensions")
-    return a[1] / b[1], (a[2] - b[2]) / b[1]
+    SystemError_ when the units are of different dimensions (:mod:`.units`: the FMUs'
+    UnitDefinitions, else the Modelica unit syntax)."""
+    return unit_conversion(both, su, sslave.md.unitDefinitions, du,
+                           dslave.md.unitDefinitions, SystemError_)
 
 
 def _fast_dest(slave, dest: str) -> bool:

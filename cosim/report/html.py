@@ -117,6 +117,12 @@ def provenance_html(verdict: dict) -> str:
                    f"<td>{esc(p.get('fmi_version'))}</td><td>{esc(p.get('kind'))}</td>"
                    f"<td>{esc(p.get('generation_tool'))}</td></tr>")
     out.append("</table>")
+    for p in verdict.get("provenance") or []:
+        if p.get("binding"):        # an FMU playing its role through a role binding
+            out.append(f"<p>Role <code>{esc(p.get('role'))}</code> bound to its contract "
+                       f"(contract name &larr; FMU variable [unit of its values]): "
+                       + "; ".join(f"<code>{esc(x)}</code>" for x in p["binding"].get("lines", []))
+                       + "</p>")
     if verdict.get("fmu_swaps"):
         out.append("<p>FMUs swapped in with <code>--fmu</code>: "
                    + ", ".join(f"{esc(k)} = <code>{esc(v)}</code>"

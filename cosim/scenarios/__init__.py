@@ -13,7 +13,9 @@ One module per job:
 * :mod:`.verdict` - requirements, negative controls and verdicts (pass, cannot-fail,
   fail, thesis-inconsistent, error);
 * :mod:`.runner` - one scenario (:func:`run_scenario`, :func:`execute_run`) and
-  :mod:`.suite` - many on Dask (:func:`run_suite`).
+  :mod:`.suite` - many on Dask (:func:`run_suite`);
+* :mod:`.isolate` - a run in a supervised child process (``--isolation``): a crash or
+  a hang ends that run with a record (signal, role, FMU, time, the rows before it).
 
 The names scenario authors and tests use are importable from here
 (``from cosim.scenarios import load, expand, execute_run``). The pages are

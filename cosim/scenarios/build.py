@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextvars
 import re
+import zlib
 from pathlib import Path
 
 from cosim import paths
@@ -25,6 +26,31 @@ DEFAULT_FMU_DIR = paths.fmus_dir()
 #: run, :mod:`.ship`, around the run: the worker has the bytes, not the client's path)
 LOCAL_FMUS: contextvars.ContextVar[dict] = contextvars.ContextVar("cosim_local_fmus",
                                                                   default={})
+
+
+class FMUSwap(str):
+    """A ``--fmu`` swap: the FMU's path (the string itself, so every place that takes
+    a swap as a path still does), with the role binding it comes with
+    (``binding``: ``{"map": {...}, "units": {...}}``, ``{}`` for none; see
+    :mod:`cosim.master.binding`). The binding goes into the run's cache key and travels
+    with a shipped run."""
+
+    def __new__(cls, path, binding: dict | None = None):
+        obj = super().__new__(cls, str(path))
+        obj.binding = {k: dict(v) for k, v in (binding or {}).items() if v}
+        return obj
+
+    def __reduce__(self):
+        return FMUSwap, (str(self), self.binding)
+
+    def at(self, path) -> "FMUSwap":
+        """The same swap for another copy of the FMU (a worker's)."""
+        return FMUSwap(path, self.binding)
+
+
+def swap_binding(swap) -> dict:
+    """The role binding of a ``--fmu`` swap ({} for a plain path)."""
+    return dict(getattr(swap, "binding", None) or {})
 
 
 def fmu_file(spec_fmu: str, fmu_dir) -> Path:
@@ -72,7 +98,11 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
     groups = [(i, g) for i, g in groups if len(g) >= 2]
     in_group = {r for _, g in groups for r in g}
     for role, spec in d["system"]["fmus"].items():
-        path = swaps.pop(role, None) or fmu_file(spec["fmu"], ctx.fmu_dir)
+        swap = swaps.pop(role, None)
+        path = swap or fmu_file(spec["fmu"], ctx.fmu_dir)
+        # the scenario's binding is its own FMU's; a swapped-in FMU comes with its own
+        binding = swap_binding(swap) if swap else {k: spec[k] for k in ("map", "units")
+                                                   if spec.get(k)}
         params = {}
         if "human_profile" in spec:       # the contract says which arm model (schema)
             params.update(human_parameters(spec["human_profile"], spec.get("grasp", "hard"),
@@ -85,7 +115,8 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
                 params[k] = v
         try:
             slave = system.add_fmu(role, path, contract=spec.get("contract"), parameters=params,
-                                   kind="me" if role in in_group else spec.get("kind", "auto"))
+                                   kind="me" if role in in_group else spec.get("kind", "auto"),
+                                   binding=binding or None)
             if rel:
                 starts = {v.name: v.start for v in slave.md.modelVariables}
                 system.set_parameters(role, {k: f * float(starts[k]) for k, f in rel.items()})
@@ -122,6 +153,17 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
                                   record=tuple(spec.get("record") or ()))
         except (SystemError_, ValueError, TypeError) as exc:
             raise _err(sc, ("controllers", name), exc) from None
+    from cosim.master.faults import make as make_fault
+    for name, spec in (d.get("faults") or {}).items():
+        if spec is None:                  # deleted by a case or a negative control
+            continue
+        params = {k: v for k, v in spec.items() if k not in ("signal", "kind")}
+        try:        # a noise fault's stream: the run's seed and the fault's name
+            kind = make_fault(spec["kind"], params,
+                              seed=(ctx.seed, zlib.crc32(str(name).encode())))
+            system.add_fault(spec["signal"], kind, name=str(name))
+        except (SystemError_, ValueError) as exc:
+            raise _err(sc, ("faults", name), exc) from None
     record = list(d.get("record") or [])
     return system, record
 
@@ -147,6 +189,9 @@ def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None, runs=None):
             path = ("record",)
             if m and m.group(1) in (sc.data.get("record") or []):
                 path = ("record", sc.data["record"].index(m.group(1)))
+            f = re.match(r"fault '([^']+)'", msg)
+            if f:
+                path = ("faults", f.group(1))
             raise _err(sc, path, msg) from None
         finally:
             for s in system.roles.values():

@@ -16,7 +16,7 @@ from .registry import RunSpec
 #: what a Monte-Carlo ``vary`` entry may draw: ``{kind: argument}``
 MC_KINDS = ("relative", "uniform", "normal", "choice")
 #: the top-level sections a case, sweep, draw or negative-control override may change
-OVERRIDE_HEADS = ("system", "controllers", "stimuli", "duration", "parameters")
+OVERRIDE_HEADS = ("system", "controllers", "stimuli", "duration", "parameters", "faults")
 
 
 # =========================================================================== merging

@@ -566,6 +566,40 @@ def _final(params, ctx):
 
 
 @dataclass(frozen=True)
+class RecoveryParams:
+    """``signal`` (minus ``minus``) must be back within ``target`` +- ``band`` [signal
+    unit] for good after ``after_s`` [s] (e.g. a fault's end), up to ``to_s`` [s] (None:
+    the end)."""
+    signal: str = ""
+    band: float = 0.0
+    target: float = 0.0
+    after_s: float = 0.0
+    to_s: float | None = None
+    minus: str | None = None
+
+    def validate(self):
+        if not self.band > 0:
+            raise ValueError(f"band must be > 0, got {self.band!r}")
+
+
+@metric("recovery_time", params=RecoveryParams)
+def _recovery_time(params, ctx):
+    """Time [s] after ``after_s`` from which |signal - minus - target| <= band until ``to_s``:
+    0 if it never leaves the band, the window's length plus one step if it never comes
+    back (a fault the loop does not recover from)."""
+    p = RecoveryParams(**params)
+    win = {"from_s": p.after_s, **({"to_s": p.to_s} if p.to_s is not None else {})}
+    x = _windowed({"signal": p.signal, "minus": p.minus, **win}, ctx)
+    t, _ = _window({"signal": "time", **win}, ctx)
+    out = np.flatnonzero(np.abs(x - p.target) > p.band)
+    if out.size == 0:
+        return 0.0
+    if out[-1] + 1 >= t.size:
+        return float(t[-1] - p.after_s + (t[1] - t[0] if t.size > 1 else 0.0))
+    return float(t[out[-1] + 1] - p.after_s)
+
+
+@dataclass(frozen=True)
 class ValueParams:
     key: str = ""
 

@@ -26,24 +26,37 @@ from ..fileio import jsonable
 from . import registry as reg
 from .build import check_build, make_builder
 from .expand import deep_merge, expand
+from .isolate import alarm, run_timeout, where
 from .schema import Scenario, ScenarioError, load
-from .store import (clean_run_tmp, publish_run, run_done, run_key, run_tmp_dir, safe_name,
-                    versions, write_verdict)
+from .store import (clean_run_tmp, publish_run, run_done, run_fmu_paths, run_key, run_tmp_dir,
+                    safe_name, versions, write_verdict)
 from .units import signal_units
 from .verdict import all_runs, evaluate
 
 
 def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dict | None = None,
-                fmu_dir: str | None = None, key: str | None = None) -> dict:
+                fmu_dir: str | None = None, key: str | None = None, isolation: str = "none",
+                timeout_s: float | None = None) -> dict:
     """Execute one run (by label) of a scenario file and store it atomically in
     ``out_dir/runs/<label>/``. Never raises for a failing run: the error (exception,
-    non-finite value, FMU error) is recorded with what had been recorded before it.
-    Returns the run.json content. (Top-level function: a Dask task.)"""
+    non-finite value, FMU error, crash, timeout) is recorded with what had been
+    recorded before it. Returns the run.json content. (Top-level function: a Dask task.)
+
+    ``isolation`` (:mod:`.isolate`): ``"process"`` runs it in a supervised child
+    process, ``"auto"`` does when one of its FMUs is not the project's, ``"none"`` runs
+    it here. ``timeout_s``: the wall-clock limit [s] (None: none); in this process it
+    is armed only in the main thread and stops Python code, not a hung C call."""
+    if isolation != "none":
+        child = _isolated(scenario_path, run_label, out_dir, fmu_swaps, fmu_dir, key,
+                          isolation, timeout_s)
+        if child is not None:
+            return child
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
     runs_dir = out_dir / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
-    info: dict = {"label": run_label, "key": key, "status": "error", "error": None}
+    info: dict = {"label": run_label, "key": key, "status": "error", "error": None,
+                  "isolation": where()}
     tmp = run_tmp_dir(runs_dir, run_label)
     try:
         sc = load(scenario_path)
@@ -65,8 +78,10 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
             return system, record
         proc = reg.get("procedure", sc.procedure)
         result = None
+        limit = {"fired": False}
         try:
-            result = proc.obj(run, build, ctx)
+            with alarm(timeout_s) as limit:
+                result = proc.obj(run, build, ctx)
             if not isinstance(result, reg.ProcedureResult):
                 raise TypeError(f"procedure {sc.procedure!r} returned "
                                 f"{type(result).__name__}, not a ProcedureResult")
@@ -75,6 +90,9 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
             raise
         except Exception as exc:
             info["error"] = f"{type(exc).__name__}: {exc}"
+            if limit["fired"]:
+                info["error"] = (f"timeout: the run passed its wall-clock limit of "
+                                 f"{timeout_s:g} s (stopped in Python code: {exc})")
             partial = getattr(exc, "result", None)
             if partial is not None:
                 result = reg.ProcedureResult(runs={"main": partial})
@@ -114,6 +132,26 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
     return info
 
 
+def _isolated(scenario_path, run_label, out_dir, fmu_swaps, fmu_dir, key, isolation,
+              timeout_s) -> dict | None:
+    """The run executed in a child process (:mod:`.isolate`), or None when
+    ``isolation`` says it runs here (or the scenario cannot be read: the in-process
+    path records that error)."""
+    from .isolate import run_in_child, wants_process
+    try:
+        sc = load(scenario_path)
+        run = {r.label: r for r in all_runs(sc)}[run_label]
+        fmus = run_fmu_paths(sc, run, fmu_dir, fmu_swaps).values()
+    except Exception:
+        return None
+    if not wants_process(isolation, fmus):
+        return None
+    base = {"label": run.label, "case": run.case, "seed": run.seed, "point": run.point,
+            "duration": run.duration, "step": run.step, "isolation": "process"}
+    return run_in_child(execute_run, scenario_path, run_label, out_dir, fmu_swaps, fmu_dir,
+                        key, timeout_s, base=base)
+
+
 def finish_scenario(sc: Scenario, out_dir: Path, fmu_swaps=None) -> dict:
     """The verdict of a scenario whose runs are stored, written to ``verdict.json``."""
     verdict = evaluate(sc, out_dir)
@@ -126,9 +164,12 @@ def finish_scenario(sc: Scenario, out_dir: Path, fmu_swaps=None) -> dict:
 
 
 def run_scenario(path, out_dir, fmu_swaps: dict | None = None, fmu_dir=None,
-                 use_cache: bool = True, progress=None) -> dict:
+                 use_cache: bool = True, progress=None, isolation: str = "auto",
+                 timeout_s: float | None = None) -> dict:
     """``cosim run``: every run of one scenario (serially), then its verdict (the
-    page: :func:`cosim.report.render.render_scenario`)."""
+    page: :func:`cosim.report.render.render_scenario`). ``isolation``: see
+    :func:`execute_run`; ``timeout_s``: the per-run wall-clock limit when the scenario
+    has no ``timeout_s`` (None: :data:`.isolate.DEFAULT_TIMEOUT_S`; 0: none)."""
     sc = load(path)
     check_build(sc, fmu_dir, fmu_swaps, runs=all_runs(sc))   # bad names before running
     out_dir = Path(out_dir)
@@ -139,7 +180,8 @@ def run_scenario(path, out_dir, fmu_swaps: dict | None = None, fmu_dir=None,
         key = run_key(sc, run, fmu_dir, fmu_swaps)
         if use_cache and run_done(out_dir, run, key):
             continue
-        execute_run(str(sc.path), run.label, str(out_dir), fmu_swaps, fmu_dir, key)
+        execute_run(str(sc.path), run.label, str(out_dir), fmu_swaps, fmu_dir, key,
+                    isolation=isolation, timeout_s=run_timeout(sc, timeout_s))
         if progress:
             progress(i + 1, len(runs))
     return finish_scenario(sc, out_dir, fmu_swaps)

@@ -98,10 +98,14 @@ TOP = {
     "stimuli": (dict, False), "record": (list, False), "cases": (dict, False),
     "metrics": (dict, False), "requirements": (list, False), "sweep": (dict, False),
     "monte_carlo": (dict, False), "parameters": (dict, False),
-    "negative_controls": (dict, False),
+    "negative_controls": (dict, False), "faults": (dict, False),
+    "timeout_s": (NUM, False),      # per-run wall-clock limit [s] (cosim.scenarios.isolate)
 }
 ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
-        "human_profile": (str, False), "grasp": (str, False), "kind": (str, False)}
+        "human_profile": (str, False), "grasp": (str, False), "kind": (str, False),
+        # a role binding (cosim.master.binding): contract variable -> the FMU's name /
+        # the unit of the FMU's values
+        "map": (dict, False), "units": (dict, False)}
 CONN = {"from": (str, True), "to": (str, True), "scale": (NUM, False),
         "sequential": (bool, False)}
 CTRL = {"type": (str, True), "params": (dict, False), "wiring": (dict, False),
@@ -118,7 +122,10 @@ NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
 #: a requirement the thesis itself makes unsatisfiable (verdict 'thesis-inconsistent')
 INCONS = {"reason": (str, True), "derivation": (str, False), "values": (list, False)}
 CASE_KEYS = {"description", "system", "controllers", "stimuli", "duration", "record",
-             "parameters"}
+             "parameters", "faults"}
+#: a fault (``faults: {name: {signal, kind, start_s, stop_s, <the kind's parameters>}}``,
+#: :mod:`cosim.master.faults`)
+FAULT = {"signal": (str, True), "kind": (str, True)}
 #: the human-arm model (``cosim.profiles.human_parameters``) whose parameter set a role
 #: with ``human_profile`` takes, by the role's contract (``cosim.master.roles``)
 HUMAN_ARM_MODELS = {"human_1d": "HumanArm1D", "human_2d": "HumanArm2D"}
@@ -244,6 +251,8 @@ def load(path, fmu_dir=None) -> Scenario:
     if abs(n - round(n)) > 1e-6 * max(1.0, n):
         c.err(("duration",), f"duration {d['duration']} s is not a whole number of steps of "
               f"{step} s")
+    if "timeout_s" in d:
+        c.positive(d["timeout_s"], ("timeout_s",), "timeout_s (wall-clock limit per run) [s]")
     seeds = d.get("seeds", [0])
     seeds = [seeds] if isinstance(seeds, int) else seeds
     if not seeds:
@@ -572,6 +581,8 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
             close = reg.suggest(ct, CONTRACTS)
             c.err(P("system", "fmus", role, "contract"), f"unknown role contract {ct!r}"
                   + (f"; did you mean {close!r}?" if close else f" (contracts: {sorted(CONTRACTS)})"))
+        if spec.get("map") or spec.get("units"):
+            _check_binding(c, spec, P("system", "fmus", role), role)
         for k, v in (spec.get("parameters") or {}).items():
             if not isinstance(v, (int, float, bool)):
                 c.err(P("system", "fmus", role, "parameters", k),
@@ -618,6 +629,61 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
         _check_registered(c, "stimulus", name, spec, p)
     for i, r in enumerate(d.get("record", [])):
         _check_signal_head(c, d, r, P("record", i))
+    for name, spec in (d.get("faults") or {}).items():
+        if spec is not None:
+            _check_fault(c, d, name, spec, P("faults", name))
+
+
+def _check_fault(c: _Checker, d: dict, name, spec, p):
+    """One fault: its kind (one of :data:`cosim.master.faults.KINDS`), its signal's head
+    (a role, a controller or a stimulus; the variable is checked when the system is
+    planned) and its parameters against the kind's dataclass (types, window, ranges)."""
+    from cosim.master.faults import KINDS
+    if not isinstance(spec, dict):
+        c.err(p, f"fault {name!r} must be a mapping {{signal, kind, start_s, stop_s, ...}}, "
+              f"got {type(spec).__name__}")
+    kind = spec.get("kind")
+    if not isinstance(kind, str):
+        c.err(p + (("kind",) if "kind" in spec else ()), f"fault {name!r}: "
+              + (f"'kind' must be a string, got {kind!r}" if "kind" in spec else
+                 "missing required key 'kind'") + f" (kinds: {', '.join(KINDS)})")
+    if kind not in KINDS:
+        close = reg.suggest(kind, KINDS)
+        c.err(p + ("kind",), f"fault {name!r}: unknown kind {kind!r}"
+              + (f"; did you mean {close!r}?" if close else f" (kinds: {', '.join(KINDS)})"))
+    cls, ptype = KINDS.get(kind, (None, None))
+    fields = [f.name for f in dataclasses.fields(ptype)] if ptype else []
+    c.keys(spec, FAULT, p, f"fault {name!r}" + (f" ({kind})" if ptype else ""),
+           extra_ok=fields)
+    _check_signal_head(c, d, spec["signal"], p + ("signal",))
+    params = {k: v for k, v in spec.items() if k not in FAULT}
+    for key, msg in reg.check_params(reg.Entry("fault", name, cls, ptype), params):
+        c.err(p + ((key,) if key else ()), msg)
+
+
+def _check_binding(c: _Checker, spec: dict, p: tuple, role: str):
+    """A role's ``map``/``units`` (a binding, :mod:`cosim.master.binding`): strings,
+    names of the role's contract, units of the contract variable's dimension; what
+    depends on the FMU is checked when the system is built."""
+    from cosim.master.binding import BindingError, RoleBinding
+    from cosim.master.roles import CONTRACTS
+    for key in ("map", "units"):
+        for k, v in (spec.get(key) or {}).items():
+            if not isinstance(v, str) or not v.strip():
+                c.err(p + (key, k), f"role {role!r}: {key}.{k} must be a non-empty string, "
+                      f"got {v!r}")
+    try:
+        b = RoleBinding.from_spec({k: spec[k] for k in ("map", "units") if k in spec},
+                                  f"role {role!r}")
+    except BindingError as exc:
+        c.err(p, str(exc))
+    ct = CONTRACTS.get(spec.get("contract") or "")
+    if ct is None:
+        c.err(p + ("contract",) if "contract" in spec else p,
+              f"role {role!r}: map/units bind the FMU to the role's contract: give the "
+              f"role a contract (`cosim roles` lists them)")
+    for key, cv, msg in b.static_diffs(ct):
+        c.err(p + (key, cv), f"role {role!r}: {msg}")
 
 
 def _check_coupled(c: _Checker, sysd: dict, P):
@@ -695,7 +761,8 @@ def _check_override_path(c, d, path, where):
     if head not in OVERRIDE_HEADS:
         close = reg.suggest(head, OVERRIDE_HEADS)
         c.err(where, f"{path!r}: a sweep/Monte-Carlo path must start with system, controllers, "
-              f"stimuli, duration or parameters" + (f"; did you mean {close!r}?" if close else ""))
+              f"stimuli, duration, parameters or faults"
+              + (f"; did you mean {close!r}?" if close else ""))
     parts = str(path).split(".")
     if parts[:2] == ["system", "fmus"] and len(parts) > 2 and parts[2] not in d["system"]["fmus"]:
         close = reg.suggest(parts[2], d["system"]["fmus"])

@@ -24,7 +24,7 @@ import tempfile
 from pathlib import Path
 
 from . import registry as reg
-from .build import fmu_file
+from .build import FMUSwap, fmu_file, swap_binding
 from .expand import deep_merge
 from .schema import Scenario
 from .store import _fmu_sha, safe_name
@@ -41,7 +41,7 @@ def run_fmus(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None
     for role, spec in d["system"]["fmus"].items():
         if role in (fmu_swaps or {}):
             p = Path(fmu_swaps[role]).resolve()
-            by_swap[role] = (_fmu_sha(p), str(p))
+            by_swap[role] = (_fmu_sha(p), FMUSwap(p, swap_binding(fmu_swaps[role])))
         else:
             p = fmu_file(spec["fmu"], fmu_dir).resolve()
             by_spec[spec["fmu"]] = (_fmu_sha(p), str(p))
@@ -90,7 +90,8 @@ def _client_paths(text: str, subst: dict) -> str:
 
 
 def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
-                    fmus: dict, swaps: dict, key: str | None = None) -> dict:
+                    fmus: dict, swaps: dict, key: str | None = None,
+                    isolation: str = "none", timeout_s: float | None = None) -> dict:
     """One run on a worker from values only (a Dask task).
 
     ``scenario_file``: the client's path of the scenario (a name, never opened);
@@ -98,7 +99,9 @@ def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
     role -> (sha256, bytes, client path) of the ``--fmu`` swaps. Runs
     :func:`cosim.scenarios.runner.execute_run` in a temporary folder of this process
     and returns ``{"files": {name: bytes}}``: the run folder, with the worker's
-    paths replaced by the client's in run.json and the Parquet metadata."""
+    paths replaced by the client's in run.json and the Parquet metadata. ``isolation``,
+    ``timeout_s``: as :func:`~cosim.scenarios.runner.execute_run` (decided by the
+    client, which knows which FMUs are the project's)."""
     import pyarrow.parquet as pq
 
     from .build import LOCAL_FMUS
@@ -112,11 +115,14 @@ def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
         for table, dest in ((fmus, local), (swaps, local_swaps)):
             for name, (sha, blob, client_path) in table.items():
                 p = cached_fmu(sha, blob)
-                dest[name] = str(p)
+                # a swap keeps its role binding on the worker's copy
+                dest[name] = FMUSwap(p, swap_binding(client_path)) if dest is local_swaps \
+                    else str(p)
                 subst[str(p)] = client_path
         token = LOCAL_FMUS.set(local)
         try:
-            execute_run(str(scen), run_label, str(work / "out"), local_swaps, None, key)
+            execute_run(str(scen), run_label, str(work / "out"), local_swaps, None, key,
+                        isolation=isolation, timeout_s=timeout_s)
         finally:
             LOCAL_FMUS.reset(token)
         d = work / "out" / "runs" / safe_name(run_label)

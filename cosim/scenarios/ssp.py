@@ -53,12 +53,27 @@ def _unit(var) -> str | None:
     return var.unit or getattr(getattr(var, "declaredType", None), "unit", None) or None
 
 
-def _connector(parent, name, kind, var):
+def _connector(parent, name, kind, var, unit=None):
     c = ET.SubElement(parent, _q("ssd", "Connector"), name=name, kind=kind)
     t = ET.SubElement(c, _q("ssc", var.type))
-    if var.type == "Real" and _unit(var):
-        t.set("unit", _unit(var))
+    unit = unit or _unit(var)
+    if var.type == "Real" and unit:
+        t.set("unit", unit)
     return c
+
+
+def _fmu_name(slave, name: str) -> str:
+    """The FMU's own name of the variable the system calls ``name``: a role binding
+    (:mod:`cosim.master.binding`) shows the FMU under its contract's names."""
+    b = getattr(slave, "binding", None)
+    return b.map.get(name, name) if b else name
+
+
+def _declared_units(slave) -> dict:
+    """FMU variable -> the unit a role binding declares for its values (written on the
+    component's connector, so that an importer converts it as the master does)."""
+    b = getattr(slave, "binding", None)
+    return {b.map.get(cv, cv): u for cv, u in b.units.items()} if b else {}
 
 
 def _base_unit(name: str, units: dict):
@@ -110,26 +125,29 @@ def build_ssd(system, *, name: str, duration: float, description: str = "",
                              type="application/x-fmu-sharedlibrary", source=f"resources/{res}",
                              implementation="CoSimulation")
         conns = ET.SubElement(comp, _q("ssd", "Connectors"))
-        params = system.params.get(role) or {}
+        params = {_fmu_name(slave, k): x for k, x in (system.params.get(role) or {}).items()}
+        declared = _declared_units(slave)
         for v in slave.md.modelVariables:
             if v.type not in _TYPES:
                 continue
+            unit = declared.get(v.name) or _unit(v)
             if v.causality in ("input", "output"):
-                _connector(conns, v.name, v.causality, v)
+                _connector(conns, v.name, v.causality, v, unit)
             elif v.causality == "parameter" and v.name in params:
-                _connector(conns, v.name, "parameter", v)
+                _connector(conns, v.name, "parameter", v, unit)
             else:
                 continue
-            if v.type == "Real" and _unit(v):
-                used_units.add(_unit(v))
+            if v.type == "Real" and unit:
+                used_units.add(unit)
         if params:
             pb = ET.SubElement(ET.SubElement(comp, _q("ssd", "ParameterBindings")),
                                _q("ssd", "ParameterBinding"))
             pv = ET.SubElement(pb, _q("ssd", "ParameterValues"))
             ps = ET.SubElement(pv, _q("ssv", "ParameterSet"), version="1.0", name=f"{role}_parameters")
             plist = ET.SubElement(ps, _q("ssv", "Parameters"))
+            fmu_vars = {v.name: v for v in slave.md.modelVariables}
             for pname, value in params.items():
-                v = slave.var(pname)
+                v = fmu_vars[pname]
                 p = ET.SubElement(plist, _q("ssv", "Parameter"), name=pname)
                 if v.type == "Real":
                     e = ET.SubElement(p, _q("ssv", "Real"), value=_num(value))
@@ -167,17 +185,19 @@ def build_ssd(system, *, name: str, duration: float, description: str = "",
         drole, _, dvar = c.dest.partition(".")
         src_head, _, src_var = c.source.partition(".")
         dv = system.roles[drole].var(dvar)
+        dend = (drole, _fmu_name(system.roles[drole], dvar))
         if src_head in system.roles:
-            connect((src_head, src_var), (drole, dvar), c.scale)
+            connect((src_head, _fmu_name(system.roles[src_head], src_var)), dend, c.scale)
         elif src_head in ctrl_names or src_head == "stim":
             s = system_connector(f"{src_head}_{src_var}", "input", dv)
-            connect_port(s, (drole, dvar), c.scale)
+            connect_port(s, dend, c.scale)
     for ctrl in system.controllers:
         for inp, src in ctrl.wiring.items():
             head, _, var = src.partition(".")
             if head in system.roles:
                 v = system.roles[head].var(var)
-                connect_port((head, var), system_connector(f"{ctrl.name}_{inp}", "output", v), 1.0)
+                connect_port((head, _fmu_name(system.roles[head], var)),
+                             system_connector(f"{ctrl.name}_{inp}", "output", v), 1.0)
     if not len(sys_conn):
         sysel.remove(sys_conn)
     if not len(connections):

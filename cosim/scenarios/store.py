@@ -59,14 +59,22 @@ def _fmu_sha(path: Path) -> str:
     return _FMU_HASHES[key]
 
 
+def run_fmu_paths(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) -> dict:
+    """role -> the FMU file a run uses (its case's overrides applied, ``--fmu`` swaps)."""
+    d = deep_merge(sc.data, run.overrides)
+    return {role: Path((fmu_swaps or {}).get(role) or fmu_file(spec["fmu"], fmu_dir))
+            for role, spec in d["system"]["fmus"].items()}
+
+
 def run_key(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) -> str:
     """Cache key: scenario content + run + FMU hashes + package source hash."""
     import cosim
-    d = deep_merge(sc.data, run.overrides)
     fmus = {}
-    for role, spec in d["system"]["fmus"].items():
-        p = Path((fmu_swaps or {}).get(role) or fmu_file(spec["fmu"], fmu_dir))
+    for role, p in run_fmu_paths(sc, run, fmu_dir, fmu_swaps).items():
         fmus[role] = _fmu_sha(p) if p.is_file() else f"missing:{p}"
+        swap = (fmu_swaps or {}).get(role)
+        if getattr(swap, "binding", None):      # another binding, another run
+            fmus[role] = [fmus[role], swap.binding]
     blob = json.dumps({"scenario": sc.content_hash(), "run": run.label, "seed": run.seed,
                        "overrides": run.overrides, "fmus": fmus, "src": source_hash(),
                        "version": getattr(cosim, "__version__", "")},
@@ -154,6 +162,11 @@ def _host() -> str:
     return safe_name(socket.gethostname())
 
 
+#: the files a run's crash watcher (:mod:`.isolate`) writes into the run's temporary
+#: folder are named ``crash.<what>``
+CRASH_PREFIX = "crash."
+
+
 def run_tmp_dir(runs_dir: Path, label: str) -> Path:
     """A new temporary folder in ``runs_dir`` for run ``label``, named after this
     process (:func:`clean_run_tmp` removes it if the process dies)."""
@@ -181,8 +194,9 @@ def clean_run_tmp(out_dir: Path) -> list[Path]:
     an interrupt) and those of processes of this host that no longer exist. Only
     folders named as :func:`run_tmp_dir` names them (or as before that, without the
     process) and holding nothing but ``*.parquet`` and ``run.json`` files are
-    touched; a folder of a process on another host is left alone. Returns the
-    removed folders."""
+    touched (and the crash watcher's ``crash.*`` files of a run in a child process,
+    :mod:`.isolate`); a folder of a process on another host is left
+    alone. Returns the removed folders."""
     import os
     import shutil
     out_dir = Path(out_dir)
@@ -200,7 +214,8 @@ def clean_run_tmp(out_dir: Path) -> list[Path]:
                 if m["host"] != host or (pid != me and _pid_alive(pid)):
                     continue
             try:
-                ours = all(f.is_file() and (f.suffix == ".parquet" or f.name == "run.json")
+                ours = all(f.is_file() and (f.suffix == ".parquet" or f.name == "run.json"
+                                            or f.name.startswith(CRASH_PREFIX))
                            for f in d.iterdir())
             except OSError:
                 continue

@@ -29,10 +29,12 @@ from ..exitcodes import children_ignore_sigint
 from ..fileio import atomic_write_text as atomic_write
 from . import registry as reg
 from .build import check_build
+from .isolate import run_timeout, wants_process
 from .runner import execute_run, finish_scenario
 from .schema import Scenario, load
 from .ship import execute_shipped, run_fmus, scatter_fmus
-from .store import clean_run_tmp, run_done, run_key, safe_name, store_run_files, versions
+from .store import (clean_run_tmp, run_done, run_fmu_paths, run_key, safe_name, store_run_files,
+                    versions)
 from .verdict import all_runs, summary_row
 
 
@@ -114,9 +116,15 @@ def _warm_worker():
 
 def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None = None,
               fmu_swaps: dict | None = None, fmu_dir=None, use_cache: bool = True,
-              progress: bool = True, serial: bool = False, ship: bool | None = None) -> dict:
+              progress: bool = True, serial: bool = False, ship: bool | None = None,
+              isolation: str = "auto", timeout_s: float | None = None) -> dict:
     """Run every run of every scenario; ``serial=True`` runs in this process (no Dask;
-    used by the benchmark as the baseline). ``ship``: send the scenario text and the
+    used by the benchmark as the baseline). ``isolation`` (:mod:`.isolate`): a run
+    whose FMUs are not all the project's (``auto``), every run (``process``) or none
+    (``none``) runs in a supervised child process of its own (of this process, or of
+    its Dask worker), so that a crash or a hang ends that run only, with a record;
+    ``timeout_s``: the per-run wall-clock limit of scenarios without ``timeout_s``
+    (None: :data:`.isolate.DEFAULT_TIMEOUT_S`; 0: none). ``ship``: send the scenario text and the
     FMU bytes to the workers and write the returned results here (:mod:`.ship`; for
     workers without this machine's filesystem); default: with ``scheduler`` only (a
     local cluster shares this filesystem and reads/writes the paths itself)."""
@@ -143,7 +151,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             raise SuiteError(f"--fmu: no scenario has role(s) {unknown} (roles: {sorted(used)})")
     out_dir.mkdir(parents=True, exist_ok=True)
     clean_run_tmp(out_dir)                    # what a killed process left
-    todo = []          # (scenario, run, key, scenario dir)
+    todo = []          # (scenario, run, key, scenario dir, swaps, isolation, timeout)
     cached = {sc.name: 0 for sc in scenarios}
     for sc in scenarios:
         sdir = out_dir / safe_name(sc.name)
@@ -153,7 +161,9 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             if use_cache and run_done(sdir, run, key):
                 cached[sc.name] += 1
                 continue
-            todo.append((sc, run, key, sdir, swaps))
+            iso = ("process" if wants_process(isolation, run_fmu_paths(sc, run, fmu_dir, swaps)
+                                              .values()) else "none")
+            todo.append((sc, run, key, sdir, swaps, iso, run_timeout(sc, timeout_s)))
     timing = {"load_and_check_s": time.perf_counter() - t0}
     bar = _Progress(len(todo), progress)
     client = cluster = None
@@ -171,21 +181,22 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             futs = {}
             if ship:      # values in, values out: the workers need no shared filesystem
                 fmus = {(sc.name, run.label): run_fmus(sc, run, fmu_dir, swaps)
-                        for sc, run, key, sdir, swaps in todo}
+                        for sc, run, key, sdir, swaps, *_ in todo}
                 blobs = scatter_fmus(client, [v for pair in fmus.values() for t in pair
                                               for v in t.values()])
-            for sc, run, key, sdir, swaps in todo:
+            for sc, run, key, sdir, swaps, iso, tmo in todo:
                 tkey = f"run-{safe_name(sc.name)}-{safe_name(run.label)}-{key[:8]}"
                 if ship:
                     by_spec, by_swap = ({n: (sha, blobs[sha], path)
                                          for n, (sha, path) in t.items()}
                                         for t in fmus[sc.name, run.label])
                     f = client.submit(execute_shipped, str(sc.path), sc.text, run.label,
-                                      by_spec, by_swap, key, pure=False, key=tkey)
+                                      by_spec, by_swap, key, pure=False, key=tkey,
+                                      isolation=iso, timeout_s=tmo)
                 else:
                     f = client.submit(execute_run, str(sc.path), run.label, str(sdir), swaps,
                                       str(fmu_dir) if fmu_dir else None, key, pure=False,
-                                      key=tkey)
+                                      key=tkey, isolation=iso, timeout_s=tmo)
                 futs[f] = (sc, run, sdir)
             for f in as_completed(futs):
                 sc, run, sdir = futs[f]
@@ -199,9 +210,10 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             timing["runs_s"] = time.perf_counter() - t1
         else:
             t1 = time.perf_counter()
-            for sc, run, key, sdir, swaps in todo:
+            for sc, run, key, sdir, swaps, iso, tmo in todo:
                 execute_run(str(sc.path), run.label, str(sdir), swaps,
-                            str(fmu_dir) if fmu_dir else None, key)
+                            str(fmu_dir) if fmu_dir else None, key, isolation=iso,
+                            timeout_s=tmo)
                 bar.step(f"{sc.name}:{run.label}")
             timing["runs_s"] = time.perf_counter() - t1
     finally:
@@ -250,7 +262,9 @@ def _record_crash(sdir: Path, run: reg.RunSpec, key, exc):
     d.mkdir(parents=True, exist_ok=True)
     atomic_write(d / "run.json", json.dumps({
         "label": run.label, "case": run.case, "seed": run.seed, "status": "error",
-        "key": key, "error": f"worker crashed: {type(exc).__name__}: {exc}"}))
+        "key": key, "error": f"worker crashed: {type(exc).__name__}: {exc} (a run in the "
+                             f"worker's own process; with --isolation process a crash is "
+                             f"recorded with its signal, role, FMU, time and rows)"}))
 
 
 def junit_xml(summary: dict) -> str:

@@ -117,6 +117,22 @@ class AssistController(AdaptiveComplianceController):
         self._tick += 1
         return out
 
+    def c_kernel(self, ticks: int | None = None):
+        """The compiled step of the base class, taking the snapshots too: their buffer
+        holds those of ``ticks`` more steps, so with snapshots ``ticks`` is needed
+        (None: no compiled step)."""
+        if not self.snapshot_every:
+            return self._c_kernel(0, 0)
+        if ticks is None:
+            return None
+        due = range(-(-self._tick // self.snapshot_every) * self.snapshot_every,
+                    self._tick + ticks, self.snapshot_every)
+        return self._c_kernel(self.snapshot_every, len(due))
+
+    def c_kernel_sync(self, state) -> None:
+        self._tick, snaps = self._c_kernel_sync(state)
+        self.snapshots.extend(snaps)
+
 
 def compliance_params(k: float, tau: float, alpha0: float = 10.0, **kw) -> AdaptiveComplianceParams:
     """Controller parameters of the trials: 6 x 6 cells over the 0.4 m x 0.4 m table

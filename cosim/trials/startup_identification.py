@@ -198,8 +198,13 @@ def identification_overrides(names: dict, cfg: dict) -> dict:
 
 
 def true_values(system, unit: dict) -> dict:
-    """The unit's J, b, fc, Kt as its FMU runs them (set values, else start values)."""
-    return fmu_values(system, unit["role"], unit["true_parameters"])
+    """The unit's J, b, fc, Kt as its FMU runs them (set values, else start values);
+    NaN for one the FMU has no parameter of that name for (a user's FMU bound to the
+    role by its contract need not expose them: the report then shows no truth)."""
+    names = {v.name for v in system.roles[unit["role"]].md.modelVariables}
+    known = {k: var for k, var in unit["true_parameters"].items() if var in names}
+    got = fmu_values(system, unit["role"], known)
+    return {k: got.get(k, math.nan) for k in unit["true_parameters"]}
 
 
 def observer_overrides(cfg: dict, used: dict) -> dict:
@@ -304,6 +309,13 @@ def identify_then_run(run, build, ctx) -> tuple[ProcedureResult, dict]:
     # "true": the unit as the main phase runs it (the plant the observers act on)
     truth = {name: true_values(system, u) for name, u in cfg["units"].items()}
     used = ident if cfg["source"] == "identified" else truth
+    if cfg["source"] != "identified":
+        bad = {n: [k for k, x in v.items() if math.isnan(x)] for n, v in truth.items()}
+        bad = {n: ks for n, ks in bad.items() if ks}
+        if bad:
+            raise ValueError(f"startup_identification: source {cfg['source']!r} needs the "
+                             f"units' true parameters; the FMUs lack {bad} (set "
+                             f"true_parameters to their parameter names)")
     main_overrides = {"controllers": observer_overrides(cfg, used)}
     system, record = build(main_overrides)
     obs = observer_readback(system, cfg)

@@ -1,0 +1,342 @@
+"""Role bindings: any exporter's FMU playing a role of the package.
+
+An FMU from another tool rarely has the contract's names and units: its motor angle is
+``motor.phi`` in degrees, its current input ``i_ref`` in mA, and many exporters write
+no unit at all. A :class:`RoleBinding` says, per contract variable (``cosim roles``),
+
+* ``map``: which FMU variable plays it (``theta -> motor.phi``; default: the same name);
+* ``units``: the unit the FMU's values are in (``theta: deg``). A unit of the contract's
+  dimension is converted (scale and offset: mm -> m, deg -> rad, mA -> A, degC -> K);
+  a variable without a unit in the FMU is accepted only with a declared unit, never
+  silently; an FMU whose declared unit differs from the contract's is converted only
+  when the binding names that unit (the binding states every conversion it makes).
+
+The system then sees the FMU through its binding (:class:`BoundSlave`): variables under
+the contract's names and in the contract's units, so connections, controllers,
+recordings, the recorded units and the reports all speak the contract. The values are
+converted where the master reads and writes the FMU: in the FMU's Real get/set calls
+(the per-tick calls of :meth:`BoundSlave.raw` and the slow paths ``get_value`` /
+``set_value``, which start values and initialisation go through). Conversions are
+the affine maps of :mod:`cosim.master.units`, the same as on connections.
+
+Errors list every difference at once (unknown contract variables, variables the FMU
+lacks, units missing, of another dimension or unknown), as the contract check does.
+"""
+from __future__ import annotations
+
+import ctypes
+import dataclasses
+from typing import Mapping
+
+from .fmu import FMUError, FMUSlave, VarInfo, suggest
+from .roles import RoleContract
+from .units import affine, base_unit, dimension, norm
+
+_SYNTAX = ("Modelica unit syntax, e.g. m, mm, deg, rad/s, rev/min, mA, N, N.m, m/s2, "
+           "degC")
+
+
+class BindingError(ValueError):
+    """A role binding that is malformed (not a mapping of names to strings)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RoleBinding:
+    """How an FMU plays a role: ``map`` contract variable -> FMU variable, ``units``
+    contract variable -> the unit of the FMU's values (both optional per variable)."""
+    map: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    units: Mapping[str, str] = dataclasses.field(default_factory=dict)
+
+    def __bool__(self) -> bool:
+        return bool(self.map or self.units)
+
+    def to_dict(self) -> dict:
+        return {k: dict(v) for k, v in (("map", self.map), ("units", self.units)) if v}
+
+    @classmethod
+    def from_spec(cls, spec, where: str = "binding") -> "RoleBinding":
+        """From ``{"map": {...}, "units": {...}}`` (a scenario's ``fmus:`` entry or a
+        binding file); errors name ``where`` and the field."""
+        if spec is None:
+            return cls()
+        if isinstance(spec, RoleBinding):
+            return spec
+        if not isinstance(spec, Mapping):
+            raise BindingError(f"{where}: a binding is a mapping with 'map' and/or 'units', "
+                               f"got {type(spec).__name__}")
+        extra = [k for k in spec if k not in ("map", "units")]
+        if extra:
+            raise BindingError(f"{where}: unknown key(s) {extra} (a binding has 'map' and "
+                               f"'units')")
+        out = {}
+        for key in ("map", "units"):
+            d = spec.get(key) or {}
+            if not isinstance(d, Mapping):
+                raise BindingError(f"{where}.{key}: must be a mapping (contract variable -> "
+                                   f"{'FMU variable' if key == 'map' else 'unit'}), got "
+                                   f"{type(d).__name__} {d!r}")
+            for k, v in d.items():
+                if not isinstance(k, str) or not isinstance(v, str) or not v.strip():
+                    raise BindingError(f"{where}.{key}.{k}: must be a non-empty string, got "
+                                       f"{type(v).__name__} {v!r}")
+            out[key] = {k: v.strip() for k, v in d.items()}
+        return cls(out.get("map", {}), out.get("units", {}))
+
+    def static_diffs(self, contract: RoleContract) -> list[tuple[str, str, str]]:
+        """What is wrong with the binding whatever the FMU: (key, contract variable,
+        message) for names that are not the contract's and declared units that are not
+        units or not of the contract variable's dimension (a scenario checks these at
+        load time, with the line)."""
+        out = []
+        names = [n for n, *_ in contract.variables()]
+        for key, table in (("map", self.map), ("units", self.units)):
+            for cv in table:
+                if contract.unit(cv) is None:
+                    close = suggest(cv, names, 3)
+                    out.append((key, cv, f"binding {key}: {cv!r} is not a variable of the "
+                                f"{contract.name!r} contract" + (
+                                    f" (did you mean {', '.join(map(repr, close))}?)" if close
+                                    else f" ({', '.join(contract.inputs)} in; "
+                                    f"{', '.join(contract.outputs)} out)")))
+        for cv, unit in self.units.items():
+            cunit = contract.unit(cv)
+            if cunit is not None:
+                msg = unit_problem(repr(cv), unit, base_unit(unit), cunit)
+                if msg:
+                    out.append(("units", cv, msg))
+        return out
+
+    def merged(self, other: "RoleBinding") -> "RoleBinding":
+        """This binding with ``other``'s entries over it."""
+        return RoleBinding({**self.map, **other.map}, {**self.units, **other.units})
+
+
+def unit_problem(where: str, unit: str, src, cunit: str) -> str | None:
+    """Why values in ``unit`` (its base ``src``, None if unknown) cannot play a contract
+    variable in ``cunit``; None if they can."""
+    if src is None:
+        return f"{where}: unit {unit!r} is not defined by the FMU nor a unit of the {_SYNTAX}"
+    dst = base_unit(cunit)
+    if src.exponents != dst.exponents:
+        return (f"{where}: unit {unit!r} ({dimension(src)}) is not of the dimension of the "
+                f"role's {cunit!r} ({dimension(dst)})")
+    return None
+
+
+def parse_map_option(text: str) -> tuple[str, str, str, str | None]:
+    """``ROLE.CONTRACT_VAR=FMU_VAR[:UNIT]`` (``--map``) -> (role, contract variable, FMU
+    variable, unit or None). An empty FMU_VAR keeps the contract's name
+    (``master.theta=:deg`` declares a unit only)."""
+    lhs, eq, rhs = str(text).partition("=")
+    role, dot, cvar = lhs.strip().partition(".")
+    if not eq or not dot or not role or not cvar:
+        raise BindingError(f"--map {text!r}: expected ROLE.CONTRACT_VAR=FMU_VAR[:UNIT] "
+                           f"(e.g. master.theta=motor.phi:deg)")
+    fvar, colon, unit = rhs.strip().rpartition(":")
+    if not colon:
+        fvar, unit = rhs.strip(), ""
+    fvar, unit = fvar.strip() or cvar, unit.strip()
+    if colon and not unit:
+        raise BindingError(f"--map {text!r}: empty unit after ':'")
+    return role, cvar, fvar, unit or None
+
+
+class BoundSlave(FMUSlave):
+    """An FMU seen through a :class:`RoleBinding`: the contract's variables under their
+    contract names and units (the FMU's own names of bound variables are hidden; other
+    variables keep theirs), values converted in every Real get/set.
+
+    After construction, ``binding_diffs`` lists what does not fit (empty when the
+    binding is complete) and ``binding_reported`` the contract variables those lines
+    are about (the contract check skips them: one line per problem)."""
+
+    def __init__(self, path, binding: RoleBinding, contract: RoleContract, role: str = "fmu",
+                 kind: str = "auto", rtol: float = 1e-6):
+        super().__init__(path, role=role, kind=kind, rtol=rtol)
+        self.binding = binding
+        self.contract = contract
+        #: the FMU's variables as its modelDescription declares them
+        self.fmu_variables: dict[str, VarInfo] = dict(self.variables)
+        #: value reference -> (gain, offset, contract unit): contract = gain * FMU + offset
+        self.conversions: dict[int, tuple[float, float, str]] = {}
+        self.binding_diffs: list[str] = []
+        self.binding_reported: set[str] = set()
+        self._renamed: dict[str, str] = {}      # FMU name -> contract name
+        self._bind()
+
+    # ------------------------------------------------------------ the view
+    def _bind(self):
+        b, c, fv = self.binding, self.contract, self.fmu_variables
+        diffs, reported = self.binding_diffs, self.binding_reported
+        defs = self.md.unitDefinitions
+        diffs += [m for _, cv, m in b.static_diffs(c) if c.unit(cv) is None]
+        bound: dict[str, VarInfo] = {}
+        claims: dict[int, tuple[float, float]] = {}     # vr -> (gain, offset) of its binding
+        for cv, kind, cunit, _ in c.variables():
+            fname = b.map.get(cv, cv)
+            v = fv.get(fname)
+            if v is None:
+                if cv in b.map:
+                    close = suggest(fname, [n for n, x in fv.items() if x.causality == kind], 3)
+                    diffs.append(f"{cv!r} [{cunit}] is bound to {fname!r}, which the FMU does "
+                                 f"not have" + (f" (its {kind}s {', '.join(map(repr, close))})"
+                                                if close else ""))
+                    reported.add(cv)
+                continue
+            where = f"{cv!r}" + (f" (the FMU's {fname!r})" if fname != cv else "")
+            declared, fu = b.units.get(cv), v.unit
+            unit = declared or fu
+            if fname != cv:
+                self._renamed[fname] = cv
+            if v.type != "Real":
+                bound[cv] = dataclasses.replace(v, name=cv)
+                continue        # the contract check says the type is wrong
+            if not unit:
+                diffs.append(f"{where} has no unit in the FMU and the binding declares none: "
+                             f"declare the unit of its values, units: {{{cv}: {cunit}}} if "
+                             f"they are in {cunit}")
+                reported.add(cv)
+                continue
+            if declared and fu and norm(declared) != norm(fu):
+                a, d = base_unit(fu, defs), base_unit(declared)
+                if a is not None and d is not None and a != d:
+                    diffs.append(f"{where}: the binding declares unit {declared!r}, the FMU "
+                                 f"declares {fu!r}")
+                    reported.add(cv)
+                    continue
+            src = base_unit(unit, defs if unit == fu else ())
+            msg = unit_problem(where, unit, src, cunit)
+            if msg:
+                if src is None and not declared:    # the FMU's own, unknown unit string
+                    msg += f" (declare what it means: units: {{{cv}: ...}})"
+                diffs.append(msg)
+                reported.add(cv)
+                continue
+            dst = base_unit(cunit)
+            if not declared and norm(fu) != norm(cunit):
+                # a conversion the binding does not state: the contract check reports it
+                # with the line to add
+                bound[cv] = dataclasses.replace(v, name=cv)
+                continue
+            gain, offset = affine(src, dst)
+            prev = claims.setdefault(v.vr, (gain, offset))
+            if prev != (gain, offset):
+                # one value read two ways (theta in rad, theta_enc in deg of one variable)
+                diffs.append(f"{where}: the FMU's {fname!r} (value reference {v.vr}) is "
+                             f"bound twice with different units")
+                reported.add(cv)
+                continue
+            if (gain, offset) != (1.0, 0.0):
+                if v.fmi_type not in ("Real", "Float64") or v.shape:
+                    diffs.append(f"{where} is a {v.fmi_type}{' array' if v.shape else ''}: "
+                                 f"the binding converts scalar Real/Float64 variables only")
+                    reported.add(cv)
+                    continue
+                self.conversions[v.vr] = (gain, offset, cunit)
+            start = v.start
+            if start is not None and (gain, offset) != (1.0, 0.0):
+                try:
+                    start = repr(float(start) * gain + offset)
+                except ValueError:
+                    pass
+            bound[cv] = dataclasses.replace(v, name=cv, unit=cunit, start=start)
+        view = {}
+        for n, v in fv.items():
+            if n in self._renamed or n in bound:
+                continue
+            # an alias of a converted variable (same value reference) reads converted
+            conv = self.conversions[v.vr] if self._converted(v) else None
+            view[n] = dataclasses.replace(v, unit=conv[2]) if conv else v
+        view.update(bound)
+        self.variables = view
+
+    def var(self, name: str) -> VarInfo:
+        if name not in self.variables and name in self._renamed:
+            raise FMUError(f"role {self.role}: {self.path.name}'s {name!r} plays the role's "
+                           f"{self._renamed[name]!r} (binding): use {self._renamed[name]!r}")
+        return super().var(name)
+
+    def describe_binding(self) -> list[str]:
+        """One line per bound contract variable: name, FMU variable, conversion."""
+        out = []
+        for cv, _, cunit, _ in self.contract.variables():
+            v = self.variables.get(cv)
+            if v is None:
+                continue
+            fname = self.binding.map.get(cv, cv)
+            g, o, _ = self.conversions.get(v.vr, (1.0, 0.0, cunit))
+            unit = self.binding.units.get(cv) or self.fmu_variables[fname].unit
+            conv = "" if (g, o) == (1.0, 0.0) else \
+                f" ({cunit} = {g:.10g} x {unit}" + (f" + {o:.10g}" if o else "") + ")"
+            out.append(f"{cv} <- {fname} [{unit}]{conv}")
+        return out
+
+    # ------------------------------------------------------------ conversions
+    def _converted(self, v: VarInfo) -> tuple[float, float] | None:
+        if v.type != "Real" or (self.fmi3 and v.fmi_type != "Float64"):
+            return None
+        c = self.conversions.get(v.vr)
+        return None if c is None else c[:2]
+
+    def get_value(self, v: VarInfo) -> list:
+        out = super().get_value(v)
+        c = self._converted(v)
+        return [x * c[0] + c[1] for x in out] if c else out
+
+    def set_value(self, v: VarInfo, value):
+        c = self._converted(v)
+        if c is not None and not isinstance(value, str):
+            try:
+                value = (float(value) - c[1]) / c[0]
+            except (TypeError, ValueError):
+                pass        # the FMU's setter says what is wrong with it
+        super().set_value(v, value)
+
+    def raw(self):
+        """The per-tick calls (:meth:`FMUSlave.raw`), the Real get/set converting the
+        bound variables: a read is converted in the caller's buffer after the FMU's
+        call, a write from a copy (the caller's buffer keeps the contract's units)."""
+        io = super().raw()
+        if not self.conversions:
+            return io
+        io.get = _converting_get(io.get, self.conversions)
+        io.set = _converting_set(io.set, self.conversions)
+        return io
+
+
+def _count(n) -> int:
+    return int(getattr(n, "value", n))
+
+
+def _converting_get(get, conv):
+    plans: dict = {}     # id(vr array) -> (the array, [(index, gain, offset)])
+
+    def get_converted(comp, vr, n, buf, *rest):
+        st = get(comp, vr, n, buf, *rest)
+        plan = plans.get(id(vr))
+        if plan is None or plan[0] is not vr:
+            plan = plans[id(vr)] = (vr, [(i, *conv[vr[i]][:2]) for i in range(_count(n))
+                                         if vr[i] in conv])
+        for i, g, o in plan[1]:
+            buf[i] = buf[i] * g + o
+        return st
+    return get_converted
+
+
+def _converting_set(set_, conv):
+    plans: dict = {}     # id(vr array) -> (the array, [(index, gain, offset)], buffer)
+
+    def set_converted(comp, vr, n, buf, *rest):
+        plan = plans.get(id(vr))
+        if plan is None or plan[0] is not vr:
+            m = _count(n)
+            plan = plans[id(vr)] = (vr, [(i, *conv[vr[i]][:2]) for i in range(m)
+                                         if vr[i] in conv], (ctypes.c_double * max(m, 1))(), m)
+        if not plan[1]:
+            return set_(comp, vr, n, buf, *rest)
+        tmp = plan[2]
+        ctypes.memmove(tmp, buf, 8 * plan[3])
+        for i, g, o in plan[1]:
+            tmp[i] = (tmp[i] - o) / g
+        return set_(comp, vr, n, tmp, *rest)
+    return set_converted
