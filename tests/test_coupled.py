@@ -79,7 +79,7 @@ def _zero_force_open_loop(kind_rig: str | None, k: float = 2e4, dur: float = 2.0
 
 def _separate_zero_force(s: System, k: float, unit=None, kind="me", couple=True):
     """unit, cell (end a: partner, end b: unit, so that its f_lc is the rig's) and
-    partner, connected as in scenarios/zero_force_separate.yaml."""
+    partner, connected as in scenarios/coupled/zero_force_separate.yaml."""
     s.add_fmu("unit", unit or _fmu("BallScrewUnit"), "ballscrew", kind=kind)
     s.add_fmu("cell", _fmu("LoadCell"), "load_cell", kind=kind,
               parameters={"k_lc": k, "d_lc": 150.0, "sigma_lc": 0.0})
@@ -195,14 +195,14 @@ def test_explicit_exchange_of_the_separate_fmus_fails_where_the_group_holds():
         f_rig = np.asarray(Master(rig, rec).run(2.0)["rig.f_lc"])
         rng = np.ptp(f_rig)
         over = {"system": {"fmus": {"cell": {"parameters": {"k_lc": k}}}}}
-        grp, rec = _build("zero_force_separate.yaml", "load_cell", over)
+        grp, rec = _build("coupled/zero_force_separate.yaml", "load_cell", over)
         assert grp.coupled == [("unit", "cell", "partner")]
         m = Master(grp, rec)
         f_grp = np.asarray(m.run(2.0)["cell.f_lc"])
         assert np.max(np.abs(f_grp - f_rig)) / rng < TOL_FORCE
         assert m.groups[0].n_extra_passes == 0
         over["system"]["coupled"] = None
-        exp, rec = _build("zero_force_separate.yaml", "load_cell", over)
+        exp, rec = _build("coupled/zero_force_separate.yaml", "load_cell", over)
         assert exp.coupled == []
         r = Master(exp, rec).run(2.0, raise_on_error=False)
         f_exp = np.asarray(r["cell.f_lc"])
@@ -393,8 +393,8 @@ def zero_force_verdicts(tmp_path_factory, hand_unit):
     return {name: run_scenario(REPO / "scenarios" / f, out / name, fmu_swaps=swaps,
                                fmu_dir=FMUS)
             for name, f, swaps in (("rig", "zero_force.yaml", None),
-                                   ("separate", "zero_force_separate.yaml", None),
-                                   ("hand", "zero_force_separate.yaml",
+                                   ("separate", "coupled/zero_force_separate.yaml", None),
+                                   ("hand", "coupled/zero_force_separate.yaml",
                                     {"unit": str(hand_unit)}))}
 
 
@@ -421,7 +421,7 @@ def test_zero_force_separate_gives_the_rigs_verdicts_and_metrics(zero_force_verd
 
 @pytest.mark.slow
 def test_unit_from_another_exporter_runs_the_zero_force_trial(zero_force_verdicts):
-    """`cosim run scenarios/zero_force_separate.yaml --fmu unit=hwunit.fmu`: the whole
+    """`cosim run scenarios/coupled/zero_force_separate.yaml --fmu unit=hwunit.fmu`: the whole
     trial (start-up identification of the hand-written unit, three cases, negative
     controls) passes with the rig's metrics."""
     v = zero_force_verdicts["hand"]
@@ -482,7 +482,7 @@ def test_sensor_on_a_group_member_is_stepped_after_the_group():
 ])
 def test_scenario_coupled_errors_name_file_and_line(tmp_path, group, message):
     from cosim.scenarios import ScenarioError, load
-    text = (REPO / "scenarios" / "zero_force_separate.yaml").read_text()
+    text = (REPO / "scenarios" / "coupled/zero_force_separate.yaml").read_text()
     old = "  coupled: [[unit, cell, partner]]\n"
     assert old in text
     line = text[:text.index(old)].count("\n") + 1
@@ -494,7 +494,7 @@ def test_scenario_coupled_errors_name_file_and_line(tmp_path, group, message):
 
 def test_scenario_member_declared_cs_is_refused(tmp_path):
     from cosim.scenarios import ScenarioError, load
-    text = (REPO / "scenarios" / "zero_force_separate.yaml").read_text()
+    text = (REPO / "scenarios" / "coupled/zero_force_separate.yaml").read_text()
     old = "unit: {fmu: BallScrewUnit, contract: ballscrew}"
     f = tmp_path / "zf.yaml"
     f.write_text(text.replace(old, "unit: {fmu: BallScrewUnit, contract: ballscrew, kind: cs}"))
@@ -593,7 +593,7 @@ def test_bilateral_separate_gives_the_rigs_verdicts_and_metrics(tmp_path):
     TOL_BILATERAL."""
     from cosim.scenarios import run_scenario
     out = {}
-    for name, f in (("rig", "bilateral.yaml"), ("separate", "bilateral_separate.yaml")):
+    for name, f in (("rig", "bilateral.yaml"), ("separate", "coupled/bilateral_separate.yaml")):
         text = (REPO / "scenarios" / f).read_text()
         old = "    g_rad_s: [100.0, 250.0, 500.0, 1000.0, 1500.0, 3000.0, 6000.0]\n"
         assert old in text
