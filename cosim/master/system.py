@@ -30,6 +30,12 @@ k = 0 .. N with N = duration / Ts (which must be an integer). In tick k:
    sensor FMU on a plant output): those are read from their source FMU after its
    doStep, i.e. at t_{k+1}, and set just before the destination's doStep.
 
+Roles declared a coupled group (:meth:`System.couple`, a stiff load cell or wall
+between units) are the exception to 5-6 among themselves: they run as Model Exchange
+FMUs integrated together by one implicit solver, stepped once per tick at the group's
+last role, and the connections between them are continuous inside the step
+(:mod:`cosim.master.coupled`); their connections to anything else follow 1-6.
+
 Hence a connection FMU A -> FMU B carries A's value at t_k into B over
 [t_k, t_{k+1}): B's outputs first reflect A(t_k) at tick k + 1 (one step of delay),
 and B's input, if read back, shows A(t_k) at tick k + 1. A controller output of
@@ -99,6 +105,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from . import coupled as _coupled
 from .faults import Fault, FaultKind
 from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, FMUTerminated, suggest
 from .roles import CONTRACTS, RoleContract, check_contract
@@ -153,6 +160,8 @@ class System:
         self._connections: list[_Connection] = []
         self.controllers: list[_Controller] = []
         self.stimuli: dict[str, Callable[[float], float]] = {}
+        #: coupled groups (tuples of roles) solved together (:mod:`cosim.master.coupled`)
+        self.coupled: list[tuple[str, ...]] = []
         #: faults the master injects (:mod:`cosim.master.faults`), applied in this order
         self.faults: list[Fault] = []
 
@@ -389,6 +398,23 @@ class System:
                 raise SystemError_(f"role {role!r}: {name} is a scalar; got {value!r}")
             for x in vals:
                 _check_value(role, name, v, x)
+
+    def couple(self, *roles: str) -> None:
+        """Solve ``roles`` together as one strongly coupled system (a stiff load cell or
+        wall between units): the members run as Model Exchange FMUs integrated by one
+        implicit solver, and the connections between them are continuous instead of
+        exchanged at the step (:mod:`cosim.master.coupled`). The roles must be bound
+        with ``kind='me'`` by the time the system runs."""
+        roles = tuple(roles)
+        if len(roles) < 2 or len(set(roles)) != len(roles):
+            raise SystemError_(f"a coupled group needs two or more different roles, got "
+                               f"{list(roles)}")
+        for r in roles:
+            self._role(r)
+            g = _coupled.group_of(self, r)
+            if g is not None:
+                raise SystemError_(f"role {r!r} is already in the coupled group {list(g)}")
+        self.coupled.append(roles)
 
     def connect(self, source: str, dest: str, scale: float = 1.0, sequential: bool = False,
                 check_units: bool = True):
@@ -744,10 +770,13 @@ class Master:
         self._engine_program = None
         #: the generated tick-loop source of the last run (for inspection)
         self.source: str | None = None
+        #: the coupled groups' integrators of the last run (cosim.fmi.me_group.MEGroup)
+        self.groups: list = []
 
     # ----------------------------------------------------------------- plan
     def _plan(self):
         sys_ = self.system
+        _coupled.check(sys_, SystemError_)     # (also at a scenario's check_build)
         ctrl = {c.name: c for c in sys_.controllers}
         fmu_reads: dict[str, list[str]] = {r: [] for r in sys_.roles}
         stim_used: list[str] = []
@@ -963,6 +992,7 @@ class Master:
             wbufs = self._inputs_in_initialization(slaves, plan, T0)
             for role, slave in slaves:
                 slave.exit_initialization()
+            self.groups = _coupled.start(sys_, T0, SystemError_)
             src, ns = self._generate(slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec,
                                      srec, Ts, T0, wbufs, engine_calls=mode == "compiled-calls")
             if mode != "python":
@@ -1263,8 +1293,9 @@ class Master:
                             f"V[{a}:{a + m}] = tgb_{g}"]
                     read_blocks.append((role, slave, els, a))
                 L_read += timed(f"fmu:{role}:get{call}", body, "        ")
-            ins = [c for c in sys_._connections
-                   if c.dest.partition(".")[0] == role and not c.sequential]
+            ins = [c for c in sys_._connections      # (inside a coupled group: continuous)
+                   if c.dest.partition(".")[0] == role and not c.sequential
+                   and not _coupled.is_internal(sys_, c)]
             fast = [c for c in ins if _fast_dest(slave, c.dest)]
             typed = [c for c in ins if c not in fast]
             seq = [c for c in sys_._connections

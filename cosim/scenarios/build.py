@@ -90,6 +90,13 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
     from cosim.profiles import human_parameters
     system = System(step_size=float(d.get("step", 1e-3)))
     swaps = dict(fmu_swaps or {})
+    # coupled groups (roles solved together, Model Exchange): the roles of this build
+    # (a phase may leave some out, e.g. the start-up identification keeps the unit only)
+    present = d["system"]["fmus"]
+    groups = [(i, [r for r in g if r in present])
+              for i, g in enumerate(d["system"].get("coupled") or [])]
+    groups = [(i, g) for i, g in groups if len(g) >= 2]
+    in_group = {r for _, g in groups for r in g}
     for role, spec in d["system"]["fmus"].items():
         swap = swaps.pop(role, None)
         path = swap or fmu_file(spec["fmu"], ctx.fmu_dir)
@@ -108,7 +115,8 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
                 params[k] = v
         try:
             slave = system.add_fmu(role, path, contract=spec.get("contract"), parameters=params,
-                                   kind=spec.get("kind", "auto"), binding=binding or None)
+                                   kind="me" if role in in_group else spec.get("kind", "auto"),
+                                   binding=binding or None)
             if rel:
                 starts = {v.name: v.start for v in slave.md.modelVariables}
                 system.set_parameters(role, {k: f * float(starts[k]) for k, f in rel.items()})
@@ -132,6 +140,11 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
                            sequential=bool(conn.get("sequential", False)))
         except SystemError_ as exc:
             raise _err(sc, ("system", "connections", i), exc) from None
+    for i, g in groups:
+        try:
+            system.couple(*g)
+        except SystemError_ as exc:
+            raise _err(sc, ("system", "coupled", i), exc) from None
     for name, spec in (d.get("controllers") or {}).items():
         e = reg.get("controller", spec["type"])
         try:

@@ -535,7 +535,8 @@ def _include_ssp(c: _Checker, d: dict):
     conns = sysd.get("connections") or []
     if not isinstance(conns, list):
         c.err(("system", "connections"), "system.connections must be a list")
-    d["system"] = {"fmus": deep_merge(got["fmus"], own), "connections": got["connections"] + conns}
+    d["system"] = {"fmus": deep_merge(got["fmus"], own), "connections": got["connections"] + conns,
+                   **({"coupled": sysd["coupled"]} if "coupled" in sysd else {})}
     c.sc.included = f"ssp:{sha}"
 
 
@@ -548,7 +549,9 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
             return prefix + p
         return p
     sysd = d["system"]
-    c.keys(sysd, {"fmus": (dict, True), "connections": (list, False)}, P("system"), "system")
+    c.keys(sysd, {"fmus": (dict, True), "connections": (list, False), "coupled": (list, False)},
+           P("system"), "system")
+    _check_coupled(c, sysd, P)
     for role, spec in sysd["fmus"].items():
         if spec is None:
             continue
@@ -681,6 +684,30 @@ def _check_binding(c: _Checker, spec: dict, p: tuple, role: str):
               f"role a contract (`cosim roles` lists them)")
     for key, cv, msg in b.static_diffs(ct):
         c.err(p + (key, cv), f"role {role!r}: {msg}")
+
+
+def _check_coupled(c: _Checker, sysd: dict, P):
+    """``system.coupled``: a list of groups, each a list of two or more roles of
+    ``system.fmus`` solved together (:mod:`cosim.master.coupled`); a role in one group
+    at most, and not declared ``kind: cs``."""
+    seen: dict = {}
+    for i, g in enumerate(sysd.get("coupled") or []):
+        p = P("system", "coupled", i)
+        if not isinstance(g, list) or len(g) < 2 or not all(isinstance(r, str) for r in g):
+            c.err(p, f"coupled group {g!r} must be a list of two or more role names")
+            continue
+        for r in g:
+            if r not in sysd["fmus"]:
+                close = reg.suggest(r, sysd["fmus"])
+                c.err(p, f"coupled group {g}: unknown role {r!r}"
+                      + (f"; did you mean {close!r}?" if close else
+                         f" (roles: {list(sysd['fmus'])})"))
+            elif r in seen:
+                c.err(p, f"coupled group {g}: role {r!r} is already in group {seen[r]}")
+            elif (sysd["fmus"][r] or {}).get("kind") == "cs":
+                c.err(p, f"coupled group {g}: role {r!r} has kind cs; the members of a "
+                      f"coupled group run as Model Exchange (kind me or auto)")
+            seen[r] = g
 
 
 def _check_registered(c: _Checker, kind: str, name: str, spec: dict, p):

@@ -229,6 +229,12 @@ def observer_parameter_figures(runs) -> list:
     return [("Observer parameters used: identified vs true (the thesis chain)", fig)]
 
 
+def _figure_signal(info, key, default):
+    """The recorded signal a figure draws as ``key`` (``parameters.figure_signals``:
+    e.g. the load-cell force of separate FMUs is ``cell.f_lc``, the rig's ``rig.f_lc``)."""
+    return ((info.get("parameters") or {}).get("figure_signals") or {}).get(key, default)
+
+
 def _series(r, name):
     return np.asarray(r.signals[name]) if name in r.signals else None
 
@@ -239,12 +245,13 @@ def _zero_force_figures(runs, info):
     observer parameters the runs used (start-up identification vs true)."""
     import matplotlib.pyplot as plt
     settle = float((info.get("parameters") or {}).get("settle_s", 1.0))
+    f_lc = _figure_signal(info, "f_lc", "rig.f_lc")
     out = observer_parameter_figures(runs)
     runs = [r for r in runs if r.phase in ("main", "")]
     fig, ax = plt.subplots(figsize=(9, 3.6))
     bars = []
     for r in runs:
-        f = _series(r, "rig.f_lc")
+        f = _series(r, f_lc)
         if f is None:
             continue
         t = np.asarray(r.signals["time"])
@@ -269,7 +276,7 @@ def _zero_force_figures(runs, info):
             fig, ax = plt.subplots(figsize=(9, 3.2))
             ax.plot(t, r.signals["rfob.f_int_hat"], color="tab:orange", lw=0.6, alpha=0.8,
                     label="RFOB estimate f_int^")
-            ax.plot(t, r.signals["rig.f_lc"], color="k", lw=1.0, label="load cell f_lc (true)")
+            ax.plot(t, r.signals[f_lc], color="k", lw=1.0, label="load cell f_lc (true)")
             ax.set_xlim(settle, min(settle + 2.0, float(t[-1])))
             ax.set_xlabel("time [s]"); ax.set_ylabel("force [N]"); ax.grid(True, alpha=0.3)
             ax.legend(loc="upper right")
@@ -283,6 +290,7 @@ def _bilateral_figures(runs, info):
     """Master/slave positions and forces per case (Fig. 32 form), and the observer
     parameters the runs used (start-up identification vs true)."""
     import matplotlib.pyplot as plt
+    f_wall = _figure_signal(info, "f_wall", "slave.f_wall")
     out = observer_parameter_figures(runs)
     for r in [r for r in runs if r.phase in ("main", "")]:
         t = np.asarray(r.signals["time"])
@@ -290,7 +298,7 @@ def _bilateral_figures(runs, info):
         a1.plot(t, 1e3 * np.asarray(r.signals["master.x"]), "r", lw=0.9, label="master x_m")
         a1.plot(t, 1e3 * np.asarray(r.signals["slave.x"]), "b--", lw=0.9, label="slave x_s")
         a1.set_ylabel("position [mm]"); a1.grid(True, alpha=0.3); a1.legend(loc="upper left")
-        fw = np.asarray(r.signals["slave.f_wall"])
+        fw = np.asarray(r.signals[f_wall])
         contact = fw < -0.5
         for ax in (a1, a2):
             if contact.any():

@@ -35,7 +35,8 @@ of the zero-force rig and the bilateral slave live inside composite FMUs
 parameters" would identify the parameters we copy into it, not the device the
 observers run on (a case, sweep or Monte-Carlo draw of ``J_u`` would silently not
 reach the identification). Removing the coupling inside the rig identifies exactly
-the unit the main phase runs.
+the unit the main phase runs. (With the unit as its own FMU in a coupled group,
+``scenarios/coupled/zero_force_separate.yaml``, the identification builds that FMU alone.)
 
 Values stored per run (``run.json`` -> the report's run table and the
 "observer parameters" figure), for each unit ``u`` and parameter ``p`` in J, b, fc:
