@@ -597,7 +597,7 @@ def test_bilateral_separate_gives_the_rigs_verdicts_and_metrics(tmp_path):
         text = (REPO / "scenarios" / f).read_text()
         old = "    g_rad_s: [100.0, 250.0, 500.0, 1000.0, 1500.0, 3000.0, 6000.0]\n"
         assert old in text
-        p = tmp_path / f
+        p = tmp_path / Path(f).name
         p.write_text(text.replace(old, "    g_rad_s: []\n"))
         out[name] = run_scenario(p, tmp_path / name, fmu_dir=FMUS)
     ref, got = out["rig"], out["separate"]

@@ -113,7 +113,10 @@ def test_motors_off_training_applies_no_force_and_still_maps(fmus):
     for k in range(len(s["time"])):
         rep.step({"pos_x": s["table.x_enc"][k], "pos_y": s["table.y_enc"][k],
                   "ref_x": s["stim.rx"][k], "ref_y": s["stim.ry"][k]})
-    assert np.array_equal(rep.a, off.a_final)
+    # (the run's controller is the compiled step, equal to the Python one to 1e-12 of
+    # the map's magnitude, not bit for bit: tests/test_kernels.py)
+    assert np.max(np.abs(rep.a - off.a_final)) <= 1e-12 * np.max(np.abs(off.a_final))
+    assert not np.array_equal(rep.a, AssistController(dataclasses.replace(p, motors_on=False)).a)
     assert not np.array_equal(off.a_final, off.a_initial)
 
 
