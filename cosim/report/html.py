@@ -376,7 +376,9 @@ def timing_table(summary: dict) -> str:
         return "<p>No timing recorded (a summary of an older version).</p>"
     busy, runs = t.get("runs_wall_s"), t.get("runs_s")
     para = (f"<p>Load and check {_s(t.get('load_and_check_s'))} s, cluster start "
-            f"{_s(t.get('cluster_start_s', 0))} s, runs {_s(runs)} s "
+            f"{_s(t.get('cluster_start_s', 0))} s"
+            + (" (during the check)" if t.get("cluster_start_overlapped") else "")
+            + f", runs {_s(runs)} s "
             f"({summary.get('runs_executed', 0)} executed on {esc(summary.get('cluster'))}"
             + (f"; run time summed over the workers {_s(busy)} s, {busy / runs:.2f}x the "
                f"run phase" if busy and runs else "")

@@ -135,19 +135,13 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
         if sc.name in names:
             raise SuiteError(f"{f}: scenario name {sc.name!r} is also used by {names[sc.name]}")
         names[sc.name] = f
-        swaps = {r: p for r, p in (fmu_swaps or {}).items()
-                 if r in sc.data["system"]["fmus"]}
-        t2 = time.perf_counter()
-        check_build(sc, fmu_dir, swaps, runs=all_runs(sc))   # contracts, FMU variable names
-        sc_time[sc.name] = {"load_s": t2 - t1, "check_s": time.perf_counter() - t2}
+        sc_time[sc.name] = {"load_s": time.perf_counter() - t1}
         scenarios.append(sc)
     if fmu_swaps:
         used = {r for sc in scenarios for r in sc.data["system"]["fmus"]}
         unknown = sorted(set(fmu_swaps) - used)
         if unknown:
             raise SuiteError(f"--fmu: no scenario has role(s) {unknown} (roles: {sorted(used)})")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    clean_run_tmp(out_dir)                    # what a killed process left
     todo = []          # (scenario, run, key, scenario dir)
     cached = {sc.name: 0 for sc in scenarios}
     for sc in scenarios:
@@ -159,18 +153,50 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                 cached[sc.name] += 1
                 continue
             todo.append((sc, run, key, sdir, swaps))
-    timing = {"load_and_check_s": time.perf_counter() - t0}
-    history = read_durations(out_dir)
-    est = estimates([(sc, run) for sc, run, *_ in todo], history)
-    bar = _Progress(len(todo), progress)
-    done: dict = {}                    # (scenario, label) -> {"wall_s", "start", "end", "worker"}
-    client = cluster = None
-    cluster_desc = "serial (this process)"
-    try:
-        if todo and not serial:
+
+    def check_all():
+        for sc in scenarios:                  # contracts, FMU variable names
             t1 = time.perf_counter()
-            client, cluster = _client(scheduler, workers)
-            timing["cluster_start_s"] = time.perf_counter() - t1
+            check_build(sc, fmu_dir, {r: p for r, p in (fmu_swaps or {}).items()
+                                      if r in sc.data["system"]["fmus"]}, runs=all_runs(sc))
+            sc_time[sc.name]["check_s"] = time.perf_counter() - t1
+
+    timing: dict = {}
+    client = cluster = None
+    if todo and not serial and scheduler is None:
+        # the local workers start (processes importing numpy, scipy, FMPy, the trials)
+        # while this process checks the scenarios: on a 2-core machine the two overlap
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(1) as ex:
+            checking = ex.submit(check_all)
+            t1 = time.perf_counter()
+            try:
+                client, cluster = _client(scheduler, workers)
+                timing["cluster_start_s"] = time.perf_counter() - t1
+                timing["cluster_start_overlapped"] = True
+                checking.result()              # a bad scenario: no run starts
+            except BaseException:
+                if client is not None:
+                    client.close()
+                if cluster is not None:
+                    cluster.close()
+                raise
+    else:
+        check_all()
+    cluster_desc = "serial (this process)"
+    done: dict = {}                    # (scenario, label) -> {"wall_s", "start", "end", "worker"}
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        clean_run_tmp(out_dir)                # what a killed process left
+        timing["load_and_check_s"] = time.perf_counter() - t0
+        history = read_durations(out_dir)
+        est = estimates([(sc, run) for sc, run, *_ in todo], history)
+        bar = _Progress(len(todo), progress)
+        if todo and not serial:
+            if client is None:
+                t1 = time.perf_counter()
+                client, cluster = _client(scheduler, workers)
+                timing["cluster_start_s"] = time.perf_counter() - t1
             cluster_desc = (f"Dask scheduler {scheduler}" if scheduler else
                             f"local Dask cluster, {len(client.scheduler_info()['workers'])} "
                             f"worker process(es)")
