@@ -15,6 +15,11 @@ it writes its outputs atomically itself; with ``--scheduler`` the runs are shipp
 and return their files, which this process alone writes (atomically); a run whose stored ``run.json`` has the same cache key (scenario
 content, FMU hashes, package source hash) is not repeated, so an interrupted suite
 rerun resumes where it stopped and an unchanged suite is not rerun at all.
+
+The runs are submitted longest first (:func:`estimates`: the durations measured by the
+last suite, ``DIR/durations.json`` and ``<cache>/suite-durations.json``, else the
+procedure's simulated time), so that the workers finish together. ``summary.json``
+carries the wall time of every phase, per scenario and of the workers (``timing``).
 """
 from __future__ import annotations
 
@@ -212,6 +217,7 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             # durations, else the procedure's simulated time), so that the workers
             # finish together instead of one running the longest runs at the end
             order = sorted(range(len(todo)), key=lambda i: -est[i])
+            t_sub = time.time()
             for rank, i in enumerate(order):
                 sc, run, key, sdir, swaps = todo[i]
                 tkey = f"run-{safe_name(sc.name)}-{safe_name(run.label)}-{key[:8]}"
@@ -227,7 +233,6 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                                       swaps, str(fmu_dir) if fmu_dir else None, key,
                                       pure=False, key=tkey, priority=len(todo) - rank)
                 futs[f] = (sc, run, sdir)
-            t_sub = time.time()
             for f in as_completed(futs):
                 sc, run, sdir = futs[f]
                 try:
