@@ -108,3 +108,70 @@ def test_unreachable_scheduler_is_a_quick_clear_error(suite_dir, tmp_path):
                   progress=False)
     assert time.perf_counter() - t0 < 15
     assert not (tmp_path / "o" / "summary.json").exists()
+
+
+def test_timing_in_summary_durations_and_report(suite_dir):
+    """summary.json: wall time per phase, per scenario and of the workers; the runs'
+    durations kept for the next suite's order; the overview's wall-time table."""
+    _, out, s, _ = suite_dir
+    t = s["timing"]
+    for k in ("load_and_check_s", "cluster_start_s", "runs_s", "verdicts_s", "runs_wall_s",
+              "gap_per_run_s", "first_start_s", "tail_idle_s"):
+        assert t[k] >= 0, k
+    assert t["workers_used"] in (1, 2)
+    # the runs' own times sum to at most the run phase on each of the workers used
+    assert 0 < t["runs_wall_s"] <= t["workers_used"] * t["runs_s"] + 1e-6
+    by = {x["scenario"]: x["timing"] for x in s["scenarios"]}
+    assert by["spin"]["runs_executed"] == 4 and by["crash"]["runs_executed"] == 2
+    assert by["spin"]["longest_run_s"] <= by["spin"]["runs_wall_s"]
+    assert abs(sum(b["runs_wall_s"] for b in by.values()) - t["runs_wall_s"]) < 1e-6
+    d = json.loads((out / "durations.json").read_text())
+    assert sorted(d["spin"]) == ["default/seed1", "default/seed2", "nc.half_current/default/seed1",
+                                 "nc.half_current/default/seed2"]
+    run = json.loads((out / "spin" / "runs" / "default_seed1" / "run.json").read_text())
+    assert abs(d["spin"]["default/seed1"] - run["wall_s"]) < 0.5     # the task's time
+    saved = json.loads((out / "summary.json").read_text())
+    assert saved["timing"]["pages_s"] > 0 and saved["scenarios"][0]["timing"]["page_s"] >= 0
+    html = (out / "report.html").read_text()
+    assert "<h2>Wall time</h2>" in html and "run time, summed" in html
+
+
+def test_estimates_longest_first(tmp_path):
+    """The cost model that orders the runs: measured durations first, else the
+    procedure's simulated time / step times the scenario's measured s per step."""
+    from cosim.scenarios.schema import load
+    from cosim.scenarios.suite import estimates, run_ticks
+    from cosim.scenarios.verdict import all_runs
+    from test_scenarios import REPO
+    reach = load(REPO / "scenarios" / "reaching.yaml")
+    runs = {r.label: r for r in all_runs(reach)}
+    # a course: weeks x 5 trainings x 150 s at 1 ms; the controls' own weeks/durations
+    assert run_ticks(reach, runs["S1"]) == pytest.approx(3e6)
+    assert run_ticks(reach, runs["nc.drivers_left_on/S1"]) == pytest.approx(1 * 5 * 30e3)
+    assert run_ticks(reach, runs["nc.no_assistance/S1"]) == pytest.approx(2 * 5 * 150e3)
+    zf = load(REPO / "scenarios" / "zero_force.yaml")      # identification 10 s + 6 s
+    assert run_ticks(zf, all_runs(zf)[0]) == pytest.approx(16e3)
+    spin = load(write(tmp_path, BASE.replace("seeds: [1]", "seeds: [1, 2]")))
+    pairs = [(spin, r) for r in all_runs(spin)] + [(reach, runs["S1"]),
+                                                  (reach, runs["nc.undamped_loop/S1"])]
+    # no history: 30 us per step
+    est = estimates(pairs, {})
+    assert est[4] == pytest.approx(3e6 * 30e-6) and est[0] == pytest.approx(500 * 30e-6)
+    # measured: the run's own time; the scenario's other runs at its s per step
+    hist = {"spin": {"default/seed1": 2.0}, "reaching": {"nc.undamped_loop/S1": 5.0}}
+    est = estimates(pairs, hist)
+    assert est[0] == 2.0 and est[1] == pytest.approx(2.0)     # same ticks, spin's rate
+    assert est[5] == 5.0 and est[4] == pytest.approx(5.0 * 3e6 / 50e3)
+    order = sorted(range(len(pairs)), key=lambda i: -est[i])
+    assert pairs[order[0]][1].label == "S1"
+
+
+def test_worker_stats():
+    from cosim.scenarios.suite import worker_stats
+    done = [{"worker": "a", "start": 10.0, "end": 12.0}, {"worker": "a", "start": 12.1, "end": 15.0},
+            {"worker": "b", "start": 10.5, "end": 16.0}]
+    st = worker_stats(done, t_submit=9.9, t_last=16.2)
+    assert st["workers_used"] == 2
+    assert abs(st["gap_per_run_s"] - 0.1) < 1e-12               # one gap, on worker a
+    assert abs(st["first_start_s"] - (0.1 + 0.6) / 2) < 1e-12
+    assert abs(st["tail_idle_s"] - (1.2 + 0.2) / 2) < 1e-12

@@ -196,18 +196,34 @@ def fit_arm_grasp(f_hz, Z, band_hz=(0.5, 20.0), max_rel_se: float = 0.1) -> Impe
     bg0 = max(float(np.abs(Zs[-1].imag) / (2 * np.pi * f[-1])), 1e-3)
     scale = np.abs(Zs)
 
+    s = 2j * np.pi * f
+
     def resid(q):
         Zm = arm_grasp_impedance(f, *np.exp(q))
         e = (Zm - Zs) / scale
         return np.concatenate([e.real, e.imag])
+
+    def jac(q):
+        # analytic d resid / d q (q = log p): Z = za zg / (za + zg), dZ/dza =
+        # (zg / (za + zg))^2, dZ/dzg = (za / (za + zg))^2; d za / d log M = M s^2, ...
+        M, b, K, kg, bg = np.exp(q)
+        za = M * s ** 2 + b * s + K
+        zg = kg + bg * s
+        den = za + zg
+        da, dg = (zg / den) ** 2 / scale, (za / den) ** 2 / scale
+        c = np.column_stack([da * M * s ** 2, da * b * s, da * K, dg * kg, dg * bg * s])
+        return np.vstack([c.real, c.imag])
 
     best = None
     for M0 in (0.1, 1.0, 10.0):
         for kg_factor in (1.0, 10.0, 100.0):
             q0 = np.log([M0, b0, K0, kg_factor * K0, bg0])
             try:
-                sol = least_squares(resid, q0, method="lm", xtol=1e-12, ftol=1e-12,
-                                    max_nfev=4000)
+                # a start far from the answer may step through overflowing parameters:
+                # that start is then dropped (non-finite x) or loses on cost
+                with np.errstate(over="ignore", invalid="ignore"):
+                    sol = least_squares(resid, q0, jac=jac, method="lm", xtol=1e-12,
+                                        ftol=1e-12, max_nfev=4000)
             except (ValueError, FloatingPointError):
                 continue
             if np.all(np.isfinite(sol.x)) and (best is None or sol.cost < best.cost):

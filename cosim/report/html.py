@@ -361,11 +361,51 @@ def suite_page(summary: dict, links: dict) -> str:
             failing_requirements(summary),
             "\n".join(rows),
             "<h2>Requirements</h2>", suite_requirements(summary),
+            "<h2>Wall time</h2>", timing_table(summary),
             "<h2>Assumed values (not in the thesis): source or calibration</h2>",
             assumptions_table(),
             "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
             + "</pre>"]
     return page("cosim verification suite", "\n".join(body))
+
+
+def _s(v) -> str:
+    return "-" if v is None else f"{float(v):.1f}"
+
+
+def timing_table(summary: dict) -> str:
+    """Where the suite's wall time went: the phases (load and check, cluster start,
+    runs, verdicts, pages) and, per scenario, its check, its runs (summed over the
+    workers, and the longest), its verdict and its page [s]."""
+    t = summary.get("timing") or {}
+    if not t:
+        return "<p>No timing recorded (a summary of an older version).</p>"
+    busy, runs = t.get("runs_wall_s"), t.get("runs_s")
+    para = (f"<p>Load and check {_s(t.get('load_and_check_s'))} s, cluster start "
+            f"{_s(t.get('cluster_start_s', 0))} s"
+            + (" (during the check)" if t.get("cluster_start_overlapped") else "")
+            + f", runs {_s(runs)} s "
+            f"({summary.get('runs_executed', 0)} executed on {esc(summary.get('cluster'))}"
+            + (f"; run time summed over the workers {_s(busy)} s, {busy / runs:.2f}x the "
+               f"run phase" if busy and runs else "")
+            + (f"; between runs a worker waited {1e3 * t['gap_per_run_s']:.0f} ms on "
+               f"average, idle at the end {_s(t.get('tail_idle_s'))} s"
+               if "gap_per_run_s" in t else "")
+            + f"), verdicts {_s(t.get('verdicts_s'))} s, pages {_s(t.get('pages_s'))} s; "
+            f"suite {_s(summary.get('wall_s'))} s.</p>")
+    rows = ["<table><tr><th>scenario</th><th>load + check</th><th>runs executed (cached)"
+            "</th><th>run time, summed</th><th>longest run</th><th>verdict</th><th>page</th>"
+            "</tr>"]
+    for sc in summary["scenarios"]:
+        st = sc.get("timing") or {}
+        lc = (st.get("load_s") or 0.0) + (st.get("check_s") or 0.0) if st else None
+        rows.append(f'<tr><td>{esc(sc["scenario"])}</td><td>{_s(lc)}</td>'
+                    f'<td>{st.get("runs_executed", "-")} ({sc.get("cached_runs", 0)})</td>'
+                    f'<td>{_s(st.get("runs_wall_s"))}</td><td>{_s(st.get("longest_run_s"))}</td>'
+                    f'<td>{_s(st.get("verdict_s"))}</td><td>{_s(st.get("page_s"))}</td></tr>')
+    rows.append("</table><p class=\"muted\">Seconds of wall time; a run's own time is "
+                "<code>wall_s</code> in its <code>run.json</code>.</p>")
+    return para + "\n".join(rows)
 
 
 #: the verdicts a reader of the overview must see without opening a scenario

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 
 
@@ -34,11 +35,19 @@ def render_suite(suite_dir) -> list[Path]:
     suite_dir = Path(suite_dir)
     summary = json.loads((suite_dir / "summary.json").read_text())
     written, links = [], {}
+    t0 = time.perf_counter()
     for s in summary["scenarios"]:
         sdir = suite_dir / safe_name(s["scenario"])
+        t1 = time.perf_counter()
         if (sdir / "verdict.json").is_file() and Path(s["file"]).is_file():
             written.append(render_scenario(s["file"], sdir, back_link="../report.html"))
+        if isinstance(s.get("timing"), dict):
+            s["timing"]["page_s"] = time.perf_counter() - t1
         links[s["scenario"]] = f"{safe_name(s['scenario'])}/report.html"
+    if isinstance(summary.get("timing"), dict):
+        # the pages' wall time joins the suite's record (and the overview's table)
+        summary["timing"]["pages_s"] = time.perf_counter() - t0
+        atomic_write_text(suite_dir / "summary.json", json.dumps(summary, indent=1))
     atomic_write_text(suite_dir / "report.html", suite_page(summary, links))
     written.append(suite_dir / "report.html")
     return written

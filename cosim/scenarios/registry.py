@@ -197,6 +197,9 @@ class Entry:
     step_field: str | None = None
     #: other modules whose values this entry runs with (``@procedure(name, uses=...)``)
     uses: tuple[str, ...] = ()
+    #: procedures: ``work(run, parameters) -> s`` simulated by a run (``@procedure(name,
+    #: work=...)``; None: ``run.duration``), the suite's first guess of a run's cost
+    work: typing.Callable | None = None
 
     def step_mismatch(self, params: Mapping, step_s: float) -> str | None:
         """The message if ``params`` fix a sampling time other than the scenario's step."""
@@ -255,7 +258,8 @@ def _step_field(kind, name, obj, params, static):
     return found[0]
 
 
-def _register(kind: str, name: str, obj, params=None, scope="run", static=False, uses=()):
+def _register(kind: str, name: str, obj, params=None, scope="run", static=False, uses=(),
+              work=None):
     if not isinstance(name, str) or not name:
         raise RegistryError(f"{kind} name must be a non-empty string, got {name!r}")
     if params is not None and not dataclasses.is_dataclass(params):
@@ -271,7 +275,8 @@ def _register(kind: str, name: str, obj, params=None, scope="run", static=False,
     if isinstance(uses, str) or not all(isinstance(u, str) and u for u in uses):
         raise RegistryError(f"{kind} {name!r}: uses must be a list of module names, "
                             f"got {uses!r}")
-    _REG[kind][name] = Entry(kind, name, obj, params, scope, mod, step_field, tuple(uses))
+    _REG[kind][name] = Entry(kind, name, obj, params, scope, mod, step_field, tuple(uses),
+                             work)
     return obj
 
 
@@ -297,11 +302,13 @@ def metric(name: str, params: type | None = None, scope: str = "run"):
     return lambda obj: _register("metric", name, obj, params, scope)
 
 
-def procedure(name: str, uses=()):
+def procedure(name: str, uses=(), work=None):
     """Register ``f(run: RunSpec, build, ctx: BuildContext) -> ProcedureResult``;
     ``uses``: names of other modules whose values it runs with (the report lists the
-    assumed values they hold)."""
-    return lambda obj: _register("procedure", name, obj, uses=uses)
+    assumed values they hold); ``work(run, parameters) -> s``: the time a run
+    simulates in all its phases (default ``run.duration``), the suite's estimate of a
+    run's cost before it has timed one (it starts the longest runs first)."""
+    return lambda obj: _register("procedure", name, obj, uses=uses, work=work)
 
 
 def figures(name: str):

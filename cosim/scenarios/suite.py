@@ -15,6 +15,11 @@ it writes its outputs atomically itself; with ``--scheduler`` the runs are shipp
 and return their files, which this process alone writes (atomically); a run whose stored ``run.json`` has the same cache key (scenario
 content, FMU hashes, package source hash) is not repeated, so an interrupted suite
 rerun resumes where it stopped and an unchanged suite is not rerun at all.
+
+The runs are submitted longest first (:func:`estimates`: the durations measured by the
+last suite, ``DIR/durations.json`` and ``<cache>/suite-durations.json``, else the
+procedure's simulated time), so that the workers finish together. ``summary.json``
+carries the wall time of every phase, per scenario and of the workers (``timing``).
 """
 from __future__ import annotations
 
@@ -29,6 +34,7 @@ from ..exitcodes import children_ignore_sigint
 from ..fileio import atomic_write_text as atomic_write
 from . import registry as reg
 from .build import check_build
+from .expand import deep_merge
 from .isolate import run_timeout, wants_process
 from .runner import execute_run, finish_scenario
 from .schema import Scenario, load
@@ -135,22 +141,20 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
     files = collect(paths)
     scenarios: list[Scenario] = []
     names = {}
+    sc_time: dict[str, dict] = {}          # per scenario: wall times [s]
     for f in files:
+        t1 = time.perf_counter()
         sc = load(f, fmu_dir)              # a bad file is bad input: stop before running
         if sc.name in names:
             raise SuiteError(f"{f}: scenario name {sc.name!r} is also used by {names[sc.name]}")
         names[sc.name] = f
-        swaps = {r: p for r, p in (fmu_swaps or {}).items()
-                 if r in sc.data["system"]["fmus"]}
-        check_build(sc, fmu_dir, swaps, runs=all_runs(sc))   # contracts, FMU variable names
+        sc_time[sc.name] = {"load_s": time.perf_counter() - t1}
         scenarios.append(sc)
     if fmu_swaps:
         used = {r for sc in scenarios for r in sc.data["system"]["fmus"]}
         unknown = sorted(set(fmu_swaps) - used)
         if unknown:
             raise SuiteError(f"--fmu: no scenario has role(s) {unknown} (roles: {sorted(used)})")
-    out_dir.mkdir(parents=True, exist_ok=True)
-    clean_run_tmp(out_dir)                    # what a killed process left
     todo = []          # (scenario, run, key, scenario dir, swaps, isolation, timeout)
     cached = {sc.name: 0 for sc in scenarios}
     for sc in scenarios:
@@ -164,15 +168,50 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             iso = ("process" if wants_process(isolation, run_fmu_paths(sc, run, fmu_dir, swaps)
                                               .values()) else "none")
             todo.append((sc, run, key, sdir, swaps, iso, run_timeout(sc, timeout_s)))
-    timing = {"load_and_check_s": time.perf_counter() - t0}
-    bar = _Progress(len(todo), progress)
-    client = cluster = None
-    cluster_desc = "serial (this process)"
-    try:
-        if todo and not serial:
+
+    def check_all():
+        for sc in scenarios:                  # contracts, FMU variable names
             t1 = time.perf_counter()
-            client, cluster = _client(scheduler, workers)
-            timing["cluster_start_s"] = time.perf_counter() - t1
+            check_build(sc, fmu_dir, {r: p for r, p in (fmu_swaps or {}).items()
+                                      if r in sc.data["system"]["fmus"]}, runs=all_runs(sc))
+            sc_time[sc.name]["check_s"] = time.perf_counter() - t1
+
+    timing: dict = {}
+    client = cluster = None
+    if todo and not serial and scheduler is None:
+        # the local workers start (processes importing numpy, scipy, FMPy, the trials)
+        # while this process checks the scenarios: on a 2-core machine the two overlap
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(1) as ex:
+            checking = ex.submit(check_all)
+            t1 = time.perf_counter()
+            try:
+                client, cluster = _client(scheduler, workers)
+                timing["cluster_start_s"] = time.perf_counter() - t1
+                timing["cluster_start_overlapped"] = True
+                checking.result()              # a bad scenario: no run starts
+            except BaseException:
+                if client is not None:
+                    client.close()
+                if cluster is not None:
+                    cluster.close()
+                raise
+    else:
+        check_all()
+    cluster_desc = "serial (this process)"
+    done: dict = {}                    # (scenario, label) -> {"wall_s", "start", "end", "worker"}
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        clean_run_tmp(out_dir)                # what a killed process left
+        timing["load_and_check_s"] = time.perf_counter() - t0
+        history = read_durations(out_dir)
+        est = estimates([(sc, run) for sc, run, *_ in todo], history)
+        bar = _Progress(len(todo), progress)
+        if todo and not serial:
+            if client is None:
+                t1 = time.perf_counter()
+                client, cluster = _client(scheduler, workers)
+                timing["cluster_start_s"] = time.perf_counter() - t1
             cluster_desc = (f"Dask scheduler {scheduler}" if scheduler else
                             f"local Dask cluster, {len(client.scheduler_info()['workers'])} "
                             f"worker process(es)")
@@ -184,36 +223,49 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                         for sc, run, key, sdir, swaps, *_ in todo}
                 blobs = scatter_fmus(client, [v for pair in fmus.values() for t in pair
                                               for v in t.values()])
-            for sc, run, key, sdir, swaps, iso, tmo in todo:
+            # longest first (estimated: this folder's or the last suite's measured
+            # durations, else the procedure's simulated time), so that the workers
+            # finish together instead of one running the longest runs at the end
+            order = sorted(range(len(todo)), key=lambda i: -est[i])
+            t_sub = time.time()
+            for rank, i in enumerate(order):
+                sc, run, key, sdir, swaps, iso, tmo = todo[i]
                 tkey = f"run-{safe_name(sc.name)}-{safe_name(run.label)}-{key[:8]}"
                 if ship:
                     by_spec, by_swap = ({n: (sha, blobs[sha], path)
                                          for n, (sha, path) in t.items()}
                                         for t in fmus[sc.name, run.label])
-                    f = client.submit(execute_shipped, str(sc.path), sc.text, run.label,
-                                      by_spec, by_swap, key, pure=False, key=tkey,
+                    f = client.submit(_timed, execute_shipped, str(sc.path), sc.text,
+                                      run.label, by_spec, by_swap, key, pure=False, key=tkey,
+                                      priority=len(todo) - rank,
                                       isolation=iso, timeout_s=tmo)
                 else:
-                    f = client.submit(execute_run, str(sc.path), run.label, str(sdir), swaps,
-                                      str(fmu_dir) if fmu_dir else None, key, pure=False,
-                                      key=tkey, isolation=iso, timeout_s=tmo)
+                    f = client.submit(_timed, execute_run, str(sc.path), run.label, str(sdir),
+                                      swaps, str(fmu_dir) if fmu_dir else None, key,
+                                      pure=False, key=tkey, priority=len(todo) - rank,
+                                      isolation=iso, timeout_s=tmo)
                 futs[f] = (sc, run, sdir)
             for f in as_completed(futs):
                 sc, run, sdir = futs[f]
                 try:
-                    out = f.result()
+                    res = f.result()
+                    out = res.pop("out")
                     if ship:
                         store_run_files(sdir, run.label, out["files"])
+                    done[sc.name, run.label] = res
                 except Exception as exc:     # the worker died (crash in native code)
                     _record_crash(sdir, run, key=None, exc=exc)
                 bar.step(f"{sc.name}:{run.label}")
             timing["runs_s"] = time.perf_counter() - t1
+            timing.update(worker_stats(done.values(), t_sub, time.time()))
         else:
             t1 = time.perf_counter()
             for sc, run, key, sdir, swaps, iso, tmo in todo:
-                execute_run(str(sc.path), run.label, str(sdir), swaps,
-                            str(fmu_dir) if fmu_dir else None, key, isolation=iso,
-                            timeout_s=tmo)
+                done[sc.name, run.label] = _timed(execute_run, str(sc.path), run.label,
+                                                  str(sdir), swaps,
+                                                  str(fmu_dir) if fmu_dir else None, key,
+                                                  isolation=iso, timeout_s=tmo)
+                done[sc.name, run.label].pop("out")
                 bar.step(f"{sc.name}:{run.label}")
             timing["runs_s"] = time.perf_counter() - t1
     finally:
@@ -221,12 +273,18 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             client.close()
         if cluster is not None:
             cluster.close()
+    write_durations(out_dir, history, done)
     t1 = time.perf_counter()
     results = []
     for sc in scenarios:
         sdir = out_dir / safe_name(sc.name)
         swaps = {r: p for r, p in (fmu_swaps or {}).items() if r in sc.data["system"]["fmus"]}
+        t2 = time.perf_counter()
         v = finish_scenario(sc, sdir, swaps)
+        walls = [d["wall_s"] for (name, _), d in done.items() if name == sc.name]
+        v["timing"] = {**sc_time[sc.name], "runs_executed": len(walls),
+                       "runs_wall_s": sum(walls), "longest_run_s": max(walls, default=0.0),
+                       "verdict_s": time.perf_counter() - t2}
         v["cached_runs"] = cached[sc.name]
         results.append(v)
     statuses = [v["status"] for v in results]
@@ -242,15 +300,124 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                                                       "thesis-inconsistent", "error")},
         "runs_executed": len(todo), "runs_cached": sum(cached.values()),
         "wall_s": time.perf_counter() - t0, "cluster": cluster_desc, "versions": versions(),
-        "timing": {**timing, "verdicts_s": time.perf_counter() - t1},
+        "timing": {**timing, "verdicts_s": time.perf_counter() - t1,
+                   "runs_wall_s": sum(d["wall_s"] for d in done.values())},
         "scenarios": [{k: v.get(k) for k in ("scenario", "file", "status", "errors",
                                              "control_errors", "requirements", "runs",
-                                             "cached_runs", "provenance", "seeds")}
+                                             "cached_runs", "provenance", "seeds",
+                                             "timing")}
                       for v in results],
     }
     atomic_write(out_dir / "summary.json", json.dumps(summary, indent=1, default=str))
     atomic_write(out_dir / "junit.xml", junit_xml(summary))
     return summary
+
+
+def _timed(fn, *args, **kwargs) -> dict:
+    """``fn(*args)`` (a run) with its wall time on the worker and the worker's name: a
+    Dask task (top level, so that it pickles by reference)."""
+    import socket
+    start = time.time()
+    t = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return {"out": out, "wall_s": time.perf_counter() - t, "start": start,
+            "end": time.time(), "worker": f"{socket.gethostname()}:{os.getpid()}"}
+
+
+def worker_stats(done, t_submit: float, t_last: float) -> dict:
+    """What the workers did in the run phase, from the runs' start and end times
+    (worker clocks; one machine or synchronised clocks): ``workers_used``;
+    ``gap_per_run_s``, the mean time a worker waited between the end of one run and
+    the start of its next (scheduling, result transfer, task start: the per-run
+    overhead of the scheduler), ``first_start_s`` (submission to the first run's
+    start, averaged over the workers) and ``tail_idle_s`` (mean time a worker sat idle
+    after its last run until the last result arrived: the imbalance of the schedule)."""
+    by: dict = {}
+    for d in done:
+        by.setdefault(d["worker"], []).append(d)
+    gaps, first, tail = [], [], []
+    for runs in by.values():
+        runs.sort(key=lambda d: d["start"])
+        first.append(runs[0]["start"] - t_submit)
+        gaps += [b["start"] - a["end"] for a, b in zip(runs, runs[1:])]
+        tail.append(t_last - runs[-1]["end"])
+    mean = lambda x: sum(x) / len(x) if x else 0.0          # noqa: E731
+    return {"workers_used": len(by), "gap_per_run_s": mean(gaps),
+            "first_start_s": mean(first), "tail_idle_s": mean(tail)}
+
+
+# =========================================================================== durations
+DURATIONS = "durations.json"
+
+
+def _durations_files(out_dir: Path) -> list[Path]:
+    """Where the measured run durations are kept: the suite's folder (a rerun with
+    --no-cache) and the user's cache folder (a suite in a new folder)."""
+    from cosim import paths
+    return [paths.cache_dir() / "suite-durations.json", Path(out_dir) / DURATIONS]
+
+
+def read_durations(out_dir: Path) -> dict:
+    """``{scenario: {run label: wall time [s]}}`` of the last suites (the folder's
+    entries over the user cache's); a missing or unreadable file is no history."""
+    hist: dict = {}
+    for f in _durations_files(out_dir):
+        try:
+            for name, runs in json.loads(f.read_text()).items():
+                hist.setdefault(name, {}).update({k: float(v) for k, v in runs.items()})
+        except (OSError, ValueError, AttributeError, TypeError):
+            pass
+    return hist
+
+
+def write_durations(out_dir: Path, history: dict, done: dict) -> None:
+    """Add the runs timed now (``{(scenario, label): {"wall_s": ...}}``) to the
+    history and write it to both places (best effort: the durations only order runs)."""
+    if not done:
+        return
+    new = {k: dict(v) for k, v in history.items()}
+    for (name, label), d in done.items():
+        new.setdefault(name, {})[label] = round(float(d["wall_s"]), 3)
+    text = json.dumps(new, indent=1, sort_keys=True)
+    for f in _durations_files(out_dir):
+        try:
+            f.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write(f, text)
+        except OSError:
+            pass
+
+
+def run_ticks(sc: Scenario, run: reg.RunSpec) -> float:
+    """Steps a run simulates in all its phases (the procedure's ``work``, else
+    ``run.duration``), divided by its step: the cost model before any timing."""
+    e = reg.get("procedure", sc.procedure)
+    params = deep_merge(sc.data, run.overrides).get("parameters") or {}
+    try:
+        work = float(e.work(run, params)) if e is not None and e.work else float(run.duration)
+    except Exception:                      # a bad parameter is the run's error, not ours
+        work = float(run.duration)
+    return max(work, 0.0) / float(run.step or 1e-3)
+
+
+def estimates(runs, history: dict) -> list[float]:
+    """Estimated wall time of each ``(scenario, run)`` [s]: its last measured duration,
+    else its simulated steps times its scenario's measured seconds per step (median
+    over the timed runs of the scenario, else of all timed runs, else 30 us)."""
+    ticks = [run_ticks(sc, run) for sc, run in runs]
+    per: dict = {}
+    for (sc, run), n in zip(runs, ticks):
+        t = history.get(sc.name, {}).get(run.label)
+        if t is not None and n > 0:
+            per.setdefault(sc.name, []).append(t / n)
+    med = lambda x: sorted(x)[len(x) // 2]                   # noqa: E731
+    every = [r for rs in per.values() for r in rs]
+    default = med(every) if every else 30e-6
+    out = []
+    for (sc, run), n in zip(runs, ticks):
+        t = history.get(sc.name, {}).get(run.label)
+        out.append(t if t is not None else n * (med(per[sc.name]) if sc.name in per
+                                                 else default))
+    return out
 
 
 def _record_crash(sdir: Path, run: reg.RunSpec, key, exc):

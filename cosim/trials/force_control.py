@@ -367,7 +367,14 @@ def _sweep_values(values: dict) -> dict:
             if k.startswith("vib_g")}
 
 
-@procedure("bilateral_g_sweep")
+def _g_sweep_work_s(run, parameters) -> float:
+    """Simulated time of a run [s]: identification, main phase, one rerun per g."""
+    gs = ((parameters or {}).get("g_sweep") or {}).get("g_rad_s") or []
+    from cosim.trials.startup_identification import identification_work_s
+    return identification_work_s(run, parameters) + len(gs) * float(run.duration)
+
+
+@procedure("bilateral_g_sweep", work=_g_sweep_work_s)
 def _bilateral_g_sweep(run, build, ctx):
     """The ``startup_identification`` procedure (unchanged main phase at the file's g),
     then the main phase again, with the same identified observers, at every g of

@@ -93,25 +93,49 @@ def random_motion(n: int, Ts_s: float, cutoff_hz: float, rms_m: float, rng,
     Ed = expm(E)
     Ad, Bd = Ed[:order, :order], Ed[:order, order]
     u = rng.standard_normal(n)
+    # the recursion z <- Ad z + Bd u_k with the same numpy operations as before (bit
+    # for bit: Ad @ z is the same BLAS call; Bd * u_k is the outer product's element),
+    # with the products Bd u_k formed at once and the states stored whole
+    Bu = u[:, None] * Bd[None, :]
+    Z = np.empty((n, order))
     z = np.zeros(order)
-    out = np.empty((n, 3))
+    matmul = np.matmul
     for k in range(n):
-        out[k] = z[:3]
-        z = Ad @ z + Bd * u[k]
+        Z[k] = z
+        z = matmul(Ad, z) + Bu[k]
+    out = Z[:, :3].copy()
     rms = float(np.sqrt(np.mean(out[:, 0] ** 2)))
     return out * (rms_m / rms if rms > 0 else 0.0)
 
 
 @stimulus("random_motion", params=RandomMotionParams)
 def _random_motion(params, ctx):
-    """Band-limited random motion (position, speed or acceleration of one stream)."""
+    """Band-limited random motion (position, speed or acceleration of one stream).
+
+    The motion is drawn on the stimulus' first call, not when the system is built:
+    building a system to check it (:func:`cosim.scenarios.build.check_build`) draws
+    nothing. The stimuli of one stream (x and v of the same motion) share one draw
+    through the run's ``ctx.state``."""
     p = RandomMotionParams(**params)
     n = int(round(ctx.duration_s / ctx.step_s)) + 2
-    m = random_motion(n, ctx.step_s, p.cutoff_hz, p.rms_m, ctx.rng(2000 + p.stream), p.order)
-    col = m[:, "xva".index(p.component)] + (p.offset_m if p.component == "x" else 0.0)
-    values = col.tolist()
-    Ts, last = ctx.step_s, len(values) - 1
-    return lambda t: values[min(int(t / Ts + 1e-6), last)]
+    key = ("random_motion", n, ctx.step_s, p.cutoff_hz, p.rms_m, p.order, p.stream)
+    idx = "xva".index(p.component)
+    offset = p.offset_m if p.component == "x" else 0.0
+    Ts = ctx.step_s
+    values: list = []
+
+    def draw():
+        m = ctx.state.get(key)
+        if m is None:
+            m = ctx.state[key] = random_motion(n, Ts, p.cutoff_hz, p.rms_m,
+                                               ctx.rng(2000 + p.stream), p.order)
+        values.extend((m[:, idx] + offset).tolist())
+
+    def value(t):
+        if not values:
+            draw()
+        return values[min(int(t / Ts + 1e-6), n - 1)]
+    return value
 
 
 # =========================================================================== procedure

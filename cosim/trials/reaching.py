@@ -619,7 +619,15 @@ def _path_points(path: ReachingPath, n: int = 600) -> np.ndarray:
     return np.array([(f["rx"](t), f["ry"](t)) for t in ts])
 
 
-@procedure("reaching-session", uses=("cosim.trials.patients",))
+def _course_work_s(run, parameters) -> float:
+    """Simulated time of a course (weeks x trainings x run.duration) [s]: the suite's
+    estimate of a run's cost."""
+    pr = parameters or {}
+    return (int(pr.get("weeks", 4)) * len(pr.get("motors", SESSION_MOTORS))
+            * float(run.duration))
+
+
+@procedure("reaching-session", uses=("cosim.trials.patients",), work=_course_work_s)
 def _reaching_session(run, build, ctx):
     """A subject's course of weekly sessions (Table 6: 5 trainings, motor drivers
     OFF/ON/ON/ON/OFF), the patient of ``parameters.subject`` progressing with the

@@ -282,7 +282,14 @@ def identify(run, build, ctx, cfg: dict):
     return res, ident, travel
 
 
-@procedure("startup_identification")
+def identification_work_s(run, parameters) -> float:
+    """Simulated time of a run [s]: the start-up identification and the main phase
+    (the suite's estimate of a run's cost)."""
+    raw = (parameters or {}).get("startup_identification") or {}
+    return float(raw.get("duration_s", DEFAULTS["duration_s"])) + float(run.duration)
+
+
+@procedure("startup_identification", work=identification_work_s)
 def startup_identification(run, build, ctx):
     """Start-up RLS identification of each unit, then the trial with its DOB/RFOB
     built from the identified J, b, fc (the thesis chain, Sec. 2.3 -> 2.5.3/2.5.4)."""
