@@ -424,3 +424,22 @@ def test_course_metrics_on_stored_values():
     assert pb({"subjects": ("S1",)}, ctx2) == 0.75
     assert sl({"subjects": ("S1",)}, ctx2) == pytest.approx(np.polyfit([0, 1, 2, 3], [5.0, 4.8, 4.7, 4.5], 1)[0])
     assert sl({}, ctx2) == 0.0 and sl({"subjects": ("S3",)}, ctx2) == 0.0
+
+
+def test_vectorized_targets_equal_the_scalar_ones():
+    """The compiled master evaluates the targets for every tick at once through
+    ``fn.vectorized``: the same values bit for bit as the per-tick functions (before,
+    during and after the task, at segment boundaries), or the engine's runs would
+    differ from the Python loop's."""
+    for path in (ReachingPath(), ReachingPath(length_m=0.03, repetitions=1,
+                                              directions_deg=(135.0,))):
+        fns = path.functions()
+        t = np.concatenate([[-1e-3, 0.0], np.arange(int(path.duration_s * 1000) + 2001) * 1e-3,
+                            np.arange(1, 7) * path.segment_s])
+        for name, fn in fns.items():
+            a = np.array([fn(x) for x in t])
+            assert np.array_equal(a, fn.vectorized(t)), name
+        # a negative control: a 1-ulp change in the speed is seen
+        bad = ReachingPath(speed_m_per_s=np.nextafter(0.018, 1.0)).functions()["vx"]
+        assert not np.array_equal(np.array([fns["vx"](x) for x in t]), bad.vectorized(t)) \
+            or path != ReachingPath()

@@ -376,6 +376,20 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
             return
         done[0] = True
         M = Sbuf.reshape(n_ticks + 1, nstim)
+        # stimuli offering ``fn.vectorized`` (the same values from an array of times,
+        # e.g. cosim.trials.reaching's targets) are evaluated at once; anything
+        # non-finite goes through the per-tick loop below, which reports it
+        vec = [getattr(fn, "vectorized", None) for fn in stim_fns]
+        if all(callable(f) for f in vec):
+            k = np.arange(n_ticks + 1, dtype=float)
+            t = k * Ts if t0zero else T0 + k * Ts
+            try:
+                for q, f in enumerate(vec):
+                    M[:, q] = np.asarray(f(t), dtype=float)
+                if np.isfinite(M).all():
+                    return
+            except Exception:        # the per-tick loop says which tick and why
+                pass
         for k in range(n_ticks + 1):
             t = tick_t(k)
             try:

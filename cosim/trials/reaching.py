@@ -208,7 +208,37 @@ class ReachingPath:
             p = phase(t)
             return 0.0 if p is None else p[0][1] * v * p[2]
 
-        return {"rx": rx, "ry": ry, "vx": vx, "vy": vy}
+        # the same four functions on an array of times, value for value the same
+        # floating-point operations (the compiled master evaluates stimuli for every
+        # tick before the run: cosim.master.engine; tests/test_trial_reaching.py)
+        ux = np.array([u[0] for u in units])
+        uy = np.array([u[1] for u in units])
+
+        def phases(t):
+            t = np.asarray(t, dtype=float)
+            i = np.floor_divide(t, T)                  # Python's float // (floor)
+            ok = (t >= 0) & (i < nseg)
+            ii = np.where(ok, i, 0).astype(np.int64)
+            j = (ii // 2) % nd
+            tau = t - ii * T
+            out = ii % 2 == 0
+            dist = np.where(out, v * tau, v * (T - tau))
+            sign = np.where(out, 1.0, -1.0)
+            return ok, ux[j], uy[j], dist, sign
+
+        def _vec(fn, which):
+            def f(t):
+                ok, cx, cy, dist, sign = phases(t)
+                c = cx if which in ("rx", "vx") else cy
+                if which in ("rx", "ry"):
+                    s0 = sx if which == "rx" else sy
+                    return np.where(ok, s0 + c * dist, s0)
+                return np.where(ok, c * v * sign, 0.0)
+            fn.vectorized = f
+            return fn
+
+        return {"rx": _vec(rx, "rx"), "ry": _vec(ry, "ry"), "vx": _vec(vx, "vx"),
+                "vy": _vec(vy, "vy")}
 
 
 # =========================================================================== system
