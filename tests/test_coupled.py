@@ -639,3 +639,22 @@ def test_member_error_in_the_right_hand_side_stops_the_run_with_its_name(tmp_pat
                                        r"returned an error status\)") as e:
         Master(s, ["ball.h"]).run(0.2)
     assert 45 <= e.value.result.ticks <= 52     # the rows before the failure are kept
+
+
+def test_a_fault_on_a_connection_inside_a_group_is_refused():
+    """Inside a coupled group a connection is exchanged continuously by the group's
+    solver, so a fault scheduled on it at the tick would silently do nothing: refused,
+    naming the connection; a fault on a member's output is accepted."""
+    from cosim.master.faults import Bias, BiasParams
+    from cosim.master.system import Master, SystemError_
+    system, _ = _build("coupled/zero_force_separate.yaml", "load_cell")
+    try:
+        system.add_fault("unit.f_ext", Bias(BiasParams(offset=1.0)), "inside")
+        with pytest.raises(SystemError_, match="cell.f_lc -> unit.f_ext is inside a coupled group"):
+            Master(system, ["cell.f_lc"]).run(0.01)
+        system.faults.clear()
+        system.add_fault("cell.f_meas", Bias(BiasParams(offset=1.0)), "sensor")
+        res = Master(system, ["cell.f_meas", "cell.f_lc"]).run(0.01)
+        assert np.allclose(res["cell.f_meas"][1:] - res["cell.f_lc"][1:], 1.0, atol=0.5)
+    finally:
+        system.close()

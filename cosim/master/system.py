@@ -1654,6 +1654,12 @@ def _fault_hooks(sys_, plan, slot=None, ns=None):
                 raise SystemError_(f"{what}: {f.signal} is a {v.fmi_type}: faults act on "
                                    f"Real values")
         if name in dests:
+            if _coupled.is_internal(sys_, dests[name]):
+                c = dests[name]
+                raise SystemError_(f"{what}: the connection {c.source} -> {c.dest} is inside "
+                                   f"a coupled group (exchanged continuously by its solver, "
+                                   f"not at the tick): fault {c.source} or a signal outside "
+                                   f"the group")
             on_conn.setdefault(id(dests[name]), []).append(fn)
             continue
         if head in sys_.roles and v.causality == "input":
