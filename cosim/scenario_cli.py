@@ -253,8 +253,8 @@ def _binding_options(p) -> None:
 
 
 def _isolation_args(p) -> None:
-    from cosim.scenarios.isolate import DEFAULT_TIMEOUT_S
-    p.add_argument("--isolation", choices=("auto", "process", "none"), default="auto",
+    from cosim.scenarios.isolate import DEFAULT_TIMEOUT_S, ISOLATION
+    p.add_argument("--isolation", choices=ISOLATION, default="auto",
                    help="run each run in a supervised child process, so that an FMU that "
                         "crashes or hangs ends only its run, with a record (signal, role, "
                         "FMU, last time, the rows before it): auto (default) = when one of "

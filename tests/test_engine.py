@@ -39,7 +39,7 @@ def _same(a, b, rel: float = 0.0):
         x, y = np.asarray(a.signals[k]), np.asarray(b.signals[k])
         assert x.dtype == y.dtype, k
         if rel and x.dtype.kind == "f":
-            tol = rel * max(1.0, float(np.nanmax(np.abs(x))) if x.size else 1.0)
+            tol = rel * (float(np.nanmax(np.abs(x))) if x.size else 0.0)
             assert np.array_equal(np.isnan(x), np.isnan(y)) and \
                 np.nanmax(np.abs(x - y), initial=0.0) <= tol, \
                 f"{k}: differs by {np.nanmax(np.abs(x - y))} > {tol}"
@@ -453,6 +453,7 @@ def test_scenario_systems_are_bit_identical(name, tmp_path, monkeypatch):
     for r in ([r for r in runs if r.case in last] or runs)[:1]:
         execute_run(str(f), r.label, str(tmp_path / "out"), fmu_dir=str(REPO / "fmus"))
     assert compared, f"{name}: no run was compared"
+    assert any(e != "python" for e, _ in compared), (name, compared)   # the engine ran
     assert not failures, failures
     print(name, compared)
 

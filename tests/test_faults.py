@@ -5,7 +5,6 @@ bad fault specs with file:line, and the faults scenario's requirements."""
 from __future__ import annotations
 
 import json
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +12,8 @@ import pytest
 
 from cosim.master import Master, System, SystemError_
 from cosim.master import faults as F
-from cosim.scenarios import ScenarioError, check_build, load
+from cosim.scenarios import check_build, load
+from test_scenarios import error_of, line_of, write
 
 REPO = Path(__file__).resolve().parents[1]
 FMUS = REPO / "fmus"
@@ -256,22 +256,6 @@ requirements:
     limit: 1000.0
     negative_control: {what: "a bigger kick", override: {faults: {kick: {amplitude: 5.0}}}}
 """
-
-
-def write(tmp_path, text, name="s.yaml"):
-    p = tmp_path / name
-    p.write_text(textwrap.dedent(text))
-    return p
-
-
-def line_of(text, needle):
-    return next(i + 1 for i, l in enumerate(text.splitlines()) if needle in l)
-
-
-def error_of(tmp_path, text):
-    with pytest.raises(ScenarioError) as ei:
-        check_build(load(write(tmp_path, text)))
-    return str(ei.value)
 
 
 @pytest.mark.parametrize("old, new, needle, words", [

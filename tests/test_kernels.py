@@ -99,7 +99,7 @@ def _compare(make, rows, lib, legs=(0.2, 0.6), rtol=None, attrs=(), reset=False,
             assert oa == ob
         else:
             for nm, v in oa.items():
-                assert abs(ob[nm] - v) <= rtol * max(1.0, np.max(np.abs(py[:, names.index(nm)]))), nm
+                assert abs(ob[nm] - v) <= rtol * np.max(np.abs(py[:, names.index(nm)])), nm
     for at in attrs:                             # e.g. recordable arrays after the run
         A, B = np.asarray(getattr(a, at), float), np.asarray(getattr(b, at), float)
         if rtol is None:
@@ -380,11 +380,11 @@ def test_aakf_ticks_limit_the_packed_gain_sequence(lib, sigma_a):
     assert seq.n < 28000                     # not run to convergence
 
 
+@pytest.mark.slow
 def test_kernel_sources_ship_in_the_wheel(tmp_path):
     """The C sources are package data (pyproject.toml): an installed wheel compiles them."""
     import shutil
     import zipfile
-    from pathlib import Path
     from test_install_wheel import REPO, _build_wheel
     src = tmp_path / "src"
     src.mkdir()
@@ -397,7 +397,6 @@ def test_kernel_sources_ship_in_the_wheel(tmp_path):
     want = {f"cosim/algorithms/c/{p.name}" for p in kernel_sources()}
     want.add("cosim/algorithms/c/cosim_kernel.h")
     assert len(want) == len(KERNELS) + len(ENGINE_TESTED) + 1 and want <= names, sorted(want - names)
-    assert Path(REPO / "cosim" / "algorithms" / "c" / "aakf.c").is_file()
 
 
 @pytest.mark.parametrize("which", ["aakf", "bank", "dob", "rfob", "encoder_diff", "ac"])

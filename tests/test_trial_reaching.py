@@ -435,7 +435,8 @@ def test_vectorized_targets_equal_the_scalar_ones():
                                               directions_deg=(135.0,))):
         fns = path.functions()
         t = np.concatenate([[-1e-3, 0.0], np.arange(int(path.duration_s * 1000) + 2001) * 1e-3,
-                            np.arange(1, 7) * path.segment_s])
+                            np.arange(1, 2 * len(path.directions_deg) * path.repetitions + 1)
+                            * path.segment_s])
         for name, fn in fns.items():
             a = np.array([fn(x) for x in t])
             assert np.array_equal(a, fn.vectorized(t)), name

@@ -53,8 +53,6 @@ from typing import Mapping, Sequence
 
 from .ckernel import CKernel
 
-from .ckernel import CKernel
-
 
 # --------------------------------------------------------------------------- drive
 @dataclass(frozen=True)

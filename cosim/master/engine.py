@@ -128,7 +128,7 @@ def unsupported(master, plan) -> str | None:
     sys_ = master.system
     if master.timing:
         return "timing=True measures every call in the Python loop"
-    if getattr(sys_, "faults", None):
+    if sys_.faults:
         return "fault injection (System.faults) runs in the Python loop"
     for role, sl in sys_.roles.items():
         if sl.kind != "cs":
@@ -353,7 +353,7 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
 
     ns["_steps"] = _steps
     ns["_engine"] = prog
-    if getattr(master, "_time_steps", False):
+    if master._time_steps:
         # benchmarks: the FMUs' doStep time, read after the run (the program, and its
         # buffers, otherwise go with the run)
         prog.time_steps = True

@@ -12,8 +12,7 @@ from __future__ import annotations
 
 from typing import Iterable, NamedTuple
 
-#: base units in FMI's order of the BaseUnit attributes (rad is FMI's extra base)
-BASES = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+from ..fmubuild.units import BASES   # FMI's order of the BaseUnit attributes
 
 
 class BaseUnit(NamedTuple):

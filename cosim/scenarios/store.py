@@ -19,7 +19,7 @@ from pathlib import Path
 
 from ..fileio import atomic_write_text, jsonable
 from . import registry as reg
-from .build import fmu_file
+from .build import fmu_file, swap_binding
 from .expand import deep_merge, expand
 from .schema import Scenario
 
@@ -72,9 +72,9 @@ def run_key(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) -> str
     fmus = {}
     for role, p in run_fmu_paths(sc, run, fmu_dir, fmu_swaps).items():
         fmus[role] = _fmu_sha(p) if p.is_file() else f"missing:{p}"
-        swap = (fmu_swaps or {}).get(role)
-        if getattr(swap, "binding", None):      # another binding, another run
-            fmus[role] = [fmus[role], swap.binding]
+        binding = swap_binding((fmu_swaps or {}).get(role))
+        if binding:                              # another binding, another run
+            fmus[role] = [fmus[role], binding]
     blob = json.dumps({"scenario": sc.content_hash(), "run": run.label, "seed": run.seed,
                        "overrides": run.overrides, "fmus": fmus, "src": source_hash(),
                        "version": getattr(cosim, "__version__", "")},
