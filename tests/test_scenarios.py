@@ -147,10 +147,38 @@ def test_out_of_range_and_bad_rule(tmp_path):
     assert f":{line_of(text, '=<')}:" in msg
 
 
-def test_requirement_must_cite_the_thesis(tmp_path):
-    text = BASE.replace('"deliberately wrong speed bound (eq. 32)"', '"no citation"')
+def test_a_thesis_claim_must_cite_the_thesis(tmp_path):
+    text = BASE.replace('"deliberately wrong speed bound (eq. 32)"',
+                        '"no citation"\n    kind: thesis')
     msg = error_of(tmp_path, text)
     assert f":{line_of(text, 'no citation')}:" in msg and "cite" in msg
+    # the citation may stand in `source` instead of the description
+    text = BASE.replace('"deliberately wrong speed bound (eq. 32)"',
+                        '"no citation"\n    kind: thesis\n    source: "Sec. 2.1, eq. 32"')
+    load(write(tmp_path, text))
+    text = BASE.replace('"deliberately wrong speed bound (eq. 32)"',
+                        '"speed bound (eq. 32)"\n    kind: thesis\n    source: "my notes"')
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'source: ')}:" in msg and "cite the thesis" in msg
+
+
+def test_a_users_requirement_cites_their_own_document(tmp_path):
+    """Only thesis claims are held to citing the thesis: a user's requirement names its
+    own source, and kind/source/limit_source reach verdict.json."""
+    text = BASE.replace('"deliberately wrong speed bound (eq. 32)"',
+                        '"axis speed at 0.1 A"\n    source: "PS-114 clause 4.2"\n'
+                        '    limit_source: "product spec"')
+    sc = load(write(tmp_path, text))
+    req = {r.id: r for r in sc.requirements}["R-fail"]
+    assert (req.kind, req.source, req.limit_source) == ("user", "PS-114 clause 4.2",
+                                                        "product spec")
+
+
+def test_requirement_kind_must_be_known(tmp_path):
+    text = BASE.replace('"deliberately wrong speed bound (eq. 32)"',
+                        '"bound (eq. 32)"\n    kind: thesys')
+    msg = error_of(tmp_path, text)
+    assert f":{line_of(text, 'kind: thesys')}:" in msg and "kind must be one of" in msg
 
 
 def test_zero_run_sweep_is_an_error(tmp_path):
@@ -209,6 +237,7 @@ def test_run_verdict_pass_and_fail(tmp_path):
     assert req["R-pass"]["verdict"] == "pass" and req["R-fail"]["verdict"] == "fail"
     assert "status" not in req["R-pass"]                 # the verdict is stored once
     assert req["R-fail"]["limit"] == 1.0 and "eq. 32" in req["R-fail"]["description"]
+    assert req["R-pass"]["kind"] == "user" and req["R-pass"]["limit_source"] is None
     assert (out / "report.html").read_text().count("data:image/png;base64,") >= 1
     assert list((out / "runs").glob("*/main.parquet"))
 

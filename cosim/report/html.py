@@ -63,8 +63,9 @@ def _held(h) -> str:
 
 def requirements_table(verdict: dict) -> str:
     """Value on the scenario's runs and on the negative control, side by side."""
-    rows = ["<table><tr><th>id</th><th>requirement (thesis)</th><th>metric</th><th>case</th>"
-            "<th>rule</th><th>limit</th><th>value</th><th>negative control</th>"
+    rows = ["<table><tr><th>id</th><th>kind</th><th>requirement (source)</th><th>metric</th>"
+            "<th>case</th><th>rule</th><th>limit (its source)</th><th>value</th>"
+            "<th>negative control</th>"
             "<th>control value</th><th>verdict</th></tr>"]
     for r in verdict["requirements"]:
         v = r["verdict"]
@@ -82,10 +83,15 @@ def requirements_table(verdict: dict) -> str:
             what, ncv = '<span class="muted">(thesis-inconsistent: see below)</span>', "-"
         else:
             what, ncv = "-", "-"
+        src = (f'<br><span class="muted">source: {esc(r["source"])}</span>'
+               if r.get("source") else "")
+        lsrc = (f'<br><span class="muted">{esc(r["limit_source"])}</span>'
+                if r.get("limit_source") else "")
         rows.append(f'<tr class="{esc(v)}"><td><b>{esc(r["id"])}</b></td>'
-                    f'<td>{esc(r["description"])}</td><td>{esc(r["metric"])}</td>'
+                    f'<td>{esc(r.get("kind") or "user")}</td>'
+                    f'<td>{esc(r["description"])}{src}</td><td>{esc(r["metric"])}</td>'
                     f'<td>{esc(r.get("case") or "all")}</td><td>{esc(r["rule"])}</td>'
-                    f'<td>{_fmt(r["limit"])}</td><td>{_fmt(r["value"])}</td>'
+                    f'<td>{_fmt(r["limit"])}{lsrc}</td><td>{_fmt(r["value"])}</td>'
                     f'<td>{what}</td><td>{ncv}</td>'
                     f'<td>{badge(v)} {esc(v)}{msg}</td></tr>')
     rows.append("</table>")
@@ -358,6 +364,7 @@ def suite_page(summary: dict, links: dict) -> str:
             f"<p>{c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
             f"{c['error']} error; {c['requirements']} requirement(s). Wall time "
             f"{summary.get('wall_s', 0):.1f} s on {esc(summary.get('cluster'))}.</p>",
+            kinds_table(summary),
             failing_requirements(summary),
             "\n".join(rows),
             "<h2>Requirements</h2>", suite_requirements(summary),
@@ -367,6 +374,22 @@ def suite_page(summary: dict, links: dict) -> str:
             "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
             + "</pre>"]
     return page("cosim verification suite", "\n".join(body))
+
+
+def kinds_table(summary: dict) -> str:
+    """Verdicts counted per kind of requirement: the thesis's claims apart from the
+    package's extensions, the set-up preconditions and a user's own requirements."""
+    by = summary.get("by_kind") or {}
+    if not by:
+        return ""
+    keys = ("pass", "fail", "cannot-fail", "thesis-inconsistent", "error")
+    rows = ["<table><tr><th>kind</th>" + "".join(f"<th>{k}</th>" for k in keys) + "</tr>"]
+    for kind in ("thesis", "extension", "precondition", "user"):
+        if kind in by:
+            rows.append(f"<tr><td><b>{esc(kind)}</b></td>"
+                        + "".join(f"<td>{by[kind].get(k, 0)}</td>" for k in keys) + "</tr>")
+    rows.append("</table>")
+    return "\n".join(rows)
 
 
 def _s(v) -> str:
@@ -439,14 +462,16 @@ def failing_requirements(summary: dict) -> str:
 
 def suite_requirements(summary: dict) -> str:
     """Every requirement of the suite: value, limit, negative control and verdict."""
-    rows = ["<table><tr><th>scenario</th><th>id</th><th>rule</th><th>limit</th><th>value</th>"
-            "<th>negative control</th><th>control value</th><th>verdict</th></tr>"]
+    rows = ["<table><tr><th>scenario</th><th>id</th><th>kind</th><th>rule</th><th>limit</th>"
+            "<th>value</th><th>negative control</th><th>control value</th><th>verdict</th>"
+            "</tr>"]
     for s in summary["scenarios"]:
         for r in s.get("requirements", []):
             v = r["verdict"]
             nc = r.get("negative_control") or {}
             rows.append(f'<tr class="{esc(v)}"><td>{esc(s["scenario"])}</td>'
-                        f'<td><b>{esc(r["id"])}</b></td><td>{esc(r.get("rule"))}</td>'
+                        f'<td><b>{esc(r["id"])}</b></td><td>{esc(r.get("kind") or "user")}</td>'
+                        f'<td>{esc(r.get("rule"))}</td>'
                         f'<td>{_fmt(r["limit"])}</td><td>{_fmt(r["value"])}</td>'
                         f'<td>{esc(nc.get("what", "-"))}</td>'
                         f'<td>{_fmt(nc.get("value"))} ({_held(nc.get("held"))})</td>'

@@ -115,7 +115,9 @@ METRIC = {"type": (str, True), "phase": (str, False)}
 REQ = {"id": (str, True), "description": (str, True), "metric": (str, True),
        "rule": (str, True), "limit": ((int, float, list), True), "case": (str, False),
        "aggregate": (str, False), "negative_control": ((dict, str), False),
-       "thesis_inconsistent": (dict, False)}
+       "thesis_inconsistent": (dict, False),
+       # what the requirement is (KINDS), where it comes from and where its limit comes from
+       "kind": (str, False), "source": (str, False), "limit_source": (str, False)}
 #: a negative control: the scenario again, under which the requirement must NOT hold
 NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
        "runs": (list, False), "apply_to": (list, False)}
@@ -130,7 +132,11 @@ FAULT = {"signal": (str, True), "kind": (str, True)}
 #: with ``human_profile`` takes, by the role's contract (``cosim.master.roles``)
 HUMAN_ARM_MODELS = {"human_1d": "HumanArm1D", "human_2d": "HumanArm2D"}
 RULES = ("<=", ">=", "<", ">", "within", "outside")
-AGGREGATES = ("worst", "mean", "max", "min")
+AGGREGATES = ("worst", "mean", "max", "min", "median")
+#: what a requirement is: a claim the thesis makes (``source`` cites it), the package's
+#: improvement over the thesis's algorithm, a check that the set-up is right, or a
+#: requirement of the user's own (its ``source`` names their document and clause)
+KINDS = ("thesis", "extension", "precondition", "user")
 CITATION = re.compile(r"\b(Fig\.?|Figure|Table|eq\.?|Eq\.?|Sec\.?|Section|Chapter)\s*\(?\d",
                       re.IGNORECASE)
 
@@ -155,6 +161,9 @@ class Requirement:
     aggregate: str = "worst"
     negative_control: Any = None          # dict (inline) or the name of a negative_controls entry
     thesis_inconsistent: dict | None = None
+    kind: str = "user"                    # one of KINDS
+    source: str | None = None             # the thesis section/figure, or the user's document
+    limit_source: str | None = None       # the thesis's number, or a package limit and why
 
 
 @dataclasses.dataclass
@@ -305,9 +314,17 @@ def load(path, fmu_dir=None) -> Scenario:
         if r["id"] in ids:
             c.err(p + ("id",), f"requirement id {r['id']!r} is used twice")
         ids.add(r["id"])
-        if not CITATION.search(r["description"]):
-            c.err(p + ("description",), f"requirement {r['id']}: the description must cite "
-                  f"the thesis (e.g. 'Fig. 26', 'Table 7', 'eq. 54', 'Sec. 2.5.2')")
+        kind = r.get("kind", "user")
+        if kind not in KINDS:
+            c.err(p + ("kind",), f"requirement {r['id']}: kind must be one of {KINDS}, got "
+                  f"{kind!r}")
+        elif kind == "thesis" and not CITATION.search(r.get("source") or r["description"]):
+            c.err(p + ("source",) if "source" in r else p + ("description",),
+                  f"requirement {r['id']}: a thesis claim must cite the thesis in its source "
+                  f"(e.g. 'Fig. 26', 'Table 7', 'eq. 54', 'Sec. 2.5.2')")
+        for key in ("source", "limit_source"):
+            if key in r and not str(r[key]).strip():
+                c.err(p + (key,), f"requirement {r['id']}: {key} is empty")
         if r["metric"] not in d.get("metrics", {}):
             close = reg.suggest(r["metric"], d.get("metrics", {}))
             c.err(p + ("metric",), f"requirement {r['id']}: unknown metric {r['metric']!r}"

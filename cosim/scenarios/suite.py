@@ -298,6 +298,14 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                    "requirements": sum(len(v["requirements"]) for v in results)},
         "verdicts": {k: verdicts.count(k) for k in ("pass", "fail", "cannot-fail",
                                                       "thesis-inconsistent", "error")},
+        # verdicts per kind of requirement: thesis claims counted apart from the package's
+        # extensions, preconditions and a user's own requirements
+        "by_kind": {kind: {k: sum(1 for v in results for r in v["requirements"]
+                                  if r.get("kind", "user") == kind and r["verdict"] == k)
+                           for k in ("pass", "fail", "cannot-fail", "thesis-inconsistent",
+                                     "error")}
+                    for kind in sorted({r.get("kind", "user") for v in results
+                                        for r in v["requirements"]})},
         "runs_executed": len(todo), "runs_cached": sum(cached.values()),
         "wall_s": time.perf_counter() - t0, "cluster": cluster_desc, "versions": versions(),
         "timing": {**timing, "verdicts_s": time.perf_counter() - t1,

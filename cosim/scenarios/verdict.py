@@ -214,6 +214,7 @@ def judge(r, mvalues: dict, merrors: dict, infos: list, case: str | None) -> dic
         agg = r.aggregate
         value = (worst(r.rule, r.limit, vals) if agg == "worst" else
                  float(np.mean(vals)) if agg == "mean" else
+                 float(np.median(vals)) if agg == "median" else
                  max(vals) if agg == "max" else min(vals))
         out["value"] = float(value)
         out["held"] = (all(holds(r.rule, v, r.limit) for v in vals) if agg == "worst"
@@ -255,7 +256,8 @@ def evaluate(sc: Scenario, out_dir) -> dict:
     for r in sc.requirements:
         real = judge(r, mvals, merrs, infos, r.case)
         row = {"id": r.id, "description": r.description, "metric": r.metric, "rule": r.rule,
-               "limit": r.limit, "case": r.case, "value": real["value"],
+               "limit": r.limit, "case": r.case, "kind": r.kind, "source": r.source,
+               "limit_source": r.limit_source, "value": real["value"],
                "message": real["message"], "per_run": real["per_run"]}
         ctl = None
         c = by_name[of_req[r.id]] if r.id in of_req else None
