@@ -39,8 +39,8 @@ from .isolate import run_timeout, wants_process
 from .runner import execute_run, finish_scenario
 from .schema import Scenario, load
 from .ship import execute_shipped, run_fmus, scatter_fmus
-from .store import (clean_run_tmp, run_done, run_fmu_paths, run_key, safe_name, store_run_files,
-                    versions)
+from .store import (OutDirLock, OutDirLocked, clean_run_tmp, run_done, run_fmu_paths, run_key,
+                    safe_name, store_run_files, versions)
 from .verdict import all_runs, summary_row
 
 
@@ -120,6 +120,34 @@ def _warm_worker():
     return True
 
 
+def _locked(fn):
+    """``run_suite`` holds its output folder's lock (:class:`.store.OutDirLock`) while
+    it runs: a second suite on the same ``--out`` is refused (exit 2, naming the first)
+    instead of running every run twice; a folder created here and left empty (bad
+    input) is removed again."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(paths, out_dir, *args, **kwargs):
+        out = Path(out_dir)
+        existed = out.exists()
+        try:
+            lock = OutDirLock(out, "cosim suite").acquire()
+        except OutDirLocked as exc:
+            raise SuiteError(str(exc)) from None
+        try:
+            return fn(paths, out_dir, *args, **kwargs)
+        finally:
+            lock.release()
+            try:
+                if not existed and not any(out.iterdir()):
+                    out.rmdir()
+            except OSError:
+                pass
+    return wrapper
+
+
+@_locked
 def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None = None,
               fmu_swaps: dict | None = None, fmu_dir=None, use_cache: bool = True,
               progress: bool = True, serial: bool = False, ship: bool | None = None,
