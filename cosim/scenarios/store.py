@@ -52,18 +52,21 @@ def source_files(root: Path | None = None) -> list[Path]:
                   and "__pycache__" not in p.parts)
 
 
-def source_hash() -> str:
+def source_hash(root: Path | None = None) -> str:
     """Hash of the package's sources that produce results (:func:`source_files`: the
     Python modules and the C sources and headers of the compiled engine and kernels):
-    a change of any of them invalidates the cache."""
+    a change of any of them invalidates the cache. ``root``: another copy of the
+    package (not cached)."""
     global _SRC_HASH
-    if _SRC_HASH is None:
-        root = Path(__file__).resolve().parents[1]
+    if _SRC_HASH is None or root is not None:
+        base = Path(root) if root else Path(__file__).resolve().parents[1]
         h = hashlib.sha256()
-        for p in source_files(root):
-            h.update(str(p.relative_to(root)).encode())
+        for p in source_files(base):
+            h.update(p.relative_to(base).as_posix().encode())
             h.update(b"\0")
             h.update(p.read_bytes())
+        if root is not None:
+            return h.hexdigest()
         _SRC_HASH = h.hexdigest()
     return _SRC_HASH
 
