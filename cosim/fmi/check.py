@@ -120,6 +120,18 @@ def fmi_version(path: Path) -> str:
     if v not in SUPPORTED:
         raise FMUCheckError(path, f"FMI version {v} is not supported (supported: "
                             f"{', '.join(SUPPORTED)})")
+    # the label must match the layout, else the reader fails deep inside on a missing
+    # attribute (FMI 1.0: modelIdentifier on the root; 2.0/3.0: interface elements)
+    later = any(root.find(t) is not None for t in ("CoSimulation", "ModelExchange",
+                                                   "ScheduledExecution"))
+    if v == "1.0" and (later or root.get("modelIdentifier") is None):
+        raise FMUCheckError(path, 'modelDescription.xml says fmiVersion="1.0" but is laid out '
+                            "as FMI 2.0/3.0 (CoSimulation/ModelExchange elements, no "
+                            "modelIdentifier attribute on the root): correct its fmiVersion")
+    if v != "1.0" and not later and root.get("modelIdentifier") is not None:
+        raise FMUCheckError(path, f'modelDescription.xml says fmiVersion="{v}" but is laid out '
+                            "as FMI 1.0 (a modelIdentifier attribute on the root, no "
+                            "CoSimulation/ModelExchange element): correct its fmiVersion")
     return v
 
 
