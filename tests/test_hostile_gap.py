@@ -71,7 +71,7 @@ FUZZ = {
     "current in mA": (lambda d: _edit(d, "fit/identification-1", "i_cmd", lambda x: x * 1000),
                       4, ["i_cmd", "looks like mA"]),
     "constant theta": (lambda d: _edit(d, "fit/chirp-1", "theta_enc", lambda x: x * 0 + x[0]),
-                       4, ["theta_enc", "never moves"]),
+                       4, ["theta_enc", "never moves", "no motion"]),
     "zero current": (lambda d: _edit(d, "fit/identification-1", "i_cmd", lambda x: x * 0),
                      4, ["i_cmd", "zero throughout"]),
     "constant current": (lambda d: _edit(d, "test/identification-2", "i_cmd", lambda x: x * 0 + 0.1),
@@ -99,16 +99,17 @@ def test_degenerate_logs_exit_4_or_2_with_a_reason_never_a_traceback(tmp_path, c
                "--fit", str(d / "fit" / "identification-1"), str(d / "fit" / "chirp-1"),
                "--test", str(d / "test" / "identification-2"), "--out", str(out), "--no-report"])
     cap = capsys.readouterr()
-    err = cap.err
-    assert "Traceback" not in err and "internal error" not in err, err
-    assert rc == code, (rc, err, cap.out)
-    first = err.strip().splitlines()[0]
+    said = cap.err + cap.out
+    assert "Traceback" not in said and "internal error" not in said, said
+    assert rc == code, (rc, said)
+    # exit 4: "cannot diagnose: <why>" (stdout, as every exit 4); exit 2: "cosim: error:"
+    first = (cap.out if code == 4 else cap.err).strip().splitlines()[0]
+    assert first.startswith("cannot diagnose: " if code == 4 else "cosim: error: "), first
     assert all(w in first for w in words), first
-    assert str(d) in first                              # names the file
     assert "selected:" not in cap.out                   # no diagnosis printed
     if code == 4:                                       # the result file says why
         info = json.loads((out / "diagnosis.json").read_text())
-        assert info["cannot_diagnose"].startswith("implausible input") and info["selected"] == []
+        assert info["cannot_diagnose"] and info["selected"] == [] and not info["recalibrated"]
     else:
         assert not out.exists()
 

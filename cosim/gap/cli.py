@@ -21,7 +21,7 @@ def _cmd_diagnose(a: Any) -> int:
         print(f"cosim: error: {e}", file=sys.stderr)
         return BAD_INPUT
     except Implausible as e:        # the logs do not fit the nominal model: no diagnosis
-        print(f"cannot diagnose: implausible input: {e}", file=sys.stderr)
+        print(f"cannot diagnose: implausible input: {e}")
         write_refusal(a.out, a.device, e)
         return CANNOT_TELL
     if res.get("cannot_diagnose"):

@@ -56,6 +56,7 @@ _ANGLE_UNITS = {"degrees": 180 / math.pi, "milliradians": 1000.0, "revolutions":
                 "microradians": 1e6}
 _POSITIVE = ("J", "b", "Kt", "M", "Fv")
 _DRIVE = {"ballscrew-1dof": "i_cmd", "emps-1dof": "f_cmd"}
+_REQUIRED = {"ballscrew-1dof": ("i_cmd", "theta_enc")}     # EMPS: its own check
 
 
 class Implausible(Exception):
@@ -140,12 +141,18 @@ def check_logs(device, fit: Sequence, test: Sequence) -> None:
     (:class:`Implausible`, exit 4) or whose sidecar does not describe them
     (:class:`GapInputError`, exit 2). See the module docstring."""
     name = getattr(device, "name", "")
-    for log in list(fit) + list(test):
+    logs = list(fit) + list(test)
+    for log in logs:                   # what the format check leaves to the device: exit 2
+        for col in _REQUIRED.get(name, ()):
+            if col not in log.data:
+                raise GapInputError(f"missing column needed by the diagnosis (has: "
+                                    f"{', '.join(log.data)})", log.csv_path, col)
         _check_samples(log)
+    for log in logs:
         n, ts = log.n_samples, float(log.sample_time)
         if n * ts < MIN_LOG_S:
-            raise Implausible(f"too short: {n} sample(s) ({_g(n * ts)} s); the diagnosis needs at "
-                              f"least {MIN_LOG_S:g} s per log", log.csv_path)
+            raise Implausible(f"too short: {n} sample(s) ({_g(n * ts)} s); each log needs at least "
+                              f"{MIN_LOG_S:g} s to hold motion to compare", log.csv_path)
         for col, x in log.data.items():
             if col == "time":
                 continue
@@ -154,12 +161,12 @@ def check_logs(device, fit: Sequence, test: Sequence) -> None:
                 raise Implausible(f"values up to {_g(big)}: beyond anything the device measures in "
                                   f"{(log.meta.get('signals') or {}).get(col, 'SI units')}",
                                   log.csv_path, col)
-        drive = _DRIVE.get(name)
-        if drive and drive in log.data:
-            _check_drive(log, drive)
         if name == "ballscrew-1dof" and "theta_enc" in log.data:
             lead = (log.nominal or {}).get("lead", 0.01)
             _check_encoder(log, "theta_enc", float(lead) if isinstance(lead, (int, float)) else 0.01)
+        drive = _DRIVE.get(name)
+        if drive and drive in log.data:
+            _check_drive(log, drive)
 
 
 def check_recalibrated(device, fit: Sequence, rec: Mapping[str, float]) -> None:

@@ -503,3 +503,75 @@ def junit_xml(summary: dict) -> str:
     for k in ("tests", "failures", "errors", "skipped"):
         root.set(k, str(sum(int(t.get(k)) for t in root)))
     return ET.tostring(root, encoding="unicode", xml_declaration=True)
+
+
+# =========================================================================== terminal
+_EXC_PREFIX = __import__("re").compile(r"^(?:[A-Za-z_][\w.]*(?:Error|Exception|Exit)|"
+                                       r"KeyboardInterrupt): ")
+
+
+def _plain(msg: str) -> str:
+    """A recorded error without the Python exception class in front of it."""
+    msg = " ".join(str(msg or "").split())
+    while _EXC_PREFIX.match(msg):
+        msg = _EXC_PREFIX.sub("", msg, count=1)
+    return msg
+
+
+def failed_runs(out_dir) -> list[dict]:
+    """Every run of a suite's folder that did not finish ok (its own runs and its
+    negative controls' runs): scenario, run, role, FMU, simulated time reached, the
+    error (without the Python exception class) and the record's path. Read from the
+    stored ``run.json`` files (a crash record names role, FMU and time, :mod:`.isolate`;
+    an FMU error names them in its message)."""
+    import re
+    out = []
+    for f in sorted(Path(out_dir).glob("*/runs/*/run.json")):
+        if f.parent.name.startswith("."):
+            continue
+        try:
+            info = json.loads(f.read_text())
+        except (OSError, ValueError):
+            out.append({"scenario": f.parents[2].name, "run": f.parent.name, "role": None,
+                        "fmu": None, "t": None, "error": "run.json cannot be read",
+                        "record": str(f)})
+            continue
+        if not isinstance(info, dict) or info.get("status") == "ok":
+            continue
+        err = str(info.get("error") or "no error recorded")
+        crash = info.get("crash") or {}
+        role = crash.get("role")
+        fmu = crash.get("fmu")
+        t = crash.get("t_last")
+        if role is None and (m := re.search(r"\brole '?([A-Za-z_]\w*)'?", err)):
+            role = m.group(1)
+        if t is None and (m := re.search(r"\bt = ([-+0-9.eE]+) s", err)):
+            t = float(m.group(1))
+        if fmu is None and role is not None:
+            fmu = next((p.get("path") for p in info.get("provenance") or []
+                        if isinstance(p, dict) and p.get("role") == role), None)
+        if fmu is None and role is not None and (m := re.search(r"\b([\w.-]+\.fmu)\b", err)):
+            fmu = m.group(1)
+        out.append({"scenario": f.parents[2].name, "run": info.get("label") or f.parent.name,
+                    "role": role, "fmu": Path(fmu).name if fmu else None, "t": t,
+                    "error": _plain(err), "record": str(f)})
+    return out
+
+
+def summary_lines(summary: dict, out_dir, limit: int = 20) -> list[str]:
+    """The terminal lines naming each failed or crashed run (at most ``limit``, then a
+    count): ``FAILED RUN scenario run: role R (FMU), t = T s: error -> record``."""
+    rows = failed_runs(out_dir)
+    lines = []
+    for r in rows[:limit]:
+        where = []
+        if r["role"]:
+            where.append(f"role {r['role']}" + (f" ({r['fmu']})" if r["fmu"] else ""))
+        if r["t"] is not None:
+            where.append(f"t = {r['t']:.6g} s")
+        err = r["error"] if len(r["error"]) <= 240 else r["error"][:237] + "..."
+        lines.append(f"FAILED RUN {r['scenario']} {r['run']}: "
+                     + (", ".join(where) + ": " if where else "") + f"{err} -> {r['record']}")
+    if len(rows) > limit:
+        lines.append(f"... and {len(rows) - limit} more failed run(s): {Path(out_dir) / 'summary.json'}")
+    return lines
