@@ -506,7 +506,7 @@ def junit_xml(summary: dict) -> str:
 
 
 # =========================================================================== terminal
-_EXC_PREFIX = __import__("re").compile(r"^(?:[A-Za-z_][\w.]*(?:Error|Exception|Exit)|"
+_EXC_PREFIX = __import__("re").compile(r"^(?:[A-Za-z_][\w.]*(?:Error|Exception|Exit)_?|"
                                        r"KeyboardInterrupt): ")
 
 
