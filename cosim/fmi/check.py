@@ -27,7 +27,7 @@ import tempfile
 import zipfile
 from pathlib import Path, PurePosixPath
 
-MAX_UNCOMPRESSED = 2 * 1024 ** 3   # zip-bomb guard
+from .unpack import MAX_UNPACKED_BYTES as MAX_UNCOMPRESSED  # noqa: E402,F401  (zip-bomb guard)
 SUPPORTED = ("1.0", "2.0", "3.0")
 
 #: the rule a problem reported by FMPy's validation belongs to (first match)

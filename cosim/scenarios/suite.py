@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import time
 import xml.etree.ElementTree as ET
@@ -506,8 +507,7 @@ def junit_xml(summary: dict) -> str:
 
 
 # =========================================================================== terminal
-_EXC_PREFIX = __import__("re").compile(r"^(?:[A-Za-z_][\w.]*(?:Error|Exception|Exit)_?|"
-                                       r"KeyboardInterrupt): ")
+_EXC_PREFIX = re.compile(r"^(?:[A-Za-z_][\w.]*(?:Error|Exception|Exit)_?|KeyboardInterrupt): ")
 
 
 def _plain(msg: str) -> str:
@@ -524,7 +524,6 @@ def failed_runs(out_dir) -> list[dict]:
     error (without the Python exception class) and the record's path. Read from the
     stored ``run.json`` files (a crash record names role, FMU and time, :mod:`.isolate`;
     an FMU error names them in its message)."""
-    import re
     out = []
     for f in sorted(Path(out_dir).glob("*/runs/*/run.json")):
         if f.parent.name.startswith("."):
