@@ -160,6 +160,9 @@ def _cmd_demo(a) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cosim", description=__doc__, epilog=ec.TABLE,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    from . import __version__
+    p.add_argument("--version", action="version", version=f"cosim {__version__} (cache: "
+                   f"{paths.cache_dir()}; FMUs: {paths.fmus_dir()})")
     sub = p.add_subparsers(dest="cmd", required=True)
 
     fm = sub.add_parser("fmus", help="build and check FMUs")

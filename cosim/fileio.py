@@ -76,6 +76,23 @@ def _blocking_file(path: Path) -> Path | None:
     return None
 
 
+def _probe_create(p: Path, what: str, shown: Path | None = None) -> None:
+    """Refuse, before any work, a path whose nearest existing folder does not take a
+    new entry (a read-only or virtual file system such as /proc: os.access says yes
+    to root there): a temporary folder is made and removed in it."""
+    import tempfile
+    q = p
+    while not (q.exists() or q.is_symlink()) and q != q.parent:
+        q = q.parent
+    if q == p and q.is_dir():
+        return
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".cosim-probe-", dir=q))
+    except OSError as exc:
+        raise OutputPathError(f"{what} {shown or p}: cannot be created (nothing can be created in "
+                              f"{q}: {exc.strerror or exc})") from None
+
+
 def ensure_out_dir(path: str | os.PathLike, what: str = "--out") -> Path:
     """Create the output folder ``path`` (with its parents) or raise
     :class:`OutputPathError` saying why it cannot be one: ``path`` or one of its
@@ -111,6 +128,7 @@ def check_out_dir(path: str | os.PathLike, what: str = "--out") -> Path:
         q = q.parent
     if not os.access(q, os.W_OK | os.X_OK):
         raise OutputPathError(f"{what} {p}: {q} is not writable")
+    _probe_create(p, what)
     return p
 
 
@@ -125,4 +143,5 @@ def check_out_file(path: str | os.PathLike, what: str = "--out") -> Path:
     if bad is not None:
         raise OutputPathError(f"{what} {p}: is under {bad}, which is a regular file, "
                               f"not a folder")
+    _probe_create(p.parent, what, p)
     return p

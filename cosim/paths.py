@@ -13,8 +13,8 @@ Functions (each overridable by an environment variable, read at call time):
 
 * :func:`modelica_dir`: folder holding ``fmus.txt`` and the ``RehabSim`` package,
   ``$COSIM_MODELICA_DIR``; :func:`modelica_package` is its ``RehabSim``.
-* :func:`cache_dir`: ``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rehab-cosim``, else
-  ``~/.cache/rehab-cosim``.
+* :func:`cache_dir`: ``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rehab-cosim/<version>``,
+  else ``~/.cache/rehab-cosim/<version>`` (per user and package version).
 * :func:`fmus_dir`: built FMUs, ``$COSIM_FMU_DIR``, else ``<checkout>/fmus``, else
   ``<cache>/fmus`` (the FMU build cache is ``<fmus>/build/cache``).
 * :func:`shared_dir`: the ``shared`` folder beside the clone (specs, thesis, data),
@@ -66,12 +66,15 @@ def modelica_package() -> Path:
 
 
 def cache_dir() -> Path:
-    """``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rehab-cosim``, else ``~/.cache/rehab-cosim``."""
+    """``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rehab-cosim/<version>``, else
+    ``~/.cache/rehab-cosim/<version>``: per user (the home folder) and per package
+    version (another version's extracted SSPs, engine builds and FMUs are not reused)."""
     env = _env("COSIM_CACHE_DIR")
     if env:
         return env
+    from . import __version__
     xdg = _env("XDG_CACHE_HOME")
-    return (xdg if xdg else Path.home() / ".cache") / APP
+    return (xdg if xdg else Path.home() / ".cache") / APP / __version__
 
 
 def fmus_dir() -> Path:

@@ -196,6 +196,9 @@ def _cmd_suite(a) -> int:
     rc, s = _guarded(a, "cosim suite", work)
     if rc is not None:
         return rc
+    from cosim.scenarios.suite import summary_lines
+    for line in summary_lines(s, a.out):     # each failed or crashed run, named
+        print(line)
     c = s["counts"]
     print(f"suite: {c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
           f"{c['error']} error; {s['runs_executed']} run(s) executed, {s['runs_cached']} "

@@ -3,7 +3,7 @@
 A wheel is built from the repository (a copy of its sources, so the checkout gets no
 ``build/``), installed in a fresh venv in a temp folder (dependencies from the shared
 venv through a ``.pth`` line, no index), and run from another folder: ``cosim fmus
-build`` must put the FMUs in the user cache (``$XDG_CACHE_HOME/rehab-cosim/fmus``),
+build`` must put the FMUs in the user cache (``$XDG_CACHE_HOME/rehab-cosim/<version>/fmus``),
 not in the source tree nor in site-packages, and a short scenario must run on them.
 """
 from __future__ import annotations
@@ -22,15 +22,16 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def test_paths_resolve_checkout_cache_and_overrides(monkeypatch, tmp_path):
+    import cosim
     from cosim import paths
     for k in ("COSIM_FMU_DIR", "COSIM_CACHE_DIR", "COSIM_MODELICA_DIR", "XDG_CACHE_HOME"):
         monkeypatch.delenv(k, raising=False)
     assert paths.source_checkout() == REPO
     assert paths.fmus_dir() == REPO / "fmus"
     assert paths.modelica_package() == REPO / "modelica" / "RehabSim"
-    assert paths.cache_dir() == Path.home() / ".cache" / "rehab-cosim"
+    assert paths.cache_dir() == Path.home() / ".cache" / "rehab-cosim" / cosim.__version__
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert paths.cache_dir() == tmp_path / "xdg" / "rehab-cosim"
+    assert paths.cache_dir() == tmp_path / "xdg" / "rehab-cosim" / cosim.__version__
     monkeypatch.setenv("COSIM_CACHE_DIR", str(tmp_path / "c"))
     assert paths.cache_dir() == tmp_path / "c"
     monkeypatch.setenv("COSIM_FMU_DIR", str(tmp_path / "f"))
@@ -112,12 +113,13 @@ def test_wheel_installs_builds_fmus_in_user_cache_and_runs_a_scenario(tmp_path):
                  work, env).stdout.split("\n")
     assert Path(where[0]).is_relative_to(site), where           # the wheel, not the checkout
     assert Path(where[1]) == site / "cosim" / "_modelica" / "RehabSim", where
-    assert Path(where[2]) == cache / "rehab-cosim" / "fmus", where
+    import cosim
+    assert Path(where[2]) == cache / "rehab-cosim" / cosim.__version__ / "fmus", where
     assert where[3] == "None", where
 
     before = {p: p.stat().st_mtime for p in (REPO / "fmus").glob("*.fmu")}
     r = _run([venv / "bin" / "cosim", "fmus", "build"], work, env, timeout=600)
-    fmus = cache / "rehab-cosim" / "fmus"
+    fmus = cache / "rehab-cosim" / cosim.__version__ / "fmus"
     manifest = [ln.split("#")[0].strip() for f in sorted((REPO / "modelica").glob("*fmus.txt"))
                 for ln in f.read_text().splitlines()]
     manifest = {m.rsplit(".", 1)[1] for m in manifest if m}
@@ -148,5 +150,5 @@ def test_wheel_installs_builds_fmus_in_user_cache_and_runs_a_scenario(tmp_path):
     assert (site / "cosim" / "algorithms" / "c" / "cosim_kernel.h").is_file()
     assert {p.name for p in (site / "cosim" / "algorithms" / "c").glob("*.c")} == \
         {p.name for p in (REPO / "cosim" / "algorithms" / "c").glob("*.c")}
-    assert list((cache / "rehab-cosim" / "engine").glob("_cosim_engine-*.so"))
+    assert list((cache / "rehab-cosim" / cosim.__version__ / "engine").glob("_cosim_engine-*.so"))
     assert not list(site.rglob("_cosim_engine*.so"))

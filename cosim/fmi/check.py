@@ -27,7 +27,7 @@ import tempfile
 import zipfile
 from pathlib import Path, PurePosixPath
 
-MAX_UNCOMPRESSED = 2 * 1024 ** 3   # zip-bomb guard
+from .unpack import MAX_UNPACKED_BYTES as MAX_UNCOMPRESSED  # noqa: E402,F401  (zip-bomb guard)
 SUPPORTED = ("1.0", "2.0", "3.0")
 
 #: the rule a problem reported by FMPy's validation belongs to (first match)
@@ -84,28 +84,21 @@ def safe_members(path: Path) -> list[zipfile.ZipInfo]:
         raise FMUCheckError(path, "file not found")
     if not zipfile.is_zipfile(path):
         raise FMUCheckError(path, "not a zip archive (corrupt or not an FMU)")
+    from .unpack import UnsafeArchive, check_members
     try:
         with zipfile.ZipFile(path) as z:
             infos = z.infolist()
+            # names, links, declared sizes and ratios (cosim.fmi.unpack): before a byte
+            # is decompressed
+            check_members(path, infos)
             bad = z.testzip()
+    except UnsafeArchive as exc:
+        raise FMUCheckError(path, (f"unsafe member {exc.member!r}: " if exc.member else
+                                   "unsafe archive: ") + exc.reason) from None
     except (zipfile.BadZipFile, OSError, EOFError) as exc:
         raise FMUCheckError(path, f"corrupt zip archive: {exc}") from None
     if bad is not None:
         raise FMUCheckError(path, f"corrupt zip archive: CRC error in member {bad!r}")
-    total = 0
-    for info in infos:
-        name = info.filename
-        p = PurePosixPath(name.replace("\\", "/"))
-        if p.is_absolute() or name.startswith(("/", "\\")) or (len(name) > 1 and name[1] == ":"):
-            raise FMUCheckError(path, f"unsafe member {name!r}: absolute path")
-        if ".." in p.parts:
-            raise FMUCheckError(path, f"unsafe member {name!r}: escapes the FMU folder")
-        mode = info.external_attr >> 16
-        if stat.S_ISLNK(mode):
-            raise FMUCheckError(path, f"unsafe member {name!r}: symbolic link")
-        total += info.file_size
-    if total > MAX_UNCOMPRESSED:
-        raise FMUCheckError(path, f"uncompressed size {total} bytes exceeds {MAX_UNCOMPRESSED}")
     names = {i.filename for i in infos}
     if "modelDescription.xml" not in names:
         raise FMUCheckError(path, "no modelDescription.xml at the archive root")
@@ -127,20 +120,31 @@ def fmi_version(path: Path) -> str:
     if v not in SUPPORTED:
         raise FMUCheckError(path, f"FMI version {v} is not supported (supported: "
                             f"{', '.join(SUPPORTED)})")
+    # the label must match the layout, else the reader fails deep inside on a missing
+    # attribute (FMI 1.0: modelIdentifier on the root; 2.0/3.0: interface elements)
+    later = any(root.find(t) is not None for t in ("CoSimulation", "ModelExchange",
+                                                   "ScheduledExecution"))
+    if v == "1.0" and (later or root.get("modelIdentifier") is None):
+        raise FMUCheckError(path, 'modelDescription.xml says fmiVersion="1.0" but is laid out '
+                            "as FMI 2.0/3.0 (CoSimulation/ModelExchange elements, no "
+                            "modelIdentifier attribute on the root): correct its fmiVersion")
+    if v != "1.0" and not later and root.get("modelIdentifier") is not None:
+        raise FMUCheckError(path, f'modelDescription.xml says fmiVersion="{v}" but is laid out '
+                            "as FMI 1.0 (a modelIdentifier attribute on the root, no "
+                            "CoSimulation/ModelExchange element): correct its fmiVersion")
     return v
 
 
 def safe_extract(path: Path, dest: Path) -> Path:
-    """Extract after validating the member list; returns dest."""
-    infos = safe_members(path)
-    dest = Path(dest).resolve()
-    with zipfile.ZipFile(path) as z:
-        for info in infos:
-            target = (dest / info.filename).resolve()
-            if dest != target and dest not in target.parents:
-                raise FMUCheckError(path, f"unsafe member {info.filename!r}")
-            z.extract(info, dest)
-    return dest
+    """Extract after validating the member list (:func:`cosim.fmi.unpack.extract_archive`:
+    only under ``dest``, sizes counted while written); returns dest."""
+    from .unpack import UnsafeArchive, extract_archive
+    safe_members(path)
+    try:
+        return extract_archive(path, Path(dest))
+    except UnsafeArchive as exc:
+        raise FMUCheckError(path, (f"unsafe member {exc.member!r}: " if exc.member else
+                                   "unsafe archive: ") + exc.reason) from None
 
 
 def _binary(md, unzipdir: Path, kind: str) -> Path:

@@ -13,6 +13,15 @@ each exactly once; when the last hold on a hash is released the folder is delete
 A process killed before it released its holds leaves its folders behind: the first
 :func:`acquire` of every process removes the ``cosim-<pid>-*`` folders whose process
 is gone. A forked child forgets the parent's folders (it never deletes them).
+
+Archives are data, never paths (:func:`extract_archive`, also used for the FMUs inside
+an SSP archive, :mod:`cosim.scenarios.ssp`): a member is written only under the
+archive's own new folder, whatever its name says (an absolute name, ``..``, a drive
+letter, a symbolic link or a device member is refused, naming the archive and the
+member); the declared sizes are checked against :data:`MAX_UNPACKED_BYTES` and
+:data:`MAX_RATIO` before anything is written, and the bytes are counted while they are
+streamed, so that a header that lies is caught too; on any error the folder is
+removed (docs/decisions.md, "Hostile input").
 """
 from __future__ import annotations
 
@@ -20,9 +29,12 @@ import hashlib
 import os
 import re
 import shutil
+import stat
 import tempfile
 import threading
-from pathlib import Path
+import zipfile
+import zlib
+from pathlib import Path, PurePosixPath
 
 _NAME = re.compile(r"^cosim-(\d+)-([0-9a-f]{16})(?:\.part-.*)?$")
 
@@ -33,6 +45,177 @@ def sha256_file(path) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+# =========================================================================== extraction
+#: the most an archive may unpack to [bytes] (2 GiB: the largest FMU binary tree we know
+#: of is tens of MB; docs/decisions.md "Hostile input")
+MAX_UNPACKED_BYTES = 2 * 1024 ** 3
+#: the most a member may expand over its compressed size (ours: at most 8.3:1)
+MAX_RATIO = 100.0
+#: members smaller than this are not held to MAX_RATIO (a small file of zeros
+#: compresses 1000:1 and is harmless)
+RATIO_FLOOR_BYTES = 1024 ** 2
+_CHUNK = 1 << 20
+
+
+class UnsafeArchive(ValueError):
+    """An archive that cannot be unpacked safely: names the archive and the member."""
+
+    def __init__(self, archive, member: str | None, reason: str):
+        self.archive, self.member, self.reason = str(archive), member, reason
+        super().__init__(f"{archive}: " + (f"member {member!r}: " if member is not None else "")
+                         + reason)
+
+
+def member_parts(archive, name: str) -> tuple[str, ...]:
+    """The path parts of member ``name`` inside its archive's folder; UnsafeArchive for
+    a name that would leave it (absolute, a drive letter, ``..``) or is empty."""
+    norm = name.replace("\\", "/")
+    if norm.startswith("/") or re.match(r"^[A-Za-z]:", norm):
+        raise UnsafeArchive(archive, name, "absolute path: an archive member is extracted "
+                            "only inside the archive's own folder")
+    parts = [p for p in PurePosixPath(norm).parts if p not in ("", ".")]
+    if ".." in parts:
+        raise UnsafeArchive(archive, name, "'..' in the path: it would leave the archive's "
+                            "own folder")
+    if not parts or "\0" in norm:
+        raise UnsafeArchive(archive, name, "empty or invalid member name")
+    return tuple(parts)
+
+
+def check_members(archive, infos, max_bytes: int = MAX_UNPACKED_BYTES,
+                  max_ratio: float = MAX_RATIO) -> int:
+    """Refuse unsafe members (:func:`member_parts`, links and device files) and declared
+    sizes above the limits, before anything is written. Returns the declared total."""
+    total = 0
+    for info in infos:
+        member_parts(archive, info.filename)
+        mode = info.external_attr >> 16
+        if stat.S_ISLNK(mode):
+            raise UnsafeArchive(archive, info.filename, "symbolic link (links are refused: "
+                                "they can point anywhere)")
+        if mode and stat.S_IFMT(mode) not in (0, stat.S_IFREG, stat.S_IFDIR):
+            raise UnsafeArchive(archive, info.filename, "not a regular file or folder")
+        if info.file_size > max(info.compress_size, 1) * max_ratio and \
+                info.file_size > RATIO_FLOOR_BYTES:
+            raise UnsafeArchive(archive, info.filename, f"declares {info.file_size} bytes from "
+                                f"{info.compress_size} compressed: ratio above {max_ratio:g}:1 "
+                                f"(a zip bomb?)")
+        total += info.file_size
+        if total > max_bytes:
+            raise UnsafeArchive(archive, None, f"unpacks to more than {max_bytes} bytes "
+                                f"(limit; declared {total} so far at member {info.filename!r})")
+    return total
+
+
+def copy_member(z: zipfile.ZipFile, info: zipfile.ZipInfo, fh, archive, budget: list,
+                max_ratio: float = MAX_RATIO) -> int:
+    """Stream member ``info`` into the open file ``fh`` counting the bytes: more than
+    declared, more than ``budget[0]`` (decremented) or a ratio above ``max_ratio``
+    is refused mid-stream (a lying header). Returns the bytes written."""
+    n = 0
+    limit = max(info.compress_size, 1) * max_ratio
+    try:
+        with z.open(info) as src:
+            while True:
+                chunk = src.read(_CHUNK)
+                if not chunk:
+                    break
+                n += len(chunk)
+                if n > info.file_size:
+                    raise UnsafeArchive(archive, info.filename, f"holds more than its declared "
+                                        f"{info.file_size} bytes")
+                if n > budget[0]:
+                    raise UnsafeArchive(archive, info.filename, f"unpacking exceeds the limit "
+                                        f"of {MAX_UNPACKED_BYTES} bytes")
+                if n > RATIO_FLOOR_BYTES and n > limit:
+                    raise UnsafeArchive(archive, info.filename, f"expands above {max_ratio:g}:1")
+                fh.write(chunk)
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, RuntimeError) as exc:
+        raise UnsafeArchive(archive, info.filename, f"corrupt member ({exc})") from None
+    if n != info.file_size:
+        raise UnsafeArchive(archive, info.filename, f"holds {n} bytes, declares {info.file_size}")
+    budget[0] -= n
+    return n
+
+
+def read_member(z: zipfile.ZipFile, info: zipfile.ZipInfo, archive,
+                max_bytes: int = 64 * 1024 ** 2) -> bytes:
+    """A (small, e.g. XML) member's bytes, held to ``max_bytes`` and the ratio limit."""
+    import io
+    check_members(archive, [info], max_bytes)
+    buf = io.BytesIO()
+    copy_member(z, info, buf, archive, [max_bytes])
+    return buf.getvalue()
+
+
+def _open_zip(archive) -> zipfile.ZipFile:
+    try:
+        return zipfile.ZipFile(archive)
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise UnsafeArchive(archive, None, f"not a readable zip archive ({exc})") from None
+
+
+def extract_archive(archive, dest, members=None, max_bytes: int = MAX_UNPACKED_BYTES,
+                    max_ratio: float = MAX_RATIO) -> Path:
+    """Extract ``archive`` (all members, or the names in ``members``) into ``dest``: a
+    new folder (created here) or an empty one, the archive's own. Unsafe names, links
+    and sizes are refused before anything is written (:func:`check_members`); the
+    bytes are counted while they are written; on any error what was written is removed
+    (``dest`` too if it was created here) and :class:`UnsafeArchive` names the archive
+    and the member."""
+    dest = Path(dest)
+    if dest.is_symlink():
+        raise UnsafeArchive(archive, None, f"the extraction folder {dest} is a link")
+    with _open_zip(archive) as z:
+        infos = z.infolist()
+        if members is not None:
+            by_name = {i.filename: i for i in infos}
+            missing = [m for m in members if m not in by_name]
+            if missing:
+                raise UnsafeArchive(archive, missing[0], "not in the archive")
+            infos = [by_name[m] for m in members]
+        check_members(archive, infos, max_bytes, max_ratio)
+        created = not dest.exists()
+        if created:
+            os.mkdir(dest, 0o700)
+        elif not dest.is_dir() or any(dest.iterdir()):
+            raise UnsafeArchive(archive, None, f"the extraction folder {dest} is not empty")
+        try:
+            budget = [max_bytes]
+            for info in infos:
+                parts = member_parts(archive, info.filename)
+                target = dest.joinpath(*parts)
+                if info.is_dir():
+                    target.mkdir(parents=True, exist_ok=True)
+                    continue
+                parent = dest
+                for p in parts[:-1]:          # real folders of ours, never a link
+                    parent = parent / p
+                    if parent.is_symlink() or (parent.exists() and not parent.is_dir()):
+                        raise UnsafeArchive(archive, info.filename, "its folder is a file")
+                    parent.mkdir(exist_ok=True)
+                flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+                try:
+                    fd = os.open(target, flags, 0o600)
+                except FileExistsError:
+                    raise UnsafeArchive(archive, info.filename, "a second member of the same "
+                                        "name") from None
+                with os.fdopen(fd, "wb") as fh:
+                    copy_member(z, info, fh, archive, budget, max_ratio)
+                mode = (info.external_attr >> 16) & 0o777
+                if mode & 0o100:              # keep the executable bit (binaries)
+                    os.chmod(target, 0o700)
+        except BaseException:
+            if created:
+                shutil.rmtree(dest, ignore_errors=True)
+            else:
+                for p in list(dest.iterdir()):
+                    shutil.rmtree(p, ignore_errors=True) if p.is_dir() and not p.is_symlink() \
+                        else p.unlink(missing_ok=True)
+            raise
+    return dest
 
 
 def _dlclose(handle: int) -> None:

@@ -13,12 +13,17 @@ __all__ = ["add_commands"]
 def _cmd_diagnose(a: Any) -> int:
     from ..fileio import OutputPathError, check_out_dir
     from .diagnose import diagnose
+    from .plausibility import Implausible, write_refusal
     try:
         check_out_dir(a.out)        # created by diagnose once the inputs are read
         res = diagnose(a.device, a.fit, a.test, a.out, report=not a.no_report, margin=a.margin)
     except (GapInputError, OutputPathError) as e:
         print(f"cosim: error: {e}", file=sys.stderr)
         return BAD_INPUT
+    except Implausible as e:        # the logs do not fit the nominal model: no diagnosis
+        print(f"cannot diagnose: implausible input: {e}")
+        write_refusal(a.out, a.device, e)
+        return CANNOT_TELL
     if res.get("cannot_diagnose"):
         print(f"cannot diagnose: {res['cannot_diagnose']}")
     else:

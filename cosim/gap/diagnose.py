@@ -48,6 +48,7 @@ import numpy as np
 
 from ..fileio import atomic_write_text, jsonable
 from ..trial_log import TrialLog, TrialLogError, read_trial_log
+from . import plausibility
 from .device import CannotDiagnose, GapDevice, GapInputError, get_device, slice_log, split_params
 
 __all__ = ["diagnose", "localize", "run_diagnosis", "DEFAULT_MARGIN"]
@@ -367,6 +368,7 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
                                                              "test_after": None}})
         return out, {}
     rec = device.recalibrate(fit)
+    plausibility.check_recalibrated(device, fit, rec)  # before any effect is fitted
     out["recalibrated"] = {k: float(rec[k]) for k in device.param_names}
     out["recalibration_note"] = getattr(device, "recalibration_note", "")
     nominal = dict(fit[0].nominal or {})
@@ -579,6 +581,7 @@ def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_path
     fit = load_logs(fit_paths, "fit")
     test = load_logs(test_paths, "test")
     _check_devices(device_name, fit, test)
+    plausibility.check_logs(device, fit, test)         # wrong units etc.: exit 4, not a fit
     result, extras = run_diagnosis(device, fit, test, **kw)
     result = jsonable(result)
     out = Path(out_dir)

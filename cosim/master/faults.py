@@ -70,6 +70,10 @@ class FaultParams:
     stop_s: float | None = None
 
     def validate(self):
+        for f in dataclasses.fields(self):     # NaN/inf would be blamed on the FMU later
+            v = getattr(self, f.name)
+            if isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isfinite(v):
+                raise ValueError(f"{f.name} must be a finite number, got {v!r}")
         if not (math.isfinite(self.start_s) and self.start_s >= 0):
             raise ValueError(f"start_s must be a finite number >= 0, got {self.start_s!r}")
         if self.stop_s is not None and not (math.isfinite(self.stop_s)
@@ -312,6 +316,35 @@ def make(kind: str, params: dict, seed: Sequence[int] = (0,)) -> FaultKind:
         raise ValueError(f"fault kind {kind!r}: unknown parameter(s) {bad} "
                          f"(parameters: {sorted(names)})")
     return cls(ptype(**params), seed)
+
+
+#: FMU variables a fault cannot act on: their value does not flow at the ticks
+_FIXED_CAUSALITY = ("parameter", "calculatedParameter", "structuralParameter")
+_FIXED_VARIABILITY = ("constant", "fixed", "tunable")
+
+
+def check_acts(system, fault: "Fault", horizon_s: float) -> None:
+    """Refuse (ValueError) a fault that could not change anything: on an FMU parameter
+    or constant (read once, not a signal that flows at the ticks), or whose window
+    starts at or after ``horizon_s`` [s], the longest a phase of the run can last."""
+    head, _, tail = fault.signal.partition(".")
+    roles = getattr(system, "roles", {}) or {}
+    if head in roles:
+        try:
+            v, _ = roles[head].element(tail)
+        except Exception:
+            v = None                   # an unknown name: the master's plan names it
+        caus = getattr(v, "causality", None)
+        var = getattr(v, "variability", None)
+        if caus in _FIXED_CAUSALITY or var in _FIXED_VARIABILITY:
+            raise ValueError(f"{fault.signal} is a {var or ''} {caus or ''} of role {head!r}: "
+                             f"it does not flow at the ticks, so a fault on it would change "
+                             f"nothing; fault a signal (an FMU output, a connected input, a "
+                             f"controller output or a stimulus), or set the parameter")
+    p = fault.kind.p
+    if p.start_s >= horizon_s - EPS_S:
+        raise ValueError(f"the window starts at start_s = {p.start_s:g} s, when the run has "
+                         f"ended ({horizon_s:g} s): the fault would never act")
 
 
 @dataclass

@@ -109,6 +109,9 @@ def default_experiment(path) -> tuple[float, float]:
     """(stop time, step) from the FMU's DefaultExperiment: stopTime (else 1 s), stepSize
     (else 1 ms)."""
     import fmpy
+
+    from ..fmi.check import fmi_version
+    fmi_version(Path(path))        # unsafe, unsupported or mislabelled: a clear error first
     md = fmpy.read_model_description(str(path), validate=False)
     de = md.defaultExperiment
     stop = float(de.stopTime) if de is not None and de.stopTime is not None else 1.0

@@ -182,6 +182,7 @@ def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None, runs=None):
                                duration_s=run.duration, fmu_dir=str(fmu_dir or ""))
         system, record = make_builder(sc, run, ctx, fmu_swaps)()
         try:
+            _faults_act(sc, run, system)        # a fault either acts or is refused
             Master(system, record)._plan()
         except SystemError_ as exc:
             msg = str(exc)
@@ -196,6 +197,27 @@ def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None, runs=None):
         finally:
             for s in system.roles.values():
                 s.terminate()
+
+
+def _faults_act(sc: Scenario, run, system) -> None:
+    """:func:`cosim.master.faults.check_acts` for every fault of the built system; the
+    horizon is the longest a phase of the run can last (the run's duration, or the
+    procedure's whole simulated time when it is longer)."""
+    from cosim.master.faults import check_acts
+    if not system.faults:
+        return
+    horizon = float(run.duration)
+    e = reg.get("procedure", sc.procedure)
+    try:
+        params = deep_merge(sc.data, run.overrides).get("parameters") or {}
+        horizon = max(horizon, float(e.work(run, params)) if e is not None and e.work else 0.0)
+    except Exception:                  # a bad parameter is the run's error, not this check's
+        pass
+    for f in system.faults:
+        try:
+            check_acts(system, f, horizon)
+        except ValueError as exc:
+            raise _err(sc, ("faults", f.name), f"fault {f.name!r}: {exc}") from None
 
 
 def modules_used(sc: Scenario) -> set[str]:

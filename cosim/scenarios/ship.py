@@ -65,6 +65,10 @@ def fmu_cache_dir() -> Path:
     """This process's FMU cache: a folder of its own temporary folder, per user."""
     d = Path(tempfile.gettempdir()) / f"cosim-fmu-cache-{os.getuid()}"
     d.mkdir(mode=0o700, exist_ok=True)
+    st = os.lstat(d)          # a folder another user made first would serve their files
+    if not os.path.isdir(d) or os.path.islink(d) or st.st_uid != os.getuid() or st.st_mode & 0o022:
+        raise RuntimeError(f"{d} is not this user's private folder (owner uid {st.st_uid}, "
+                           f"mode {oct(st.st_mode & 0o777)}): remove it")
     return d
 
 
@@ -72,8 +76,10 @@ def cached_fmu(sha: str, blob: bytes) -> Path:
     """The worker's copy of an FMU, written once (atomically, after checking the
     bytes against ``sha``)."""
     f = fmu_cache_dir() / f"{sha}.fmu"
-    if f.is_file():
-        return f
+    if f.is_file() and not f.is_symlink():
+        from cosim.fmi.unpack import sha256_file
+        if sha256_file(f) == sha:          # reused only if it still is those bytes
+            return f
     if hashlib.sha256(blob).hexdigest() != sha:
         raise RuntimeError(f"FMU bytes do not match their sha256 {sha[:12]}...")
     fd, tmp = tempfile.mkstemp(dir=f.parent, suffix=".part")

@@ -264,7 +264,7 @@ def _binding(pb, z, path, where) -> dict:
         if member not in z.namelist():
             raise SSPError(f"{path}: {where}: parameter source {src!r} not in the archive")
         try:
-            ps = ET.fromstring(z.read(member))
+            ps = ET.fromstring(_read(z, member, path))
         except ET.ParseError as exc:
             raise SSPError(f"{path}: {member}: {exc}") from None
     else:
@@ -291,6 +291,88 @@ def _binding(pb, z, path, where) -> dict:
     return out
 
 
+def _read(z: zipfile.ZipFile, member: str, path) -> bytes:
+    """An XML member's bytes (KeyError if absent), held to the size limits."""
+    from cosim.fmi.unpack import UnsafeArchive, read_member
+    info = z.getinfo(member)
+    try:
+        return read_member(z, info, path)
+    except UnsafeArchive as exc:
+        raise SSPError(f"unsafe SSP archive: {exc}") from None
+
+
+#: the record of a complete extraction in its folder: {member: [file, sha256]}
+_DONE = ".extracted.json"
+
+
+def _verified(dest: Path, members) -> dict | None:
+    """{member: path} of a complete earlier extraction in ``dest`` whose files still
+    have the sha256 recorded when they were written, else None."""
+    import json
+
+    from cosim.fmi.unpack import sha256_file
+    try:
+        rec = json.loads((dest / _DONE).read_text())
+        out = {}
+        for m in members:
+            f = dest / rec[m][0]
+            if f.is_symlink() or f.parent.parent != dest or sha256_file(f) != rec[m][1]:
+                return None
+            out[m] = f
+        return out
+    except (OSError, ValueError, KeyError, TypeError, IndexError):
+        return None
+
+
+def extract_members(path, members, dest) -> dict:
+    """Extract the FMU members ``members`` of SSP archive ``path`` into ``dest`` (the
+    archive's own folder, e.g. ``<cache>/ssp/<sha>``), each as ``dest/<n>/<file name>``
+    whatever its path in the archive says (:func:`cosim.fmi.unpack.extract_archive`:
+    names, links and sizes refused before writing, bytes counted). Written to a new
+    folder beside ``dest`` and renamed into place complete, so nothing half-written
+    is left and parallel loaders share one copy; a complete earlier extraction is
+    reused after its files' sha256 are checked. Returns {member: path}."""
+    import json
+    import shutil
+    import tempfile
+
+    from cosim.fmi.unpack import extract_archive, member_parts, sha256_file
+    dest = Path(dest)
+    done = _verified(dest, members)
+    if done is not None:
+        return done
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    part = Path(tempfile.mkdtemp(prefix=f"{dest.name}.part-", dir=dest.parent))
+    try:
+        rec, out = {}, {}
+        for k, m in enumerate(members):
+            one = part / f".m{k}"
+            extract_archive(path, one, members=[m])
+            name = f"{k}/{member_parts(path, m)[-1]}"
+            (part / str(k)).mkdir()
+            os.replace(one.joinpath(*member_parts(path, m)), part / name)
+            shutil.rmtree(one)
+            rec[m] = [name, sha256_file(part / name)]
+        (part / _DONE).write_text(json.dumps(rec, indent=1))
+        if dest.exists() or dest.is_symlink():        # stale, tampered or another layout
+            if dest.is_dir() and not dest.is_symlink():
+                shutil.rmtree(dest, ignore_errors=True)
+            else:
+                dest.unlink(missing_ok=True)
+        try:
+            os.replace(part, dest)
+        except OSError:                               # a parallel loader was first
+            done = _verified(dest, members)
+            if done is None:
+                raise
+            shutil.rmtree(part, ignore_errors=True)
+            return done
+        return {m: dest / rec[m][0] for m in members}
+    except BaseException:
+        shutil.rmtree(part, ignore_errors=True)
+        raise
+
+
 def read_ssp(path, extract_to) -> dict:
     """Roles, parameters and connections of an ``.ssp`` (its FMUs extracted under
     ``extract_to``), as the ``system`` part of a scenario:
@@ -298,16 +380,21 @@ def read_ssp(path, extract_to) -> dict:
     "system_connectors": {name: kind}, "step": float | None, "duration": float | None}``.
     Connections to/from the system's own connectors are not returned (the scenario
     wires its controllers to the components instead)."""
+    from cosim.fmi.unpack import UnsafeArchive, check_members
     path = Path(path)
     if not path.is_file():
         raise SSPError(f"{path}: SSP file not found")
     try:
         z = zipfile.ZipFile(path)
-    except zipfile.BadZipFile:
+    except (zipfile.BadZipFile, OSError, EOFError):
         raise SSPError(f"{path}: not an SSP archive (not a zip file)") from None
     with z:
+        try:     # every member's name, kind and size, before a byte is written
+            check_members(path, z.infolist())
+        except UnsafeArchive as exc:
+            raise SSPError(f"unsafe SSP archive: {exc}") from None
         try:
-            root = ET.fromstring(z.read("SystemStructure.ssd"))
+            root = ET.fromstring(_read(z, "SystemStructure.ssd", path))
         except KeyError:
             raise SSPError(f"{path}: no SystemStructure.ssd in the archive") from None
         except ET.ParseError as exc:
@@ -316,8 +403,8 @@ def read_ssp(path, extract_to) -> dict:
         if sysel is None:
             raise SSPError(f"{path}: SystemStructure.ssd has no ssd:System")
         dest = Path(extract_to)
-        dest.mkdir(parents=True, exist_ok=True)
         names = set(z.namelist())
+        sources = {}
         elements = sysel.find(_q("ssd", "Elements"))
         for e in (elements if elements is not None else []):
             if e.tag != _q("ssd", "Component"):
@@ -328,18 +415,13 @@ def read_ssp(path, extract_to) -> dict:
             role, src = comp.get("name"), _member(comp.get("source", ""))
             if comp.get("type", "application/x-fmu-sharedlibrary") != "application/x-fmu-sharedlibrary":
                 raise SSPError(f"{path}: component {role!r} is not an FMU ({comp.get('type')})")
-            if src not in names or ".." in Path(src).parts:
+            if src not in names:
                 raise SSPError(f"{path}: component {role!r}: resource {src!r} not in the archive")
-            target = dest.joinpath(*Path(src).parts)
-            if not target.exists():                 # atomic: parallel loaders share it
-                target.parent.mkdir(parents=True, exist_ok=True)
-                tmp = target.with_name(f"{target.name}.{os.getpid()}.tmp")
-                tmp.write_bytes(z.read(src))
-                os.replace(tmp, target)
+            sources[role] = src
             params = {}
             for pb in comp.iterfind(f"{_q('ssd', 'ParameterBindings')}/{_q('ssd', 'ParameterBinding')}"):
                 params.update(_binding(pb, z, path, f"component {role!r}"))
-            fmus[role] = {"fmu": str(target), "parameters": params}
+            fmus[role] = {"fmu": None, "parameters": params}
         # system-level bindings take precedence (SSP 1.0); names are role.parameter
         for pb in sysel.iterfind(f"{_q('ssd', 'ParameterBindings')}/{_q('ssd', 'ParameterBinding')}"):
             for name, value in _binding(pb, z, path, "the system").items():
@@ -348,6 +430,12 @@ def read_ssp(path, extract_to) -> dict:
                     raise SSPError(f"{path}: system parameter binding {name!r} names no "
                                    f"component's variable (components: {list(fmus)})")
                 fmus[role]["parameters"][var] = value
+    try:
+        unpacked = extract_members(path, sorted(set(sources.values())), dest)
+    except UnsafeArchive as exc:
+        raise SSPError(f"unsafe SSP archive: {exc}") from None
+    for role, src in sources.items():
+        fmus[role]["fmu"] = str(unpacked[src])
     conns = []
     for c in sysel.iterfind(f"{_q('ssd', 'Connections')}/{_q('ssd', 'Connection')}"):
         if not c.get("startElement") or not c.get("endElement"):

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
+import sys
 from pathlib import Path
 
 from ..fileio import atomic_write_text, jsonable
@@ -30,20 +32,41 @@ def safe_name(label: str) -> str:
 
 # =========================================================================== cache key
 _SRC_HASH = None
+#: what of the package shapes a result: every Python, C source and C header under
+#: ``cosim/`` (the compiled engine and kernels are built from the .c/.h), except the
+#: report (drawn from the store) and the command-line layers
+SOURCE_SUFFIXES = (".py", ".c", ".h")
+_NOT_RESULTS = ("report",)
+_NOT_RESULT_FILES = ("cli.py", "scenario_cli.py", "results_cli.py", "ssp_cli.py", "data_cli.py")
+#: environment variables that change how a run computes (they are in the key)
+ENGINE_ENV = ("COSIM_ENGINE",)
 
 
-def source_hash() -> str:
-    """Hash of the package's Python sources (trials, algorithms, master, scenarios):
-    a change of the code that produces results invalidates the cache."""
+def source_files(root: Path | None = None) -> list[Path]:
+    """The package files :func:`source_hash` covers (sorted)."""
+    root = Path(root) if root else Path(__file__).resolve().parents[1]
+    return sorted(p for p in root.rglob("*")
+                  if p.suffix in SOURCE_SUFFIXES and p.is_file()
+                  and not set(p.relative_to(root).parts[:-1]) & set(_NOT_RESULTS)
+                  and not (p.parent == root and p.name in _NOT_RESULT_FILES)
+                  and "__pycache__" not in p.parts)
+
+
+def source_hash(root: Path | None = None) -> str:
+    """Hash of the package's sources that produce results (:func:`source_files`: the
+    Python modules and the C sources and headers of the compiled engine and kernels):
+    a change of any of them invalidates the cache. ``root``: another copy of the
+    package (not cached)."""
     global _SRC_HASH
-    if _SRC_HASH is None:
-        root = Path(__file__).resolve().parents[1]
+    if _SRC_HASH is None or root is not None:
+        base = Path(root) if root else Path(__file__).resolve().parents[1]
         h = hashlib.sha256()
-        for p in sorted(root.rglob("*.py")):
-            if "report" in p.relative_to(root).parts:
-                continue
-            h.update(str(p.relative_to(root)).encode())
+        for p in source_files(base):
+            h.update(p.relative_to(base).as_posix().encode())
+            h.update(b"\0")
             h.update(p.read_bytes())
+        if root is not None:
+            return h.hexdigest()
         _SRC_HASH = h.hexdigest()
     return _SRC_HASH
 
@@ -67,7 +90,8 @@ def run_fmu_paths(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) 
 
 
 def run_key(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) -> str:
-    """Cache key: scenario content + run + FMU hashes + package source hash."""
+    """Cache key: scenario content + run + FMU hashes + package source hash (Python and
+    C) + the engine flags of the environment (:data:`ENGINE_ENV`)."""
     import cosim
     fmus = {}
     for role, p in run_fmu_paths(sc, run, fmu_dir, fmu_swaps).items():
@@ -77,25 +101,70 @@ def run_key(sc: Scenario, run: reg.RunSpec, fmu_dir=None, fmu_swaps=None) -> str
             fmus[role] = [fmus[role], binding]
     blob = json.dumps({"scenario": sc.content_hash(), "run": run.label, "seed": run.seed,
                        "overrides": run.overrides, "fmus": fmus, "src": source_hash(),
-                       "version": getattr(cosim, "__version__", "")},
+                       "version": getattr(cosim, "__version__", ""),
+                       "env": {k: os.environ.get(k, "") for k in ENGINE_ENV}},
                       sort_keys=True, default=repr)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
 # =========================================================================== read back
+def _warn(msg: str) -> None:
+    print(f"cosim: warning: {msg}", file=sys.stderr, flush=True)
+
+
+def file_hashes(folder: Path) -> dict:
+    """{file name: sha256} of a run folder's ``*.parquet`` files."""
+    from cosim.fmi.unpack import sha256_file
+    return {f.name: sha256_file(f) for f in sorted(Path(folder).glob("*.parquet"))}
+
+
+def verify_run(folder: Path, info: dict) -> str | None:
+    """Why the stored files of a finished run cannot be reused (None: they can): every
+    phase file must be listed in run.json's ``files`` with the sha256 it had when the
+    run was stored, and still have it."""
+    from cosim.fmi.unpack import sha256_file
+    files = info.get("files")
+    if not isinstance(files, dict):
+        return "run.json lists no file hashes (stored by an older version)"
+    for ph in info.get("phases") or []:
+        name = ph.get("file") if isinstance(ph, dict) else None
+        if not name or name not in files:
+            return f"phase file {name!r} has no recorded hash"
+    for name, sha in files.items():
+        f = Path(folder) / name
+        if Path(name).name != name or not f.is_file():
+            return f"{name} is missing"
+        try:
+            if sha256_file(f) != sha:
+                return f"{name} does not match its recorded sha256 (changed or replaced)"
+        except OSError as exc:
+            return f"{name} cannot be read ({exc.strerror or exc})"
+    return None
+
+
 def run_done(out_dir: Path, run: reg.RunSpec, key: str | None = None) -> dict | None:
-    """The stored run.json of a finished run (with the same cache key), else None."""
-    f = Path(out_dir) / "runs" / safe_name(run.label) / "run.json"
+    """The stored run.json of a finished run (with the same cache key) whose files
+    still have their recorded sha256, else None. A finished run whose files do not
+    (truncated, replaced, unreadable) is not reused: a warning names it and it reruns."""
+    d = Path(out_dir) / "runs" / safe_name(run.label)
+    f = d / "run.json"
     if not f.is_file():
         return None
     try:
         info = json.loads(f.read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError) as exc:
+        _warn(f"run {run.label!r} ({f}): run.json cannot be read ({exc}): it runs again")
+        return None
+    if not isinstance(info, dict):
         return None
     if key is not None and info.get("key") != key:
         return None
     if info.get("status") != "ok":
         return None        # an error is retried on a rerun
+    why = verify_run(d, info)
+    if why is not None:
+        _warn(f"run {run.label!r} ({d}): {why}: it runs again")
+        return None
     return info
 
 
@@ -231,6 +300,15 @@ def publish_run(runs_dir: Path, tmp: Path, label: str) -> Path:
     import os
     import shutil
     final = Path(runs_dir) / safe_name(label)
+    rj = Path(tmp) / "run.json"
+    if rj.is_file():          # the files' sha256, checked when the cache reuses the run
+        try:
+            info = json.loads(rj.read_text())
+        except ValueError:
+            info = None
+        if isinstance(info, dict):
+            info["files"] = file_hashes(tmp)
+            rj.write_text(json.dumps(info, indent=1))
     if final.exists():
         shutil.rmtree(final)
     os.replace(tmp, final)
@@ -270,3 +348,92 @@ def finished_runs(out_dir: Path) -> list[Path]:
         except (OSError, ValueError):
             pass
     return sorted(out)
+
+
+# =========================================================================== lock
+LOCK = ".cosim.lock"
+
+
+class OutDirLocked(RuntimeError):
+    """Another live process works on the same output folder."""
+
+
+def _read_lock(f: Path) -> dict | None:
+    try:
+        d = json.loads(f.read_text())
+        return d if isinstance(d, dict) else {}
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError):
+        return {}              # being written, or garbage
+
+
+class OutDirLock:
+    """``with OutDirLock(out_dir, "cosim suite"):`` one process at a time works on an
+    output folder: the lock file ``DIR/.cosim.lock`` holds the owner's pid, host and
+    start time; a second process waits up to ``wait_s`` for it, then refuses
+    (:class:`OutDirLocked`, naming the owner). A lock whose process no longer runs on
+    this host (killed) is stale and taken over; a lock of another host is respected."""
+
+    def __init__(self, out_dir, what: str = "cosim", wait_s: float = 0.0, poll_s: float = 0.2):
+        self.dir, self.what, self.wait_s, self.poll_s = Path(out_dir), what, wait_s, poll_s
+        self.file = self.dir / LOCK
+        self.held = False
+
+    def _try(self) -> dict | None:
+        """Take the lock (None) or return the owner's record."""
+        import time
+        me = {"pid": os.getpid(), "host": _host(), "what": self.what, "started": time.time()}
+        try:
+            fd = os.open(self.file, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            owner = _read_lock(self.file)
+            if owner is None:
+                return self._try()                 # released meanwhile
+            pid = owner.get("pid")
+            if (isinstance(pid, int) and owner.get("host") == _host()
+                    and pid != os.getpid() and not _pid_alive(pid)):
+                try:                               # stale: its process is gone
+                    os.unlink(self.file)
+                except FileNotFoundError:
+                    pass
+                return self._try()
+            return owner
+        with os.fdopen(fd, "w") as fh:
+            fh.write(json.dumps(me))
+        self.held = True
+        return None
+
+    def acquire(self) -> "OutDirLock":
+        import time
+        self.dir.mkdir(parents=True, exist_ok=True)
+        t_end = time.monotonic() + max(self.wait_s, 0.0)
+        while True:
+            owner = self._try()
+            if owner is None:
+                return self
+            if time.monotonic() >= t_end:
+                since = owner.get("started")
+                when = (time.strftime(" since %H:%M:%S", time.localtime(since))
+                        if isinstance(since, (int, float)) else "")
+                raise OutDirLocked(
+                    f"--out {self.dir} is in use by {owner.get('what', 'another cosim')} "
+                    f"(pid {owner.get('pid', '?')} on {owner.get('host', '?')}{when}; lock file "
+                    f"{self.file}): wait for it to finish or use another --out")
+            time.sleep(self.poll_s)
+
+    def release(self) -> None:
+        if self.held:
+            self.held = False
+            owner = _read_lock(self.file)
+            if owner and owner.get("pid") == os.getpid():
+                try:
+                    os.unlink(self.file)
+                except FileNotFoundError:
+                    pass
+
+    def __enter__(self):
+        return self.acquire()
+
+    def __exit__(self, *exc):
+        self.release()

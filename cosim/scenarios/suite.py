@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import time
 import xml.etree.ElementTree as ET
@@ -39,8 +40,8 @@ from .isolate import run_timeout, wants_process
 from .runner import execute_run, finish_scenario
 from .schema import Scenario, load
 from .ship import execute_shipped, run_fmus, scatter_fmus
-from .store import (clean_run_tmp, run_done, run_fmu_paths, run_key, safe_name, store_run_files,
-                    versions)
+from .store import (OutDirLock, OutDirLocked, clean_run_tmp, run_done, run_fmu_paths, run_key,
+                    safe_name, store_run_files, versions)
 from .verdict import all_runs, summary_row
 
 
@@ -120,6 +121,34 @@ def _warm_worker():
     return True
 
 
+def _locked(fn):
+    """``run_suite`` holds its output folder's lock (:class:`.store.OutDirLock`) while
+    it runs: a second suite on the same ``--out`` is refused (exit 2, naming the first)
+    instead of running every run twice; a folder created here and left empty (bad
+    input) is removed again."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(paths, out_dir, *args, **kwargs):
+        out = Path(out_dir)
+        existed = out.exists()
+        try:
+            lock = OutDirLock(out, "cosim suite").acquire()
+        except OutDirLocked as exc:
+            raise SuiteError(str(exc)) from None
+        try:
+            return fn(paths, out_dir, *args, **kwargs)
+        finally:
+            lock.release()
+            try:
+                if not existed and not any(out.iterdir()):
+                    out.rmdir()
+            except OSError:
+                pass
+    return wrapper
+
+
+@_locked
 def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None = None,
               fmu_swaps: dict | None = None, fmu_dir=None, use_cache: bool = True,
               progress: bool = True, serial: bool = False, ship: bool | None = None,
@@ -483,3 +512,73 @@ def junit_xml(summary: dict) -> str:
     for k in ("tests", "failures", "errors", "skipped"):
         root.set(k, str(sum(int(t.get(k)) for t in root)))
     return ET.tostring(root, encoding="unicode", xml_declaration=True)
+
+
+# =========================================================================== terminal
+_EXC_PREFIX = re.compile(r"^(?:[A-Za-z_][\w.]*(?:Error|Exception|Exit)_?|KeyboardInterrupt): ")
+
+
+def _plain(msg: str) -> str:
+    """A recorded error without the Python exception class in front of it."""
+    msg = " ".join(str(msg or "").split())
+    while _EXC_PREFIX.match(msg):
+        msg = _EXC_PREFIX.sub("", msg, count=1)
+    return msg
+
+
+def failed_runs(out_dir) -> list[dict]:
+    """Every run of a suite's folder that did not finish ok (its own runs and its
+    negative controls' runs): scenario, run, role, FMU, simulated time reached, the
+    error (without the Python exception class) and the record's path. Read from the
+    stored ``run.json`` files (a crash record names role, FMU and time, :mod:`.isolate`;
+    an FMU error names them in its message)."""
+    out = []
+    for f in sorted(Path(out_dir).glob("*/runs/*/run.json")):
+        if f.parent.name.startswith("."):
+            continue
+        try:
+            info = json.loads(f.read_text())
+        except (OSError, ValueError):
+            out.append({"scenario": f.parents[2].name, "run": f.parent.name, "role": None,
+                        "fmu": None, "t": None, "error": "run.json cannot be read",
+                        "record": str(f)})
+            continue
+        if not isinstance(info, dict) or info.get("status") == "ok":
+            continue
+        err = str(info.get("error") or "no error recorded")
+        crash = info.get("crash") or {}
+        role = crash.get("role")
+        fmu = crash.get("fmu")
+        t = crash.get("t_last")
+        if role is None and (m := re.search(r"\brole '?([A-Za-z_]\w*)'?", err)):
+            role = m.group(1)
+        if t is None and (m := re.search(r"\bt = ([-+0-9.eE]+) s", err)):
+            t = float(m.group(1))
+        if fmu is None and role is not None:
+            fmu = next((p.get("path") for p in info.get("provenance") or []
+                        if isinstance(p, dict) and p.get("role") == role), None)
+        if fmu is None and role is not None and (m := re.search(r"\b([\w.-]+\.fmu)\b", err)):
+            fmu = m.group(1)
+        out.append({"scenario": f.parents[2].name, "run": info.get("label") or f.parent.name,
+                    "role": role, "fmu": Path(fmu).name if fmu else None, "t": t,
+                    "error": _plain(err), "record": str(f)})
+    return out
+
+
+def summary_lines(summary: dict, out_dir, limit: int = 20) -> list[str]:
+    """The terminal lines naming each failed or crashed run (at most ``limit``, then a
+    count): ``FAILED RUN scenario run: role R (FMU), t = T s: error -> record``."""
+    rows = failed_runs(out_dir)
+    lines = []
+    for r in rows[:limit]:
+        where = []
+        if r["role"]:
+            where.append(f"role {r['role']}" + (f" ({r['fmu']})" if r["fmu"] else ""))
+        if r["t"] is not None:
+            where.append(f"t = {r['t']:.6g} s")
+        err = r["error"] if len(r["error"]) <= 240 else r["error"][:237] + "..."
+        lines.append(f"FAILED RUN {r['scenario']} {r['run']}: "
+                     + (", ".join(where) + ": " if where else "") + f"{err} -> {r['record']}")
+    if len(rows) > limit:
+        lines.append(f"... and {len(rows) - limit} more failed run(s): {Path(out_dir) / 'summary.json'}")
+    return lines
