@@ -93,6 +93,17 @@ def rms_error_ratio(params, ctx):
     return float(num / den)
 
 
+@metric("peak_error_ratio", params=RmsRatioParams)
+def peak_error_ratio(params, ctx):
+    """max|estimate - truth| / max|reference - truth| after from_s (Fig. 21: the reset
+    keeps the estimate closer to the truth in fast transients: ratio < 1)."""
+    p = RmsRatioParams(**params)
+    s = ctx.signals
+    sel = s["time"] >= p.from_s
+    w = s[p.truth][sel]
+    return float(np.max(np.abs(s[p.estimate][sel] - w)) / np.max(np.abs(s[p.reference][sel] - w)))
+
+
 @dataclass(frozen=True)
 class SettlingParams:
     signal: str = "aakf.bias_m_s2"

@@ -44,6 +44,7 @@ the extension (``src`` aakf, encoder): ``max_abs_rel_err_src_ext``,
 """
 from __future__ import annotations
 
+import math
 from typing import Mapping
 
 import numpy as np
@@ -111,14 +112,17 @@ def settling_time_s(t: np.ndarray, rel_err: np.ndarray, band: float = BAND) -> f
 REGRESSIONS = ("eq44", "integral")
 
 
-def _rls_errors(s, name: str, regression: str, Ts: float, truth: dict) -> np.ndarray:
+def _rls_errors(s, name: str, regression: str, Ts: float, truth: dict,
+                Kt_scale: float = 1.0) -> np.ndarray:
     """(n, 3) relative errors of J, b, fc from the RLS with speed source ``name`` and
     ``regression`` ("eq44": the thesis's one-step regression; "integral": the
-    package's extension, the viscous term from the encoder angle)."""
+    package's extension, the viscous term from the encoder angle); the RLS is told the
+    torque constant ``Kt_scale`` times the plant's."""
+    Kt = truth["Kt"] * Kt_scale
     if regression == "eq44":
-        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, truth["Kt"], None)
+        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, Kt, None)
     else:
-        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, truth["Kt"], s["plant.theta_enc"],
+        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, Kt, s["plant.theta_enc"],
                            speed_timing=speed_timing_for(name))
     return hist / np.array([truth[p] for p in PARAMS]) - 1.0
 
@@ -129,7 +133,9 @@ def identification(run, build, ctx):
     extension) with aaKF, encoder and exact speeds.
 
     ``parameters``: ``extension_regression`` ("integral", default; "eq44" replaces the
-    extension by the thesis's form: the negative control of the extension's claims)."""
+    extension by the thesis's form: the negative control of the extension's claims);
+    ``rls_Kt_scale`` (default 1): the torque constant the RLS is told, relative to the
+    plant's (a negative control: a wrong Kt scales J, b, fc alike)."""
     from cosim.master import Master
     from cosim.master.system import RunResult
 
@@ -137,6 +143,9 @@ def identification(run, build, ctx):
     ext = str(cfg.get("extension_regression", "integral"))
     if ext not in REGRESSIONS:
         raise ValueError(f"parameters.extension_regression: {ext!r} is not one of {REGRESSIONS}")
+    Kt_scale = float(cfg.get("rls_Kt_scale", 1.0))
+    if not (math.isfinite(Kt_scale) and Kt_scale > 0.0):
+        raise ValueError(f"parameters.rls_Kt_scale must be finite and > 0, got {Kt_scale!r}")
     system, record = build()
     if "acc" in system.roles and "seed" not in system.params.get("acc", {}):
         # independent accelerometer noise per run unless the file fixes it
@@ -154,7 +163,7 @@ def identification(run, build, ctx):
     v = out.values
     # the thesis's claims (Fig. 26) are judged on eq. 44 for every speed source
     for name, sig_name in SPEEDS.items():
-        err = _rls_errors(s, name, "eq44", Ts, truth)
+        err = _rls_errors(s, name, "eq44", Ts, truth, Kt_scale)
         sig = {"time": t[idx]}
         for j, p in enumerate(PARAMS):
             sig[f"{p}_rel_err"] = err[idx, j]        # NaN until the estimate is defined
@@ -174,7 +183,7 @@ def identification(run, build, ctx):
     # the extension: the same record through the integral regression (or, under its
     # negative control, eq. 44 again), for the two estimated speeds
     for name in ("aakf", "encoder"):
-        err = _rls_errors(s, name, ext, Ts, truth)
+        err = _rls_errors(s, name, ext, Ts, truth, Kt_scale)
         v[f"max_abs_rel_err_{name}_ext"] = float(np.max(np.abs(err[-1])))
         v[f"rms_rel_err_{name}_ext"] = float(np.sqrt(np.mean(err[-1] ** 2)))
         v[f"settle_s_{name}_ext"] = settling_time_s(t, err)
