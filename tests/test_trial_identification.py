@@ -23,6 +23,11 @@ REPO = Path(__file__).resolve().parents[1]
 J_T, B_T, FC_T, KT_T, TS = 1.7e-5, 1.6e-5, 3e-3, 0.0603, 1e-3   # FMU defaults (Table 1)
 
 
+def one_run_controls(seed: int) -> dict:
+    """The file's one-run negative controls moved to the seed a test runs."""
+    return {"runs: [default/seed0]": f"runs: [default/seed{seed}]"}
+
+
 def test_settling_time_is_entry_into_band_for_good():
     t = np.arange(10) * 0.5
     e = np.zeros((10, 3))
@@ -40,7 +45,7 @@ def test_settling_time_is_entry_into_band_for_good():
 def seed3_run(fmus, tmp_path_factory):
     """The scenario file with seed 3 only, run through the scenario runner."""
     return run_scenario_seed("identification.yaml", "seeds: [0, 1, 2, 3, 4, 5]", 3,
-                             tmp_path_factory.mktemp("ident"))
+                             tmp_path_factory.mktemp("ident"), one_run_controls(3))
 
 
 def test_fmu_current_read_back_is_the_previous_interval(seed3_run):
@@ -48,7 +53,8 @@ def test_fmu_current_read_back_is_the_previous_interval(seed3_run):
     (eq. 39-41, Table 1 values) on the sliding samples of the FMU record: with the
     read-back current plant.i[k] as the torque of [t_{k-1}, t_k) the residual is
     at solver-tolerance level (measured 1.8e-8 rad/s std); paired with the next
-    interval (the old trial) it is ~0.1 rad/s."""
+    interval (the old trial) it is 0.021 rad/s at the 10 Hz excitation (0.1 rad/s at
+    50 Hz: the current changes less from one sample to the next at 10 Hz)."""
     _, s = seed3_run
     i, w = s["plant.i"].to_numpy(), s["plant.w"].to_numpy()
     a1 = math.exp(-TS * B_T / J_T)
@@ -59,20 +65,21 @@ def test_fmu_current_read_back_is_the_previous_interval(seed3_run):
     aligned = wn - (a1 * wp + b0 * (KT_T * i[1:] - FC_T * np.sign(wp)))
     shifted = wn - (a1 * wp + b0 * (KT_T * i[:-1] - FC_T * np.sign(wp)))
     assert np.std(aligned[m]) < 1e-6
-    assert np.std(shifted[m]) > 0.03
+    assert np.std(shifted[m]) > 0.01
 
 
 def test_exact_speed_recovers_the_fmu_parameters_and_misalignment_does_not(seed3_run):
     """Truth is well defined: the RLS with the FMU's exact speed returns J, b, fc
     within 0.1 % (measured 0.01 / 0.04 / 0.00 %); the same data with the current one
-    interval late (the former trial) give b off by > 50 % (measured +163 %)."""
+    interval late (the former trial) give b outside Fig. 26's +-10 % band (measured
+    -13.5 % at the 10 Hz excitation; +163 % at 50 Hz)."""
     info, s = seed3_run
     i, w = s["plant.i"].to_numpy(), s["plant.w"].to_numpy()
     err = rls_history(i, w, TS, KT_T)[-1] / np.array([J_T, B_T, FC_T]) - 1.0
     assert np.all(np.abs(err) < 1e-3), err
     assert info["values"]["max_abs_rel_err_exact"] == pytest.approx(np.max(np.abs(err)))
     late = rls_history(np.r_[i[1:], 0.0], w, TS, KT_T)[-1] / np.array([J_T, B_T, FC_T]) - 1.0
-    assert abs(late[1]) > 0.5, late
+    assert abs(late[1]) > 0.1, late
 
 
 def test_aakf_speed_within_band_and_better_than_encoder(seed3_run):
@@ -105,7 +112,8 @@ def test_file_sigma_a_is_the_whiteness_tuning_of_seed6(fmus, tmp_path):
     from cosim.algorithms.aakf_tuning import _evaluate
     sa = 2371.373705661655
     assert f"sigma_a: {sa}" in (REPO / "scenarios" / "identification.yaml").read_text()
-    _, s = run_scenario_seed("identification.yaml", "seeds: [0, 1, 2, 3, 4, 5]", 6, tmp_path)
+    _, s = run_scenario_seed("identification.yaml", "seeds: [0, 1, 2, 3, 4, 5]", 6, tmp_path,
+                             one_run_controls(6))
     enc, acc = s["plant.theta_enc"].to_numpy(), s["acc.acc_meas"].to_numpy()
     base = thesis_params(sa, reset=False, sigma_b=1e-3)
     rows = _evaluate(base, [(sa * 10 ** e, 1e-3) for e in (-0.125, 0.0, 0.125)], enc, acc,

@@ -179,7 +179,9 @@ def _gain_sequence(p: AakfParams, model: AakfModel) -> _GainSequence:
 
 
 class AaKF:
-    """Accelerometer-aided time-varying Kalman filter with state reset (Sec. 2.2).
+    """Accelerometer-aided time-varying Kalman filter with state reset (Sec. 2.2): the
+    fast form of :class:`cosim.algorithms.aakf.ReferenceAaKF` (tested equal to it), the
+    one the master runs (and, through :meth:`c_kernel`, its C twin ``c/aakf.c``).
 
     Inputs (tick k): ``theta_enc`` [rad] quantised motor angle from the encoder;
     ``acc_meas`` [m/s^2] accelerometer reading along +x of the nut.
