@@ -14,17 +14,23 @@ def fmus():
     return {p.stem: p for p in paths}
 
 
-def run_scenario_seed(scenario: str, seeds_line: str, seed: int, tmp_dir: Path):
+def run_scenario_seed(scenario: str, seeds_line: str, seed: int, tmp_dir: Path,
+                      replace: dict | None = None):
     """One run of ``scenarios/<scenario>`` with only ``seed``, through the scenario
-    runner: the file's ``seeds_line`` (checked to be there) is replaced. Returns the
-    run's info dict and its recorded signals (pandas, phase 'main')."""
+    runner: the file's ``seeds_line`` (checked to be there) is replaced, and each
+    ``replace`` key (checked too) by its value. Returns the run's info dict and its
+    recorded signals (pandas, phase 'main')."""
     import pandas as pd
 
     from cosim.scenarios import execute_run, expand, load, safe_name
     text = (REPO / "scenarios" / scenario).read_text()
     assert seeds_line in text
+    text = text.replace(seeds_line, f"seeds: [{seed}]")
+    for old, new in (replace or {}).items():
+        assert old in text, old
+        text = text.replace(old, new)
     f = tmp_dir / scenario
-    f.write_text(text.replace(seeds_line, f"seeds: [{seed}]"))
+    f.write_text(text)
     (run,) = expand(load(f))
     info = execute_run(str(f), run.label, str(tmp_dir / "out"), fmu_dir=str(REPO / "fmus"))
     assert info["status"] == "ok", info.get("error")

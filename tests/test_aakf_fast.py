@@ -1,10 +1,11 @@
 """Fast AaKF.step (precomputed gain sequence, float arithmetic) against the original step,
 and the sigma_a bank (AaKFBank) against a readable numpy bank of those original steps.
 
-``_ReferenceAaKF`` below is a verbatim copy of ``AaKF.__init__/reset/_state_reset/step``
-as they were before the speed-up (commit d56dd7a): numpy 4x4 products and the
-Riccati recursion (eq. 99, 100, 103 Joseph form) at every step. The fast filter must
-reproduce its outputs and recorded attributes on long runs, for every reset option.
+The reference is the package's readable filter ``cosim.algorithms.aakf.ReferenceAaKF``
+(the step as it was before the speed-up, commit d56dd7a, now in the package: numpy
+4x4 products and the Riccati recursion, eq. 99, 100, 103 Joseph form, at every step).
+The fast filter (``cosim.algorithms.fast.aakf_fast.AaKF``) must reproduce its outputs
+and recorded attributes on long runs, for every reset option.
 
 Timing (this machine, ``timeit`` min of 5 repeats x 20000 steps, default
 AakfParams, constant measurement, after warm-up):
@@ -23,125 +24,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Mapping
 
 import numpy as np
 import pytest
 
-from cosim.algorithms import aakf as aakf_mod
-from cosim.algorithms.aakf import (AakfParams, AaKF, AaKFBank, _check_params,
+from cosim.algorithms.aakf import (AakfParams, AaKF, AaKFBank, ReferenceAaKF,
                                    _position_bounds, _speed_centre, discretise)
+from cosim.algorithms.fast import aakf_fast as aakf_mod
 from cosim.synth import simulate_ballscrew
 
 
-class _ReferenceAaKF:
-    """The original AaKF step (copied before the speed-up; do not optimise)."""
-
-    def __init__(self, params: AakfParams | None = None) -> None:
-        self.params = params if params is not None else AakfParams()
-        _check_params(self.params)
-        self.model = discretise(self.params)
-        self.reset()
-
-    def reset(self) -> None:
-        m = self.model
-        self.k = 0
-        self.x_post = np.zeros(4)
-        self.P = m.P0.copy()
-        self.x_pred = np.zeros(4)
-        self.P_pred = m.P0.copy()
-        self.gain = np.zeros((4, 2))
-        self.innovation = np.zeros(2)
-        self.reset_lo = math.nan
-        self.reset_hi = math.nan
-        self._enc_prev: float | None = None
-
-    def _state_reset(self, x: np.ndarray, enc: float) -> tuple[bool, bool]:
-        """Sec. 2.2.2 pseudocode, in place on ``x``; returns (position, speed) fired."""
-        p = self.params
-        lo, hi = _position_bounds(p, enc)
-        self.reset_lo, self.reset_hi = lo, hi
-        pos_fired = speed_fired = False
-        if x[0] > hi:                                                     # eq. 29, upper
-            x[0] = hi
-            pos_fired = True
-        elif x[0] < lo:                                                   # eq. 29, lower
-            x[0] = lo
-            pos_fired = True
-        if self._enc_prev is not None:
-            v = _speed_centre(p, enc, self._enc_prev, float(x[2]))
-            dv = p.delta_rad / p.Ts
-            if x[1] > v + dv:                                             # eq. 31, upper
-                x[1] = v + dv
-                speed_fired = True
-            elif x[1] < v - dv:                                           # eq. 31, lower
-                x[1] = v - dv
-                speed_fired = True
-        return pos_fired, speed_fired
-
-    def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
-        p, m = self.params, self.model
-        enc = float(measurements["theta_enc"])
-        acc = float(measurements["acc_meas"])
-        y_enc = enc + 0.5 * p.delta_rad if p.encoder_quantiser == "floor" else enc
-        y = np.array([y_enc, acc])
-
-        # --- prediction (eq. 98-99; u = 0) ---
-        if self.k == 0:
-            x_pred = np.zeros(4)
-            if p.init_from_first_measurement:
-                x_pred[0] = y_enc
-            P_pred = m.P0.copy()
-        else:
-            x_pred = m.Ad @ self.x_post                                   # eq. 98
-            P_pred = m.Ad @ self.P @ m.Ad.T + m.Qd                        # eq. 99 (Q_d of eq. 28)
-
-        # --- state estimation reset (Sec. 2.2.2) on the prediction, as in the thesis ---
-        fired = (False, False)
-        if p.reset_enabled and p.reset_stage == "prediction":
-            fired = self._state_reset(x_pred, enc)
-        else:
-            self.reset_lo, self.reset_hi = _position_bounds(p, enc)
-
-        # --- update (eq. 100-103) ---
-        C, R = m.Cd, m.Rd
-        PCt = P_pred @ C.T
-        S = C @ PCt + R
-        K = np.linalg.solve(S, PCt.T).T                                   # eq. 100 (S symmetric)
-        e = y - C @ x_pred                                                # eq. 101
-        x_post = x_pred + K @ e                                           # eq. 102
-        IKC = np.eye(4) - K @ C
-        P_post = IKC @ P_pred @ IKC.T + K @ R @ K.T                       # eq. 103, Joseph form
-        P_post = 0.5 * (P_post + P_post.T)
-
-        if p.reset_enabled and p.reset_stage == "posterior":              # variant, not thesis
-            fired = self._state_reset(x_post, enc)
-        x_out = x_post
-        if p.reset_enabled and p.reset_stage == "output":   # (added with this variant)
-            x_out = x_post.copy()                           # the state is not clamped
-            fired = self._state_reset(x_out, enc)
-
-        self.x_pred, self.P_pred = x_pred, P_pred
-        self.x_post, self.P = x_post, P_post
-        self.gain, self.innovation = K, e
-        self._enc_prev = enc
-        self.k += 1
-
-        s = p.m_per_rad
-        return {
-            "theta_rad": float(x_out[0]),
-            "omega_rad_s": float(x_out[1]),
-            "alpha_rad_s2": float(x_post[2]),
-            "x_m": float(s * x_out[0]),
-            "v_m_s": float(s * x_out[1]),
-            "a_m_s2": float(s * x_post[2]),
-            "bias_m_s2": float(x_post[3]),
-            "innov_enc_rad": float(e[0]),
-            "innov_acc_m_s2": float(e[1]),
-            "reset_fired": float(fired[0] or fired[1]),
-            "reset_pos_fired": float(fired[0]),
-            "reset_speed_fired": float(fired[1]),
-        }
+#: the readable reference of the package (eq. 98-103, one equation per line)
+_ReferenceAaKF = ReferenceAaKF
 
 
 # ------------------------------------------------------------------------------ helpers

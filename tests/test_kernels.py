@@ -445,7 +445,7 @@ def test_aakf_bank_under_python312_sum(lib, logs, monkeypatch):
     """The bank's kernel follows the interpreter's sum(): on CPython >= 3.12 (compensated)
     it uses Neumaier's summation. Checked here with the 3.12 algorithm in place of the
     builtin in cosim.algorithms.aakf and the kernel's flag set."""
-    from cosim.algorithms import aakf as aakf_mod
+    from cosim.algorithms.fast import aakf_fast as aakf_mod
     rows = logs["identification"][:8000]
     p = AakfParams(p0_bias_std_m_s2=0.1)
     py, ck = AaKF(p), AaKF(p)

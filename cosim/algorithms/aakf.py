@@ -1,6 +1,17 @@
 """Accelerometer-aided Kalman filter (aaKF) of thesis Sec. 2.2, with the state reset
 of Sec. 2.2.2, and a plain encoder differentiator for comparison.
 
+The thesis's filter as printed is :class:`ReferenceAaKF`: one filter, Appendix A
+eq. 98-103 one equation per line, Q_d of eq. 28 and the literal reset of eq. 29-31
+(:func:`thesis_params`), its sigma_a picked by the whiteness procedure of Fig. 19-20
+(:mod:`cosim.algorithms.aakf_tuning`). It is the reference: :class:`AaKF` (in
+``cosim/algorithms/fast/aakf_fast.py``, importable from here), what the master runs, is
+its fast form over a precomputed gain and is tested equal to it; the C twin
+``c/aakf.c`` is bit-identical to :class:`AaKF`. The package's options, judged as
+extensions of the printed algorithm: the sigma_a bank (:class:`AaKFBank`, the default
+when ``sigma_a`` is None), the increment process noise, the posterior and
+output-stage resets and the acceleration-shifted speed bound.
+
 Model (thesis eq. 14-23)
 ------------------------
 The filter is purely kinematic (no mechanical parameter enters it). The state is
@@ -98,18 +109,22 @@ and the innovation use the clamped prediction. Variants (not the thesis):
   (in the filter's own position frame, which the encoder readings centre), so the
   clamp can only move a reported value towards the truth.
 
-The reset is off by default (``reset_enabled=False``): the literal reset makes a
-well-tuned filter worse (the prediction, whose spread is comparable to Delta, often
-falls outside the cell, and the clipped innovations hide the position drift that
-reveals a bias error); it helps only a filter whose sigma_a is too small (the case
-of thesis Fig. 21). The output-stage reset does not hurt and does not measurably
-help. Figures: docs/decisions.md, "aaKF and RLS on independent data".
+The reset is off by default (``reset_enabled=False``). What the literal reset does
+(scenarios/aakf_reset.yaml): on a filter whose sigma_a is too small for the motion (the
+setting of thesis Fig. 21) it improves the speed estimate (RMS x0.6-0.7, peak
+x0.5-0.6 on a randomly accelerated mass); on a filter tuned to the motion it makes it
+worse (x2.7-3.2 on the same mass), because eq. 31 bounds the *mean* speed over the
+last sample, (theta_k - theta_k-1)/Ts, which differs from the speed at t_k by about
+alpha Ts/2: for |alpha| > 2 Delta/Ts^2 (582 rad/s^2) the true speed lies outside the
+interval and the clamp pulls a good prediction away from it; clamping the prediction
+also clips the innovation of eq. 101, which then hides the position drift that
+reveals a bias error. The output-stage reset does not hurt and does not measurably
+help. Figures: docs/decisions.md, "Thesis as printed: estimation".
 """
 from __future__ import annotations
 
 import math
-import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
@@ -120,8 +135,10 @@ from .ckernel import CKernel
 __all__ = [
     "AakfParams",
     "AakfModel",
+    "ReferenceAaKF",
     "AaKF",
     "AaKFBank",
+    "thesis_params",
     "SIGMA_A_BANK",
     "EncoderDifferentiator",
     "EncoderDifferentiatorParams",
@@ -375,634 +392,145 @@ def _check_params(p: AakfParams) -> None:
         raise ValueError("bank_memory_s must be > 0")
 
 
-#: Riccati steps computed per chunk of the shared gain sequence
-_RICCATI_CHUNK = 2048
-#: the gain is held once max_ij |K_k - K_k-1|_ij / |K_k|_ij <= _RICCATI_RTOL for
-#: _RICCATI_RUN consecutive steps, or after _RICCATI_CAP steps in any case
-_RICCATI_RTOL = 1e-13
-_RICCATI_RUN = 300
-_RICCATI_CAP = 200_000
-#: number of parameter sets whose gain sequences are kept (oldest dropped first)
-_GAIN_CACHE_SIZE = 32
-_GAIN_CACHE: dict[AakfParams, "_GainSequence"] = {}
+class ReferenceAaKF:
+    """The aaKF of the thesis as printed, one filter, readable: Appendix A eq. 98-103
+    with the state reset of Sec. 2.2.2 between the prediction and the update.
 
+    This is the reference: :class:`cosim.algorithms.fast.aakf_fast.AaKF` (what the
+    scenarios run, re-exported here as :class:`AaKF`) is its fast form and is tested
+    equal to it (``tests/test_aakf_fast.py``); the C twin ``c/aakf.c`` is bit-identical
+    to the fast form (``tests/test_kernels.py``).
 
-class _GainSequence:
-    """Data-independent K_k, P_k|k-1, P_k|k of :meth:`AaKF.step` (eq. 99, 100, 103).
+    The thesis's algorithm is ``AakfParams(sigma_a=<number>, process_noise="jerk",
+    reset_enabled=True, reset_stage="prediction", reset_speed_bound="eq31")``
+    (:func:`thesis_params`): Q_d of eq. 28 and the literal reset of eq. 29-31. The
+    package's single-filter options are followed too, so that the fast form can be
+    checked on each: ``process_noise="increment"``, ``reset_stage="posterior"`` or
+    ``"output"``, ``reset_speed_bound="eq31_accel"``, the floor quantiser. The sigma_a
+    bank is a bank of these filters (:class:`AaKFBank`).
 
-    The reset never touches P, so these do not depend on the measurements. They are
-    computed lazily, chunk by chunk, with exactly the numpy operations the filter
-    used to run at every step (so they are bitwise the values of the per-step
-    recursion), until the gain has converged (see ``_RICCATI_*``); from then on the
-    last computed K, P_pred and P are held. Arrays are stored read-only in chunks of
-    shape (n, 4, 2) / (n, 4, 4) and shared by all filters with the same model.
-    """
-
-    def __init__(self, model: AakfModel) -> None:
-        self._model = model
-        self.K: list[np.ndarray] = []       # chunks (n, 4, 2)
-        self.P_pred: list[np.ndarray] = []  # chunks (n, 4, 4)
-        self.P: list[np.ndarray] = []       # chunks (n, 4, 4)
-        #: per chunk, per step: (K00, K01, ..., K31, Si00, Si01, Si11, log det S), with
-        #: S = C P_k|k-1 C^T + R the innovation covariance (eq. 100) and Si its inverse
-        self.K_tuples: list[list[tuple[float, ...]]] = []
-        self.n = 0                          # steps computed
-        self.done = False                   # converged (or cap reached): hold entry n - 1
-        self._P_last: np.ndarray | None = None
-        self._K_last: np.ndarray | None = None
-        self._run = 0
-
-    def extend(self) -> None:
-        """Compute the next chunk of the recursion."""
-        _extend_together([self])
-
-    def index(self, k: int) -> tuple[int, int]:
-        """(chunk, offset) of step k (the held last entry once converged)."""
-        if k >= self.n:
-            k = self.n - 1
-        return divmod(k, _RICCATI_CHUNK)
-
-
-def _extend_together(seqs: Sequence[_GainSequence]) -> None:
-    """Compute the next chunk of every sequence in ``seqs`` that has not converged.
-
-    Sequences at the same step are stacked: numpy's matmul, solve, inv and det work
-    item by item on a stack (one BLAS/LAPACK call per item), so each sequence gets
-    bitwise the values it would get alone (tested), while a sigma_a bank pays one
-    numpy call per operation instead of one per member (the bank's 9 sequences: 15x
-    faster than one by one)."""
-    groups: dict[int, dict[int, _GainSequence]] = {}
-    for sq in seqs:
-        if not sq.done:
-            groups.setdefault(sq.n, {})[id(sq)] = sq
-    for k0, grp in groups.items():
-        _extend_stack(list(grp.values()), k0)
-
-
-def _extend_stack(grp: list[_GainSequence], k: int) -> None:
-    """One chunk of eq. 99, 100, 103 (Joseph form) for sequences all at step ``k``
-    (a single sequence runs on 2-D arrays: numpy's overhead per call is lower)."""
-    ms = [sq._model for sq in grp]
-    B = len(grp)
-    one = B == 1
-    stack = (lambda xs: xs[0]) if one else np.stack
-    pick = (lambda x, i: x) if one else (lambda x, i: x[i])
-    Ad = stack([m.Ad for m in ms])
-    AdT = Ad.swapaxes(-1, -2)
-    Qd = stack([m.Qd for m in ms])
-    C = stack([m.Cd for m in ms])
-    CT = C.swapaxes(-1, -2)
-    R = stack([m.Rd for m in ms])
-    I4 = np.eye(4)
-    P = stack([sq._P_last for sq in grp]) if k > 0 else None
-    Kprev = stack([sq._K_last for sq in grp]) if k > 0 else None
-    run = np.array([sq._run for sq in grp])
-    live = np.ones(B, bool)                   # still computing in this chunk
-    ends = np.zeros(B, int)                   # steps each keeps from this chunk
-    Ks, Pps, Ps, Sis, dets = [], [], [], [], []
-    steps = 0
-    n_live = B
-    while n_live and steps < _RICCATI_CHUNK:
-        if k == 0:
-            P_pred = stack([m.P0.copy() for m in ms])
-        else:
-            P_pred = Ad @ P @ AdT + Qd                                    # eq. 99
-        PCt = P_pred @ CT
-        S = C @ PCt + R
-        K = np.linalg.solve(S, PCt.swapaxes(-1, -2)).swapaxes(-1, -2)    # eq. 100
-        IKC = I4 - K @ C
-        P = IKC @ P_pred @ IKC.swapaxes(-1, -2) + K @ R @ K.swapaxes(-1, -2)  # eq. 103
-        P = 0.5 * (P + P.swapaxes(-1, -2))
-        Ks.append(K)
-        Pps.append(P_pred)
-        Ps.append(P)
-        Sis.append(np.linalg.inv(S))
-        dets.append(np.linalg.det(S))
-        if Kprev is not None:                 # per entry, max over each K (exact)
-            ch = np.max(np.abs(K - Kprev) / np.abs(K), axis=(-2, -1))
-            run = np.where(ch <= _RICCATI_RTOL, run + 1, 0)
-        Kprev = K
-        k += 1
-        steps += 1
-        if k >= _RICCATI_CAP or run.max() >= _RICCATI_RUN:
-            stop = live & ((run >= _RICCATI_RUN) | (k >= _RICCATI_CAP))
-            for i in np.flatnonzero(stop):    # converged: hold entry n - 1 from now on
-                grp[i].n, grp[i]._P_last, grp[i]._K_last = k, pick(P, i), pick(K, i)
-                grp[i]._run, grp[i].done, ends[i] = int(run[i]), True, steps
-            live &= ~stop
-            n_live = int(live.sum())
-    for i in np.flatnonzero(live):            # the chunk is full
-        grp[i].n, grp[i]._P_last, grp[i]._K_last, grp[i]._run = k, pick(P, i), pick(K, i), int(run[i])
-        ends[i] = steps
-    Ka, Ppa, Pa, Sia, deta = (np.array(x) if not one else np.array(x)[:, None]
-                              for x in (Ks, Pps, Ps, Sis, dets))
-    for i, sq in enumerate(grp):
-        n = int(ends[i])
-        Kc, Ppc, Pc = (np.ascontiguousarray(x[:n, i]) for x in (Ka, Ppa, Pa))
-        for arr in (Kc, Ppc, Pc):
-            arr.flags.writeable = False
-        sq.K.append(Kc)
-        sq.P_pred.append(Ppc)
-        sq.P.append(Pc)
-        si = Sia[:n, i]
-        sq.K_tuples.append([(*r, a, b, c, math.log(d)) for r, a, b, c, d in zip(
-            Kc.reshape(n, 8).tolist(), si[:, 0, 0].tolist(), si[:, 0, 1].tolist(),
-            si[:, 1, 1].tolist(), deta[:n, i].tolist())])
-
-
-def _gain_sequence(p: AakfParams, model: AakfModel) -> _GainSequence:
-    """The shared gain sequence of ``p`` (fields that only affect the reset or the
-    initial state are normalised out of the cache key)."""
-    key = replace(p, reset_enabled=True, reset_speed_bound="eq31", reset_stage="prediction",
-                  init_from_first_measurement=True, sigma_a_bank=(), bank_memory_s=1.0)
-    seq = _GAIN_CACHE.get(key)
-    if seq is None:
-        seq = _GainSequence(model)
-        while len(_GAIN_CACHE) >= _GAIN_CACHE_SIZE:
-            _GAIN_CACHE.pop(next(iter(_GAIN_CACHE)))
-        _GAIN_CACHE[key] = seq
-    return seq
-
-
-class AaKF:
-    """Accelerometer-aided time-varying Kalman filter with state reset (Sec. 2.2).
-
-    Inputs (tick k): ``theta_enc`` [rad] quantised motor angle from the encoder;
-    ``acc_meas`` [m/s^2] accelerometer reading along +x of the nut.
-
-    Outputs: a-posteriori estimates ``theta_rad`` [rad], ``omega_rad_s`` [rad/s],
-    ``alpha_rad_s2`` [rad/s^2] and their load-side images ``x_m`` [m], ``v_m_s`` [m/s],
-    ``a_m_s2`` [m/s^2] (times lead/2 pi); ``bias_m_s2`` [m/s^2] the accelerometer-bias
-    estimate; ``innov_enc_rad`` [rad] and ``innov_acc_m_s2`` [m/s^2] the innovation
-    e_k = y_k - C x_k|k-1 (eq. 101; with the thesis' reset stage it is computed from
-    the reset prediction); ``reset_fired``, ``reset_pos_fired``,
-    ``reset_speed_fired`` (1.0 when the Sec. 2.2.2 step clamped anything / the
-    position / the speed at this tick, else 0.0).
-
-    Recordable attributes: ``gain`` (K_k, 4x2), ``P`` (P_k|k, 4x4), ``P_pred``
-    (P_k|k-1), ``x_pred`` (x_k|k-1, after the reset when the reset acts on the
-    prediction), ``x_post`` (x_k|k), ``innovation`` (e_k), ``reset_lo``/``reset_hi``
-    (eq. 29 interval of this tick).
+    Inputs, outputs and recordable attributes are those of :class:`AaKF`.
     """
 
     inputs: tuple[str, ...] = ("theta_enc", "acc_meas")
     outputs: tuple[str, ...] = (
-        "theta_rad", "omega_rad_s", "alpha_rad_s2",
-        "x_m", "v_m_s", "a_m_s2", "bias_m_s2",
-        "innov_enc_rad", "innov_acc_m_s2",
-        "reset_fired", "reset_pos_fired", "reset_speed_fired",
-    )
-    output_units = {"theta_rad": "rad", "omega_rad_s": "rad/s", "alpha_rad_s2": "rad/s2",
-                    "x_m": "m", "v_m_s": "m/s", "a_m_s2": "m/s2", "bias_m_s2": "m/s2",
-                    "innov_enc_rad": "rad", "innov_acc_m_s2": "m/s2", "reset_fired": "1",
-                    "reset_pos_fired": "1", "reset_speed_fired": "1"}
+        "theta_rad", "omega_rad_s", "alpha_rad_s2", "x_m", "v_m_s", "a_m_s2", "bias_m_s2",
+        "innov_enc_rad", "innov_acc_m_s2", "reset_fired", "reset_pos_fired", "reset_speed_fired")
     recordable: tuple[str, ...] = ("gain", "P", "P_pred", "x_pred", "x_post", "innovation",
                                    "reset_lo", "reset_hi")
 
-    def __new__(cls, params: AakfParams | None = None):
-        # AaKF(p) with p.sigma_a None (default) is the bank of single filters
-        # (AaKFBank); with a number it is the single filter of the thesis
-        if cls is AaKF and (params if params is not None else AakfParams()).sigma_a is None:
-            return super().__new__(AaKFBank)
-        return super().__new__(cls)
-
-    def __init__(self, params: AakfParams | None = None) -> None:
-        self.params = p = params if params is not None else AakfParams()
-        _check_params(p)
-        self.model = m = discretise(p)
-        self._seq = _gain_sequence(p, m)
-        # constants of the hot path, computed as the original expressions compute them
-        self._half_delta = 0.5 * p.delta_rad
-        self._delta = p.delta_rad
-        self._floor = p.encoder_quantiser == "floor"
-        self._reset_pred = p.reset_enabled and p.reset_stage == "prediction"
-        self._reset_post = p.reset_enabled and p.reset_stage == "posterior"
-        self._reset_out = p.reset_enabled and p.reset_stage == "output"
-        self._s = p.m_per_rad
-        self._s_row = float(m.Cd[1, 2]), float(m.Cd[1, 3])
-        A = m.Ad
-        self._Ad = tuple(float(v) for v in A.ravel())
-        # A_d = expm(A_c Ts) of the triple integrator + constant bias: only the upper
-        # triangle of the 3x3 block and A_d[3, 3] are non-zero (checked, else general)
-        zero = [(1, 0), (2, 0), (2, 1), (0, 3), (1, 3), (2, 3), (3, 0), (3, 1), (3, 2)]
-        self._Ad_sparse = all(A[i, j] == 0.0 for i, j in zero)
-        Cd = m.Cd
-        self._C_std = bool(np.array_equal(Cd[0], [1.0, 0.0, 0.0, 0.0])
-                           and Cd[1, 0] == 0.0 and Cd[1, 1] == 0.0)
+    def __init__(self, params: AakfParams) -> None:
+        _check_params(params)
+        if params.sigma_a is None:
+            raise ValueError("ReferenceAaKF is one filter: sigma_a must be a number")
+        self.params = params
+        self.model = discretise(params)                   # eq. 21-28
         self.reset()
 
     def reset(self) -> None:
+        m = self.model
         self.k = 0
-        self._x_post = (0.0, 0.0, 0.0, 0.0)
-        self._x_pred = (0.0, 0.0, 0.0, 0.0)
-        self._innov = (0.0, 0.0)
-        self._P0 = self.model.P0.copy()
-        self._P0_pred = self.model.P0.copy()
-        self._gain0 = np.zeros((4, 2))
-        self._gk = -1                       # index of the gain sequence entry in use
-        self._cs = 0                        # current chunk: start index, end index, K tuples
-        self._ce = 0
-        self._kf: list[tuple[float, ...]] = []
-        self._kss: tuple[float, ...] | None = None   # held (steady-state) gain
+        self.x_post = np.zeros(4)                         # x_0|0 = 0 (Appendix A)
+        self.P = m.P0.copy()
+        self.x_pred = np.zeros(4)
+        self.P_pred = m.P0.copy()
+        self.gain = np.zeros((4, 2))
+        self.innovation = np.zeros(2)
         self.reset_lo = math.nan
         self.reset_hi = math.nan
-        self.loglik = 0.0
         self._enc_prev: float | None = None
 
-    # --- recordable attributes (views of the shared, read-only gain sequence) ---
-    @property
-    def gain(self) -> np.ndarray:
-        """K_k (4x2) of the last step."""
-        if self._gk < 0:
-            return self._gain0
-        c, o = self._seq.index(self._gk)
-        return self._seq.K[c][o]
-
-    @property
-    def P(self) -> np.ndarray:
-        """P_k|k (4x4) of the last step."""
-        if self._gk < 0:
-            return self._P0
-        c, o = self._seq.index(self._gk)
-        return self._seq.P[c][o]
-
-    @property
-    def P_pred(self) -> np.ndarray:
-        """P_k|k-1 (4x4) of the last step."""
-        if self._gk < 0:
-            return self._P0_pred
-        c, o = self._seq.index(self._gk)
-        return self._seq.P_pred[c][o]
-
-    @property
-    def x_post(self) -> np.ndarray:
-        """x_k|k (after the reset when it acts on the posterior)."""
-        return np.array(self._x_post)
-
-    @property
-    def x_pred(self) -> np.ndarray:
-        """x_k|k-1 (after the reset when it acts on the prediction)."""
-        return np.array(self._x_pred)
-
-    @property
-    def innovation(self) -> np.ndarray:
-        """e_k = y_k - C x_k|k-1 (eq. 101)."""
-        return np.array(self._innov)
-
-    def _next_gain(self, k: int) -> tuple[float, ...]:
-        """Gain of step k when it lies beyond the current chunk."""
-        seq = self._seq
-        while k >= seq.n and not seq.done:
-            seq.extend()
-        if k >= seq.n:                       # converged: hold the last gain
-            c, o = seq.index(k)
-            self._kss = seq.K_tuples[c][o]
-            return self._kss
-        c, o = seq.index(k)
-        self._kf = seq.K_tuples[c]
-        self._cs = c * _RICCATI_CHUNK
-        self._ce = self._cs + len(self._kf)
-        return self._kf[o]
-
-    # --- compiled step (cosim/algorithms/c/aakf.c; this class stays the reference) ---
-    def _kernel_member(self, tables: dict) -> list[float]:
-        """This filter's block of the kernel parameters (A_d, C row, where its gain
-        table lies); its gain sequence (as far as computed) is added to ``tables``."""
-        seq = self._seq
-        if id(seq) not in tables:
-            tables[id(seq)] = np.array([r for chunk in seq.K_tuples for r in chunk], float)
-        return [float(self._Ad_sparse), *self._Ad, *self._s_row,
-                float(seq.n), float(id(seq)), float(seq.done)]   # id: the table's offset, later
-
-    def _kernel_state(self) -> list[float]:
-        ep = self._enc_prev
-        return [float(self.k), *self._x_post, *self._x_pred, *self._innov, self.loglik,
-                self.reset_lo, self.reset_hi, 0.0 if ep is None else ep,
-                float(ep is not None), 0.0, 0.0]
-
-    def _kernel_sync_state(self, s: Sequence[float]) -> None:
-        self.k = k = int(s[0])
-        self._x_post = tuple(float(v) for v in s[1:5])
-        self._x_pred = tuple(float(v) for v in s[5:9])
-        self._innov = (float(s[9]), float(s[10]))
-        self.loglik = float(s[11])
-        self.reset_lo, self.reset_hi = float(s[12]), float(s[13])
-        self._enc_prev = float(s[14]) if s[15] else None
-        self._gk = k - 1                     # the gain of the last step (-1: none yet)
-        self._cs = self._ce = 0              # the next step finds its gain chunk again
-        self._kf = []
-        self._kss = None
-
-    def c_kernel(self, ticks: int | None = None) -> CKernel | None:
-        """The compiled step ``aakf`` (c/aakf.c), bit-identical to :meth:`step`.
-
-        Its parameters hold the data-independent gain sequence K_k (shared with the
-        Python step, computed here where it is not yet), so they are a read-only
-        float64 array, not a tuple: up to convergence (~28 000 steps, 2.7 MB and about
-        0.9 s of numpy per sigma_a) when ``ticks`` is None, else enough for ``ticks``
-        more steps (the kernel returns 1 past them unless the gain has converged)."""
-        if not self._C_std:
-            return None
-        return _kernel(self, [self], bank=False, ticks=ticks)
-
-    def c_kernel_sync(self, state: Sequence[float]) -> None:
-        """Write the state of a compiled run back: later :meth:`step` calls continue as
-        if every step had run in Python."""
-        self._kernel_sync_state(state)
-
-    def c_kernel_error(self, code: int) -> Exception:
-        if code == 1:
-            return RuntimeError("compiled aaKF step ran past the gain sequence it was given: "
-                                "c_kernel(ticks=...) was smaller than the run")
-        return RuntimeError(f"compiled aaKF step returned unknown code {code}")
+    def _state_reset(self, x: np.ndarray, enc: float) -> tuple[bool, bool]:
+        """Sec. 2.2.2 pseudocode, in place on ``x``; returns (position, speed) fired."""
+        p = self.params
+        lo, hi = _position_bounds(p, enc)                                 # eq. 29
+        self.reset_lo, self.reset_hi = lo, hi
+        pos_fired = speed_fired = False
+        if x[0] > hi:                                                     # eq. 29, upper
+            x[0] = hi
+            pos_fired = True
+        elif x[0] < lo:                                                   # eq. 29, lower
+            x[0] = lo
+            pos_fired = True
+        if self._enc_prev is not None:
+            v = _speed_centre(p, enc, self._enc_prev, float(x[2]))        # eq. 30
+            dv = p.delta_rad / p.Ts
+            if x[1] > v + dv:                                             # eq. 31, upper
+                x[1] = v + dv
+                speed_fired = True
+            elif x[1] < v - dv:                                           # eq. 31, lower
+                x[1] = v - dv
+                speed_fired = True
+        return pos_fired, speed_fired
 
     def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
-        """One sample (eq. 98-103 with the Sec. 2.2.2 reset).
-
-        The gain K_k comes from the shared precomputed sequence (it does not depend on
-        the data); the state arithmetic runs on Python floats (4 states, 2 outputs)."""
+        p, m = self.params, self.model
+        A, Q, C, R = m.Ad, m.Qd, m.Cd, m.Rd
         enc = float(measurements["theta_enc"])
         acc = float(measurements["acc_meas"])
-        y_enc = enc + self._half_delta if self._floor else enc
-        k = self.k
+        # the floor quantiser's unbiased reading is the cell's centre
+        y = np.array([enc + 0.5 * p.delta_rad if p.encoder_quantiser == "floor" else enc, acc])
 
-        # --- gain K_k (eq. 99, 100, 103 precomputed) ---
-        if k < self._ce:
-            K = self._kf[k - self._cs]
-        elif self._kss is not None:
-            K = self._kss
+        if self.k == 0:                                   # x_0, P_0 (Appendix A)
+            x_pred = np.zeros(4)
+            if p.init_from_first_measurement:
+                x_pred[0] = y[0]
+            P_pred = m.P0.copy()
         else:
-            K = self._next_gain(k)
+            x_pred = A @ self.x_post                                      # eq. 98 (u = 0)
+            P_pred = A @ self.P @ A.T + Q                                 # eq. 99, Q_d of eq. 28
 
-        # --- prediction (eq. 98; u = 0) ---
-        if k == 0:
-            x0 = y_enc if self.params.init_from_first_measurement else 0.0
-            x1 = x2 = x3 = 0.0
+        fired = (False, False)
+        if p.reset_enabled and p.reset_stage == "prediction":             # Sec. 2.2.2
+            fired = self._state_reset(x_pred, enc)
         else:
-            u0, u1, u2, u3 = self._x_post
-            A = self._Ad
-            if self._Ad_sparse:
-                x0 = (A[0] * u0 + A[2] * u2) + A[1] * u1
-                x1 = A[5] * u1 + A[6] * u2
-                x2 = A[10] * u2
-                x3 = A[15] * u3
-            else:
-                x0 = A[0] * u0 + A[1] * u1 + A[2] * u2 + A[3] * u3
-                x1 = A[4] * u0 + A[5] * u1 + A[6] * u2 + A[7] * u3
-                x2 = A[8] * u0 + A[9] * u1 + A[10] * u2 + A[11] * u3
-                x3 = A[12] * u0 + A[13] * u1 + A[14] * u2 + A[15] * u3
+            self.reset_lo, self.reset_hi = _position_bounds(p, enc)
 
-        # --- eq. 29 interval; state reset (Sec. 2.2.2) on the prediction (thesis) ---
-        if self._floor:
-            lo, hi = enc, enc + self._delta
-        else:
-            lo, hi = enc - self._half_delta, enc + self._half_delta
-        self.reset_lo, self.reset_hi = lo, hi
-        enc_prev = self._enc_prev
-        pos_fired = speed_fired = False
-        if self._reset_pred:                                              # eq. 29-31
-            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
+        PCt = P_pred @ C.T
+        S = C @ PCt + R                                                   # innovation covariance
+        K = np.linalg.solve(S, PCt.T).T                                   # eq. 100 (S symmetric)
+        e = y - C @ x_pred                                                # eq. 101
+        x_post = x_pred + K @ e                                           # eq. 102
+        IKC = np.eye(4) - K @ C
+        P_post = IKC @ P_pred @ IKC.T + K @ R @ K.T                       # eq. 103 (Joseph form)
+        P_post = 0.5 * (P_post + P_post.T)      # symmetric (see the module docstring)
 
-        # --- update (eq. 101-102) ---
-        if self._C_std:
-            c2, c3 = self._s_row
-            e0 = y_enc - x0                                               # eq. 101
-            e1 = acc - (c2 * x2 + c3 * x3)
-        else:
-            C = self.model.Cd
-            e0 = y_enc - float(C[0] @ np.array((x0, x1, x2, x3)))
-            e1 = acc - float(C[1] @ np.array((x0, x1, x2, x3)))
-        k00, k01, k10, k11, k20, k21, k30, k31, i00, i01, i11, logdet = K
-        # Gaussian log-likelihood of the innovation, -(log det S + e^T S^-1 e)/2 (the
-        # constant -log(2 pi) dropped): what the sigma_a bank weighs the members by
-        self.loglik = -0.5 * (logdet + (i00 * e0 * e0 + 2.0 * i01 * e0 * e1 + i11 * e1 * e1))
-        self._x_pred = (x0, x1, x2, x3)
-        x0 = x0 + (k00 * e0 + k01 * e1)                                   # eq. 102
-        x1 = x1 + (k10 * e0 + k11 * e1)
-        x2 = x2 + (k20 * e0 + k21 * e1)
-        x3 = x3 + (k30 * e0 + k31 * e1)
+        if p.reset_enabled and p.reset_stage == "posterior":              # option, not thesis
+            fired = self._state_reset(x_post, enc)
+        x_out = x_post
+        if p.reset_enabled and p.reset_stage == "output":                 # option, not thesis
+            x_out = x_post.copy()                       # only the reported estimate
+            fired = self._state_reset(x_out, enc)
 
-        if self._reset_post:                                              # variant, not thesis
-            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
-
-        self._x_post = (x0, x1, x2, x3)
-        self._innov = (e0, e1)
-        self._gk = k
+        self.x_pred, self.P_pred = x_pred, P_pred
+        self.x_post, self.P = x_post, P_post
+        self.gain, self.innovation = K, e
         self._enc_prev = enc
-        self.k = k + 1
-
-        if self._reset_out:                                    # variant: the output only
-            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
-        return _outputs(self._s, x0, x1, x2, x3, e0, e1, float(pos_fired or speed_fired),
-                        float(pos_fired), float(speed_fired))
-
-
-class AaKFBank(AaKF):
-    """Bank of single aaKFs that differ only in sigma_a, weighed by the likelihood of
-    their innovations (multiple-model adaptive estimation, Magill 1965).
-
-    Built by ``AaKF(p)`` when ``p.sigma_a`` is None (the default). Member i is
-    the single :class:`AaKF` of ``p`` with ``sigma_a = p.sigma_a_bank[i]`` (every other
-    field, the reset included, as in ``p``); all members see the same measurements
-    and none feeds back into another. At tick k, member i gives its a-posteriori state
-    x_i and the Gaussian log-likelihood of its innovation e_i (eq. 101, covariance
-    S_i = C P_i,k|k-1 C^T + R of eq. 100)::
-
-        l_i,k = -(log det S_i,k + e_i,k^T S_i,k^-1 e_i,k) / 2
-        L_i,k = lambda L_i,k-1 + l_i,k,      lambda = exp(-Ts / bank_memory_s)
-        w_i,k = exp(L_i,k) / sum_j exp(L_j,k)
-
-    and the bank's estimate is sum_i w_i,k x_i (outputs ``theta_rad`` ... ``bias_m_s2``).
-    The innovation outputs are those of the mixed prediction, sum_i w_i,k-1 e_i,k
-    (C is linear, so this is y_k - C sum_i w_i,k-1 x_i,k|k-1); the recordable
-    ``gain``/``P``/``P_pred``/``reset_lo``/``reset_hi`` are those of the most probable
-    member. The state reset: with ``reset_stage="output"`` the members run without it
-    and the bank's position and speed are clamped into eq. 29/31 (the ``reset_*``
-    flags say when); with "prediction" or "posterior" every member applies it to its
-    own state and the flags are those of the most probable member. Extra recordables: ``weights`` (w_k) and ``sigma_a_eff``
-    (exp(sum_i w_i log sigma_a_i) [rad/s^3/sqrt(Hz)]).
-
-    Why: the aaKF is kinematic, and the jerk it must follow depends on what moves
-    the axis (about 300 rad/s^3/sqrt(Hz) for a hand, 3e3 for a white-noise current
-    whose zero-order-held steps make the acceleration jump at every sample); the
-    likelihood picks it from the data sample by sample.
-    """
-
-    def __init__(self, params: AakfParams | None = None) -> None:
-        self.params = p = params if params is not None else AakfParams()
-        _check_params(p)
-        if p.sigma_a is not None or not p.sigma_a_bank:
-            raise ValueError("AaKFBank needs sigma_a=None and a non-empty sigma_a_bank")
-        # the "output" reset acts on the bank's estimate, not inside the members
-        self._reset_out = p.reset_enabled and p.reset_stage == "output"
-        member_reset = p.reset_enabled and not self._reset_out
-        self.members = [AaKF(replace(p, sigma_a=float(sa), sigma_a_bank=(),
-                                     reset_enabled=member_reset))
-                        for sa in p.sigma_a_bank]
-        self.model = self.members[0].model
-        self._lam = math.exp(-p.Ts / p.bank_memory_s)
-        self._log_sa = [math.log(sa) for sa in p.sigma_a_bank]
-        self._s = p.m_per_rad
-        self.reset()
-
-    def reset(self) -> None:
-        for f in self.members:
-            f.reset()
-        n = len(self.members)
-        self.k = 0
-        self._covered = 0                  # members' gains are computed below this step
-        self._L = [0.0] * n
-        self._w = [1.0 / n] * n
-        self._w_prior = self._w
-        self._innov = (0.0, 0.0)
-        self._x_mix = (0.0, 0.0, 0.0, 0.0)
-        self._best = 0
-        self._enc_prev: float | None = None
-        self.sigma_a_eff = math.exp(sum(self._log_sa) / n)
-
-    @property
-    def weights(self) -> np.ndarray:
-        """w_k, one weight per member of ``sigma_a_bank``."""
-        return np.array(self._w)
-
-    def _best_member(self) -> AaKF:
-        return self.members[self._best]
-
-    gain = property(lambda self: self._best_member().gain, doc="K_k of the most probable member.")
-    P = property(lambda self: self._best_member().P, doc="P_k|k of the most probable member.")
-    P_pred = property(lambda self: self._best_member().P_pred,
-                      doc="P_k|k-1 of the most probable member.")
-    reset_lo = property(lambda self: self._best_member().reset_lo)
-    reset_hi = property(lambda self: self._best_member().reset_hi)
-
-    @property
-    def x_post(self) -> np.ndarray:
-        """sum_i w_i,k x_i,k|k (before an output-stage reset)."""
-        return np.array(self._x_mix)
-
-    @property
-    def x_pred(self) -> np.ndarray:
-        """sum_i w_i,k-1 x_i,k|k-1 (the mixed prediction the innovations refer to)."""
-        return np.array(self._w_prior) @ np.array([f.x_pred for f in self.members])
-
-    @property
-    def innovation(self) -> np.ndarray:
-        return np.array(self._innov)
-
-    def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
-        """One sample: every member steps (eq. 98-103), then the weights are updated."""
-        while self.k >= self._covered:     # the members' next gain chunks, stacked
-            _extend_together([f._seq for f in self.members if f._seq.n <= self.k])
-            self._covered = min((f._seq.n for f in self.members if not f._seq.done),
-                                default=math.inf)
-        outs = [f.step(measurements) for f in self.members]
-        w_prior = self._w
-        lam = self._lam
-        L = [lam * Li + f.loglik for Li, f in zip(self._L, self.members)]
-        top = max(L)
-        L = [Li - top for Li in L]                  # keep exp() in range; w unchanged
-        ex = [math.exp(Li) for Li in L]
-        tot = sum(ex)
-        w = [e / tot for e in ex]
-        self._L, self._w, self._w_prior = L, w, w_prior
-        self._best = best = max(range(len(w)), key=w.__getitem__)
-        self.sigma_a_eff = math.exp(sum(wi * la for wi, la in zip(w, self._log_sa)))
-        th = om = al = bi = 0.0
-        e0 = e1 = 0.0
-        for wi, wp, o in zip(w, w_prior, outs):
-            th += wi * o["theta_rad"]
-            om += wi * o["omega_rad_s"]
-            al += wi * o["alpha_rad_s2"]
-            bi += wi * o["bias_m_s2"]
-            e0 += wp * o["innov_enc_rad"]
-            e1 += wp * o["innov_acc_m_s2"]
-        self._innov = (e0, e1)
-        self._x_mix = (th, om, al, bi)
         self.k += 1
-        ob = outs[best]
-        flags = ob["reset_fired"], ob["reset_pos_fired"], ob["reset_speed_fired"]
-        enc = float(measurements["theta_enc"])
-        if self._reset_out:                           # Sec. 2.2.2 on the bank's estimate
-            th, om, pos, spd = _clamp(self.params, th, om, al, enc, self._enc_prev)
-            flags = float(pos or spd), float(pos), float(spd)
-        self._enc_prev = enc
-        return _outputs(self._s, th, om, al, bi, e0, e1, *flags)
-
-    recordable: tuple[str, ...] = AaKF.recordable + ("weights", "sigma_a_eff")
-
-    def c_kernel(self, ticks: int | None = None) -> CKernel | None:
-        """The compiled step ``aakf`` in bank mode, bit-identical to :meth:`step`
-        (``ticks``: see :meth:`AaKF.c_kernel`)."""
-        if not all(f._C_std for f in self.members):
-            return None
-        return _kernel(self, self.members, bank=True, ticks=ticks)
-
-    def c_kernel_sync(self, state: Sequence[float]) -> None:
-        n = len(self.members)
-        for i, f in enumerate(self.members):
-            f._kernel_sync_state(state[_KS_MEMBER * i:_KS_MEMBER * (i + 1)])
-        b = [float(v) for v in state[_KS_MEMBER * n:]]
-        self.k = int(b[0])
-        self._enc_prev = b[2] if b[1] else None
-        self._best = int(b[3])
-        self.sigma_a_eff = b[4]
-        self._innov = (b[5], b[6])
-        self._x_mix = tuple(b[7:11])
-        self._L = b[11:11 + n]
-        self._w = b[11 + n:11 + 2 * n]
-        self._w_prior = b[11 + 2 * n:11 + 3 * n]
+        return _outputs(p.m_per_rad, float(x_out[0]), float(x_out[1]), float(x_post[2]),
+                        float(x_post[3]), float(e[0]), float(e[1]),
+                        float(fired[0] or fired[1]), float(fired[0]), float(fired[1]))
 
 
-#: kernel layout (c/aakf.c): header, per-member parameter block, per-member state
-_KP_HEADER = 15
-_KP_MEMBER = 22
-_KS_MEMBER = 18
+def thesis_params(sigma_a: float, reset: bool = True, **fields) -> AakfParams:
+    """The parameters of the thesis's single aaKF as printed: one ``sigma_a``
+    [rad/s^3/sqrt(Hz)], Q_d of eq. 28 (``process_noise="jerk"``) and, with ``reset``,
+    the literal state reset of Sec. 2.2.2 (on the prediction, eq. 31 as printed);
+    ``fields``: any other :class:`AakfParams` field (e.g. ``sigma_b``)."""
+    return AakfParams(sigma_a=float(sigma_a), process_noise="jerk", reset_enabled=reset,
+                      reset_stage="prediction", reset_speed_bound="eq31", **fields)
 
 
-def _kernel(f: AaKF, members: Sequence[AaKF], bank: bool, ticks: int | None) -> CKernel:
-    """Pack ``f`` (one filter, or a bank of ``members``) for c/aakf.c."""
-    p = f.params
-    n = len(members)
-    tables: dict[int, np.ndarray] = {}
-    while True:                     # the gains of ``ticks`` more steps (None: all)
-        need = [m._seq for m in members
-                if not m._seq.done and (ticks is None or m._seq.n < m.k + ticks)]
-        if not need:
-            break
-        _extend_together(need)
-    blocks = [m._kernel_member(tables) for m in members]
-    member_reset_out = (not bank) and f._reset_out
-    head = [float(n), float(bank), p.Ts, members[0]._delta, members[0]._half_delta, f._s,
-            float(p.encoder_quantiser == "floor"),
-            float(members[0]._reset_pred), float(members[0]._reset_post),
-            float(member_reset_out), float(bank and f._reset_out),
-            float(p.init_from_first_measurement), float(p.reset_speed_bound == "eq31_accel"),
-            f._lam if bank else 0.0,
-            # CPython 3.12 made sum() of floats compensated (Neumaier): the bank's sums
-            float(sys.version_info >= (3, 12)), *(f._log_sa if bank else [])]
-    assert len(head) == _KP_HEADER + (n if bank else 0)      # the layout of c/aakf.c
-    off = len(head) + _KP_MEMBER * n
-    where = {}
-    for key, t in tables.items():
-        where[key] = off
-        off += t.size
-    for b in blocks:
-        b[-2] = float(where[int(b[-2])])
-    params = np.concatenate([np.array(head + [v for b in blocks for v in b], float),
-                             *(t.ravel() for t in tables.values())])
-    params.flags.writeable = False
-    state = [v for m in members for v in m._kernel_state()]
-    if bank:
-        ep = f._enc_prev
-        state += [float(f.k), float(ep is not None), 0.0 if ep is None else ep,
-                  float(f._best), f.sigma_a_eff, *f._innov, *f._x_mix,
-                  *f._L, *f._w, *f._w_prior]
-        extra = ("sigma_a_eff",)
-    else:
-        extra = ("reset_lo", "reset_hi")
-    return CKernel(name="aakf", params=params, state=[float(v) for v in state],
-                   inputs=("theta_enc", "acc_meas"), outputs=tuple(f.outputs) + extra,
-                   attributes=extra)
+#: the fast forms (cosim/algorithms/fast/aakf_fast.py), importable from here
+_FAST_NAMES = ("AaKF", "AaKFBank")
+
+
+def __getattr__(name: str):
+    # lazy: the fast module imports this one (the model and the reset are defined here)
+    if name in _FAST_NAMES:
+        from .fast import aakf_fast
+        return getattr(aakf_fast, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 _SHARED_FIELDS = ("Ts", "lead_m", "encoder_counts_per_rev", "encoder_quantiser",

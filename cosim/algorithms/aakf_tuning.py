@@ -107,7 +107,8 @@ def tune_aakf(theta_enc: np.ndarray, acc_meas: np.ndarray, Ts: float = 1e-3,
               sigma_a_range: tuple[float, float] = (1e1, 1e6),
               sigma_b_range: tuple[float, float] = (1e-5, 1e0),
               n_a: int = 11, n_b: int = 6, refine_rounds: int = 2, refine_n: int = 5,
-              burn_in_s: float = 1.0, confidence: float = 0.95) -> TuningResult:
+              burn_in_s: float = 1.0, confidence: float = 0.95,
+              tune_sigma_b: bool = True) -> TuningResult:
     """Search (sigma_a, sigma_b) for the whitest aaKF innovations on a recorded log.
 
     ``theta_enc`` [rad] and ``acc_meas`` [m/s^2] are the logged measurements at
@@ -116,6 +117,10 @@ def tune_aakf(theta_enc: np.ndarray, acc_meas: np.ndarray, Ts: float = 1e-3,
     refinement round is a ``refine_n`` x ``refine_n`` log grid centred on the best pair
     so far, spanning +- one step of the previous grid. The first ``burn_in_s``
     seconds of innovations (filter transient, bias convergence) are discarded.
+    With ``tune_sigma_b=False`` only sigma_a is searched and sigma_b stays
+    ``base.sigma_b`` (the thesis sets sigma_b "to very small values, compared to
+    sigma_a ones, as bias is almost a constant disturbance", Sec. 2.2.1.1: a free
+    sigma_b can whiten an innovation by letting the bias follow the acceleration).
     """
     enc = np.asarray(theta_enc, dtype=float).ravel()
     acc = np.asarray(acc_meas, dtype=float).ravel()
@@ -124,16 +129,18 @@ def tune_aakf(theta_enc: np.ndarray, acc_meas: np.ndarray, Ts: float = 1e-3,
     if enc.size - burn < 64:
         raise ValueError("log too short after the burn-in")
     la = np.linspace(np.log10(sigma_a_range[0]), np.log10(sigma_a_range[1]), n_a)
+    if not tune_sigma_b:
+        sigma_b_range, n_b = (base.sigma_b, base.sigma_b), 1
     lb = np.linspace(np.log10(sigma_b_range[0]), np.log10(sigma_b_range[1]), n_b)
     pairs = [(10 ** a, 10 ** b) for a in la for b in lb]
     results = _evaluate(base, pairs, enc, acc, burn, confidence, 0)
     step_a = (la[1] - la[0]) if n_a > 1 else 0.5
-    step_b = (lb[1] - lb[0]) if n_b > 1 else 0.5
+    step_b = (lb[1] - lb[0]) if n_b > 1 else (0.5 if tune_sigma_b else 0.0)
     for rnd in range(1, refine_rounds + 1):
         best = min(results, key=lambda r: _key(r[0]))[0]
         ca, cb = np.log10(best.sigma_a), np.log10(best.sigma_b)
         ga = ca + np.linspace(-step_a, step_a, refine_n)
-        gb = cb + np.linspace(-step_b, step_b, refine_n)
+        gb = cb + np.linspace(-step_b, step_b, refine_n if step_b else 1)
         tried = {(round(np.log10(r[0].sigma_a), 9), round(np.log10(r[0].sigma_b), 9)) for r in results}
         new = [(10 ** a, 10 ** b) for a in ga for b in gb
                if (round(a, 9), round(b, 9)) not in tried]

@@ -14,6 +14,13 @@ regression ``y_k = theta^T x_k`` (eq. 32, 43-45) is solved by exponentially weig
 recursive least squares (eq. 46-50), and theta is mapped back to J, b, fc at every
 step (eq. 51-53).
 
+The thesis's algorithm is ``regression="eq44"``: the one-step regression of eq. 44
+below, which ``scenarios/identification.yaml`` judges the thesis's claims on (Fig. 26).
+The default ``regression="integral"`` is the package's extension (end of this
+docstring), judged by requirements of its own (ID-X1, ID-X2, IDC-2) against eq. 44 on
+the same records; it stays the default of the start-up chain
+(:mod:`cosim.trials.startup_identification`) and of ``cosim identify``.
+
 Interpretations of the thesis made here (documented decisions)
 ----------------------------------------------------------------
 * **Sign of the Coulomb term (eq. 36/41).** The thesis writes ``u = tau + fc sign(w)``.

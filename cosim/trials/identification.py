@@ -7,7 +7,7 @@ its reading at t_k is the acceleration at t_k, not one step late) are read every
 over the recorded current with three speeds:
 
 * ``aakf``: the on-line aaKF of the scenario (``aakf.omega_rad_s``; its settings are in
-  the scenario file: the default sigma_a bank of :class:`cosim.algorithms.aakf.AaKFBank`);
+  the scenario file: the thesis's single filter, eq. 28, tuned by Fig. 19-20);
 * ``encoder``: encoder backward differencing (``encdiff.omega_rad_s``);
 * ``exact``: the FMU's own speed ``plant.w``, a control. The plant's LuGre friction
   with fs = fc has the steady-state curve fc sign(w) + b w exactly, and the RLS skips
@@ -16,12 +16,14 @@ over the recorded current with three speeds:
   J, b, fc *are* what the RLS must return: an error here is a defect of the set-up
   (timing, units, model), not of a speed estimate.
 
-The RLS of the ``aakf`` and ``encoder`` phases uses its default integral regression
-(the viscous term measured by ``plant.theta_enc``, :mod:`cosim.algorithms.rls`); the
-``exact`` control keeps the one-step regression of eq. 44, which is exact on this
-record. The RLS runs after the simulation on the recorded signals, exactly as on a trial
-log (its estimates are NaN until the regressor has excited all three directions,
-which the master would reject as a controller output).
+The thesis's claims are judged on its own regression, eq. 44 (``regression="eq44"``
+of :class:`cosim.algorithms.rls.RLSIdentifier`), with the samples where eq. 40-41 do
+not hold (a speed reversal or |w| < 0.5 rad/s inside the interval) left out. The
+package's integral regression (the viscous term from ``plant.theta_enc``) is the
+extension; its values carry the suffix ``_ext``. The RLS runs after the simulation on
+the recorded signals, exactly as on a trial log (its estimates are NaN until the
+regressor has excited all three directions, which the master would reject as a
+controller output).
 
 Timing (the cause of the former b +127 %): ``plant.i`` is an FMU input read back, so
 at tick k it shows the current held over [t_{k-1}, t_k) (:mod:`cosim.master.system`,
@@ -29,16 +31,20 @@ at tick k it shows the current held over [t_{k-1}, t_k) (:mod:`cosim.master.syst
 (``i_cmd_is_previous=True``).
 
 Procedure ``identification``: phases ``main`` (the co-simulation), ``rls_aakf``,
-``rls_encoder`` and ``rls_exact`` (the estimate histories as relative errors,
-decimated to 10 ms). Values per speed source ``src``: final ``J_src``, ``b_src``,
-``fc_src``; ``{J,b,fc}_rel_err_src``; ``max_abs_rel_err_src`` (worst of the three);
+``rls_encoder`` and ``rls_exact`` (eq. 44; the estimate histories as relative errors,
+decimated to 10 ms) and ``rls_encoder_ext`` (the extension, encoder speed). Values per
+speed source ``src`` (eq. 44): final ``J_src``, ``b_src``, ``fc_src``;
+``{J,b,fc}_rel_err_src``; ``max_abs_rel_err_src`` (worst of the three);
 ``rms_rel_err_src``; ``settle_s_src`` (first time from which all three stay within
-the +-10 % band of Fig. 26 until the end; duration + step if never); and the
-comparisons of Fig. 26 ``rms_rel_err_ratio_aakf_encoder`` and
-``settle_s_aakf_minus_encoder``.
+the +-10 % band of Fig. 26 until the end; duration + step if never); the comparisons
+of Fig. 26 ``rms_rel_err_ratio_aakf_encoder`` and ``settle_s_aakf_minus_encoder``; for
+the extension (``src`` aakf, encoder): ``max_abs_rel_err_src_ext``,
+``rms_rel_err_src_ext``, ``settle_s_src_ext`` and ``max_err_ratio_ext_eq44_src``
+(the extension's worst error over eq. 44's on the same record).
 """
 from __future__ import annotations
 
+import math
 from typing import Mapping
 
 import numpy as np
@@ -102,12 +108,44 @@ def settling_time_s(t: np.ndarray, rel_err: np.ndarray, band: float = BAND) -> f
     return float(t[out[-1] + 1])
 
 
+#: the thesis's regression (eq. 44) and the package's extension (integral over a window)
+REGRESSIONS = ("eq44", "integral")
+
+
+def _rls_errors(s, name: str, regression: str, Ts: float, truth: dict,
+                Kt_scale: float = 1.0) -> np.ndarray:
+    """(n, 3) relative errors of J, b, fc from the RLS with speed source ``name`` and
+    ``regression`` ("eq44": the thesis's one-step regression; "integral": the
+    package's extension, the viscous term from the encoder angle); the RLS is told the
+    torque constant ``Kt_scale`` times the plant's."""
+    Kt = truth["Kt"] * Kt_scale
+    if regression == "eq44":
+        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, Kt, None)
+    else:
+        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, Kt, s["plant.theta_enc"],
+                           speed_timing=speed_timing_for(name))
+    return hist / np.array([truth[p] for p in PARAMS]) - 1.0
+
+
 @procedure("identification")
 def identification(run, build, ctx):
-    """Co-simulate the excitation, then RLS with aaKF, encoder and exact speeds."""
+    """Co-simulate the excitation, then RLS (eq. 44, and the integral regression as the
+    extension) with aaKF, encoder and exact speeds.
+
+    ``parameters``: ``extension_regression`` ("integral", default; "eq44" replaces the
+    extension by the thesis's form: the negative control of the extension's claims);
+    ``rls_Kt_scale`` (default 1): the torque constant the RLS is told, relative to the
+    plant's (a negative control: a wrong Kt scales J, b, fc alike)."""
     from cosim.master import Master
     from cosim.master.system import RunResult
 
+    cfg = dict(ctx.parameters or {})
+    ext = str(cfg.get("extension_regression", "integral"))
+    if ext not in REGRESSIONS:
+        raise ValueError(f"parameters.extension_regression: {ext!r} is not one of {REGRESSIONS}")
+    Kt_scale = float(cfg.get("rls_Kt_scale", 1.0))
+    if not (math.isfinite(Kt_scale) and Kt_scale > 0.0):
+        raise ValueError(f"parameters.rls_Kt_scale must be finite and > 0, got {Kt_scale!r}")
     system, record = build()
     if "acc" in system.roles and "seed" not in system.params.get("acc", {}):
         # independent accelerometer noise per run unless the file fixes it
@@ -122,44 +160,43 @@ def identification(run, build, ctx):
     out = ProcedureResult(runs={"main": res})
     dec = max(1, int(round(0.01 / Ts)))
     idx = np.arange(dec - 1, t.size, dec)
-    tv = np.array([truth[p] for p in PARAMS])
+    v = out.values
+    # the thesis's claims (Fig. 26) are judged on eq. 44 for every speed source
     for name, sig_name in SPEEDS.items():
-        # aaKF and encoder speeds: the integral regression (viscous term from the
-        # encoder); the exact-speed control keeps eq. 44, exact for this record
-        # the encoder difference is the mean speed over the last interval
-        theta = None if name == "exact" else s["plant.theta_enc"]
-        timing = {} if theta is None else {"speed_timing": speed_timing_for(name)}
-        hist = rls_history(s["plant.i"], s[sig_name], Ts, truth["Kt"], theta, **timing)
-        err = hist / tv - 1.0
+        err = _rls_errors(s, name, "eq44", Ts, truth, Kt_scale)
         sig = {"time": t[idx]}
         for j, p in enumerate(PARAMS):
             sig[f"{p}_rel_err"] = err[idx, j]        # NaN until the estimate is defined
-            out.values[f"{p}_{name}"] = float(hist[-1, j])
-            out.values[f"{p}_rel_err_{name}"] = float(err[-1, j])
-        out.values[f"max_abs_rel_err_{name}"] = float(np.max(np.abs(err[-1])))
-        out.values[f"rms_rel_err_{name}"] = float(np.sqrt(np.mean(err[-1] ** 2)))
-        out.values[f"settle_s_{name}"] = settling_time_s(t, err)
+            v[f"{p}_{name}"] = float(truth[p] * (1.0 + err[-1, j]))
+            v[f"{p}_rel_err_{name}"] = float(err[-1, j])
+        v[f"max_abs_rel_err_{name}"] = float(np.max(np.abs(err[-1])))
+        v[f"rms_rel_err_{name}"] = float(np.sqrt(np.mean(err[-1] ** 2)))
+        v[f"settle_s_{name}"] = settling_time_s(t, err)
         w = s[sig_name]
         sig["speed_rms_err_rad_s"] = np.full(idx.size, float(
             np.sqrt(np.mean((w[int(0.5 / Ts):] - s["plant.w"][int(0.5 / Ts):]) ** 2))))
         out.runs[f"rls_{name}"] = RunResult(sig, res.provenance, completed=True,
                                             ticks=idx.size, step_size=dec * Ts)
-    v = out.values
     # Fig. 26: "faster and more accurate estimation ... using speed from the aaKF"
     v["rms_rel_err_ratio_aakf_encoder"] = v["rms_rel_err_aakf"] / v["rms_rel_err_encoder"]
     v["settle_s_aakf_minus_encoder"] = v["settle_s_aakf"] - v["settle_s_encoder"]
-    # the same comparison with the thesis's own one-step regression (eq. 44), the one
-    # Fig. 26 was made with: there the speed estimate is the regressor of the viscous
-    # and inertial terms, so its quality decides; the default integral regression takes
-    # the viscous term from the encoder angle and needs the speed only at window ends
+    # the extension: the same record through the integral regression (or, under its
+    # negative control, eq. 44 again), for the two estimated speeds
     for name in ("aakf", "encoder"):
-        hist = rls_history(s["plant.i"], s[SPEEDS[name]], Ts, truth["Kt"], None)
-        err = hist / tv - 1.0
-        v[f"rms_rel_err_{name}_eq44"] = float(np.sqrt(np.mean(err[-1] ** 2)))
-        v[f"settle_s_{name}_eq44"] = settling_time_s(t, err)
-    v["rms_rel_err_ratio_aakf_encoder_eq44"] = v["rms_rel_err_aakf_eq44"] / v["rms_rel_err_encoder_eq44"]
-    v["settle_s_aakf_minus_encoder_eq44"] = v["settle_s_aakf_eq44"] - v["settle_s_encoder_eq44"]
+        err = _rls_errors(s, name, ext, Ts, truth, Kt_scale)
+        v[f"max_abs_rel_err_{name}_ext"] = float(np.max(np.abs(err[-1])))
+        v[f"rms_rel_err_{name}_ext"] = float(np.sqrt(np.mean(err[-1] ** 2)))
+        v[f"settle_s_{name}_ext"] = settling_time_s(t, err)
+        v[f"max_err_ratio_ext_eq44_{name}"] = (v[f"max_abs_rel_err_{name}_ext"]
+                                               / v[f"max_abs_rel_err_{name}"])
+        if name == "encoder":
+            sig = {"time": t[idx]}
+            for j, p in enumerate(PARAMS):
+                sig[f"{p}_rel_err"] = err[idx, j]
+            out.runs["rls_encoder_ext"] = RunResult(sig, res.provenance, completed=True,
+                                                    ticks=idx.size, step_size=dec * Ts)
     out.artifacts["truth"] = truth
+    out.artifacts["extension_regression"] = ext
     return out
 
 
@@ -172,9 +209,11 @@ def identification_figures(runs, info):
     by_phase = {v.phase: v for v in runs if v.label == runs[0].label}
     fig, ax = plt.subplots(3, 1, figsize=(9, 7.5), sharex=True)
     for a, p in zip(ax, PARAMS):
-        for phase, style, lbl in (("rls_aakf", "-", "RLS with aaKF speed"),
-                                  ("rls_encoder", "--", "RLS with encoder differencing"),
-                                  ("rls_exact", ":", "RLS with the FMU's exact speed (control)")):
+        for phase, style, lbl in (("rls_aakf", "-", "eq. 44, aaKF speed"),
+                                  ("rls_encoder", "--", "eq. 44, encoder differencing"),
+                                  ("rls_exact", ":", "eq. 44, the FMU's exact speed (control)"),
+                                  ("rls_encoder_ext", "-.",
+                                   "integral regression (extension), encoder differencing")):
             v = by_phase.get(phase)
             if v is None:
                 continue

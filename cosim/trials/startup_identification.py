@@ -17,9 +17,11 @@ Procedure ``startup_identification`` (one run = two phases, in this order):
    white-noise current (plus an optional weak position hold) for ``duration_s``.
    Each unit's encoder and accelerometer (its accelerometer FMU on a sequential
    connection, as in ``scenarios/identification.yaml``) feed an aaKF (default: the
-   identification tuning of ``scenarios/identification.yaml``); after the
-   co-simulation the RLS (:func:`cosim.trials.identification.rls_history`, default
-   integral regression, aaKF speed, nominal Kt) runs over the record.
+   package's sigma_a bank, ``AakfParams()``; ``aakf`` sets the thesis's single
+   filter instead); after the co-simulation the RLS
+   (:func:`cosim.trials.identification.rls_history`, default: the package's integral
+   regression, an extension of eq. 44; ``rls: {regression: eq44}`` gives the
+   thesis's; aaKF speed, nominal Kt) runs over the record.
 2. ``main``: the trial as the file describes it, with the DOB/RFOB controllers listed
    for each unit built from the identified values: DOB ``Jn_kg_m2 = J_id``,
    ``Ktn_Nm_per_A = Kt_n``; RFOB ``J_kg_m2 = J_id``, ``b_Nms_per_rad = b_id``,
@@ -56,7 +58,8 @@ Parameters (``parameters.startup_identification`` of the scenario)::
     Kt_nominal_Nm_per_A: 0.0603   # Table 1; also the RLS's torque constant
     lead_m: 0.01                  # Table 1 (for the hold)
     aakf: {}                      # aaKF params of the identification phase
-    rls: {}                       # RLSParams overrides (default: integral regression)
+    rls: {}                       # RLSParams overrides (default: integral regression,
+                                  # the extension; {regression: eq44}: the thesis's)
     source: identified            # or "true": the observers get the FMU's true values
                                   # (the former set-up, kept for comparison only)
     observer_scale: {}            # controller -> {J, b, fc, Kt: factor} (negative controls)

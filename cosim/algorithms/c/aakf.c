@@ -1,8 +1,10 @@
-/* aakf.c: compiled step of cosim.algorithms.aakf.AaKF (one filter) and AaKFBank (the
- * sigma_a bank), thesis Sec. 2.2 / Appendix A with the state reset of Sec. 2.2.2.
+/* aakf.c: compiled step of cosim.algorithms.fast.aakf_fast.AaKF (one filter) and AaKFBank
+ * (the sigma_a bank), thesis Sec. 2.2 / Appendix A with the state reset of Sec. 2.2.2.
  *
- * The Python classes are the reference; this is the same arithmetic in the same order
- * (bit-identical, tests/test_kernels.py). The gain K_k (eq. 99, 100, 103) does not
+ * The readable reference is cosim.algorithms.aakf.ReferenceAaKF (eq. 98-103 one per
+ * line); its fast Python form AaKF is tested equal to it (tests/test_aakf_fast.py) and
+ * this file is the same arithmetic as AaKF in the same order (bit-identical,
+ * tests/test_kernels.py). The gain K_k (eq. 99, 100, 103) does not
  * depend on the data: AaKF.c_kernel(ticks) packs the shared precomputed sequence (for
  * the ticks of the run, or to convergence, then held) into p, with the inverse and
  * log-determinant of S_k = C P_k|k-1 C^T + R (eq. 100) that the bank's likelihood needs.
