@@ -67,6 +67,12 @@ def fmu_file(spec_fmu: str, fmu_dir) -> Path:
     return Path(fmu_dir or paths.fmus_dir()) / f"{spec_fmu}.fmu"
 
 
+class MissingParameter(ScenarioError):
+    """A parameter the scenario, a case, a negative control or the procedure sets on a
+    role whose FMU has no counterpart for it (a user's plant without a Stribeck term or
+    an initial speed): the message names who sets it and the binding line to add."""
+
+
 def make_builder(sc: Scenario, run: reg.RunSpec, ctx: reg.BuildContext,
                  fmu_swaps: dict | None = None):
     """``build(overrides=None) -> (System, record)`` for a procedure."""
@@ -74,17 +80,66 @@ def make_builder(sc: Scenario, run: reg.RunSpec, ctx: reg.BuildContext,
         d = deep_merge(sc.data, run.overrides)
         if overrides:
             d = deep_merge(d, overrides)
-        return build_system(sc, d, ctx, fmu_swaps)
+        return build_system(sc, d, ctx, fmu_swaps, control=run.control,
+                            by_procedure=_role_parameters(overrides or {}))
     return build
+
+
+def _role_parameters(d: dict) -> dict[str, set]:
+    """role -> the parameter names ``d`` (the file's structure) sets."""
+    fmus = ((d.get("system") or {}).get("fmus") or {})
+    return {r: set((spec or {}).get("parameters") or {}) for r, spec in fmus.items()
+            if isinstance(spec, dict)}
+
+
+def _missing_parameters(sc, role, slave, params, control, by_procedure) -> str | None:
+    """Why the FMU of ``role`` cannot take ``params`` (names it has no variable for), or
+    None: who sets each (the scenario, the negative control, the procedure) and what to
+    add to the role's binding."""
+    from cosim.master.binding import role_parameters
+    missing = [k for k in params if k not in slave.variables]
+    if not missing:
+        return None
+    known = role_parameters(slave_contract := getattr(slave, "contract", None))
+    own = set(((sc.data["system"]["fmus"].get(role) or {}).get("parameters")) or {})
+    fv = getattr(slave, "fmu_variables", slave.variables)
+    theirs = [n for n, v in fv.items() if v.causality == "parameter"]
+    lines = []
+    for k in missing:
+        who = ("the procedure" if k in by_procedure.get(role, ()) else
+               f"the scenario's role entry" if k in own and not control else
+               f"negative control {control!r}" if control else "a case of the scenario")
+        unit, meaning = known.get(k, ("", ""))
+        lines.append(f"{who} sets parameter {k!r}" + (f" [{unit}]" if unit else "")
+                     + (f" ({meaning})" if meaning else ""))
+    k = missing[0]
+    unit = known.get(k, ("",))[0]
+    hint = (f"map it to the FMU's own parameter in the role's binding: map: {{{k}: "
+            f"<its parameter>}}" + (f", units: {{{k}: <its unit, e.g. {unit}>}}" if unit
+                                     else "")
+            + f" (or --map {role}.{k}=<its parameter>" + (":<unit>" if unit else "") + ")")
+    if slave_contract is not None and k not in known:
+        hint = (f"the {slave_contract.name!r} contract has no parameter {k!r} to bind "
+                f"(its parameters: {', '.join(known) or 'none'})")
+    return (f"role {role!r}: {slave.path.name} has no counterpart for "
+            + "; ".join(lines) + f": {hint}. The FMU's parameters: {theirs or 'none'}"
+            + (f". Without it the negative control {control!r} cannot run, and the "
+               f"requirements it backs are reported as errors" if control else ""))
+
+
+def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict | None = None,
+                 control: str = "", by_procedure: dict | None = None):
 
 
 def _err(sc, path, exc):
     return ScenarioError(f"{sc.where(path)}: {exc}")
 
 
-def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict | None = None):
     """A System from the (merged) scenario data. System errors carry the line of the
-    item that caused them."""
+    item that caused them; a parameter the role's FMU has no counterpart for is a
+    :class:`MissingParameter` naming who sets it (``control``: the negative control
+    this run belongs to; ``by_procedure``: role -> names the procedure's own overrides
+    set)."""
     from cosim.master.fmu import FMUError
     from cosim.master.system import System, SystemError_
     from cosim.profiles import human_parameters
@@ -114,12 +169,21 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
             else:
                 params[k] = v
         try:
-            slave = system.add_fmu(role, path, contract=spec.get("contract"), parameters=params,
+            slave = system.add_fmu(role, path, contract=spec.get("contract"),
                                    kind="me" if role in in_group else spec.get("kind", "auto"),
                                    binding=binding or None)
+            why = _missing_parameters(sc, role, slave, {**params, **rel}, control,
+                                      by_procedure or {})
+            if why:
+                at = ("system", "fmus", role)
+                if control and ("negative_controls", control) in sc.lines:
+                    at = ("negative_controls", control)      # the control's line
+                raise MissingParameter(f"{sc.where(at)}: {why}")
+            system.set_parameters(role, params)
             if rel:
-                starts = {v.name: v.start for v in slave.md.modelVariables}
-                system.set_parameters(role, {k: f * float(starts[k]) for k, f in rel.items()})
+                # relative to the start value as the role sees it (through its binding)
+                system.set_parameters(role, {k: f * float(slave.variables[k].start)
+                                             for k, f in rel.items()})
         except (SystemError_, FMUError) as exc:
             raise _err(sc, ("system", "fmus", role), exc) from None
     if swaps:
@@ -180,7 +244,14 @@ def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None, runs=None):
         seen.add((run.case, run.control))
         ctx = reg.BuildContext(scenario=sc.name, case=run.case, seed=run.seed, step_s=run.step,
                                duration_s=run.duration, fmu_dir=str(fmu_dir or ""))
-        system, record = make_builder(sc, run, ctx, fmu_swaps)()
+        try:
+            system, record = make_builder(sc, run, ctx, fmu_swaps)()
+        except MissingParameter:
+            if not run.control:
+                raise
+            # a negative control the swapped-in FMU cannot take: its runs record why
+            # and the requirements it backs are errors; the scenario's own runs go on
+            continue
         try:
             Master(system, record)._plan()
         except SystemError_ as exc:
