@@ -47,6 +47,9 @@ from .units import affine, base_unit, dimension, norm
 _SYNTAX = ("Modelica unit syntax, e.g. m, mm, deg, rad/s, rev/min, rpm, mA, N, kN, N.m, "
            "m/s2, m/min, degC")
 
+#: ``coupling`` values of a binding (see :class:`RoleBinding`)
+COUPLINGS = ("", "group", "step")
+
 #: The parameters of a role (contract name -> parameter -> (unit, meaning)) that the
 #: package's scenarios and procedures set or read by name: a binding maps them to an
 #: FMU's own parameters (``map: {J: inertia}``) and converts their units. The values
@@ -86,12 +89,22 @@ class RoleBinding:
     per name)."""
     map: Mapping[str, str] = dataclasses.field(default_factory=dict)
     units: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    #: how a scenario may solve this FMU when its role is in a coupled group
+    #: (``system.coupled``, a stiff load cell or wall): ``""`` as the scenario says
+    #: (Model Exchange in the group); ``"step"``: a Co-Simulation-only FMU leaves the
+    #: group and its connections to it are exchanged at the master step (explicit;
+    #: the accuracy this costs is in docs/bring-your-own-fmu.md). Not a view of the
+    #: FMU: :class:`BoundSlave` ignores it, :mod:`cosim.scenarios.build` reads it.
+    coupling: str = ""
 
     def __bool__(self) -> bool:
         return bool(self.map or self.units)
 
     def to_dict(self) -> dict:
-        return {k: dict(v) for k, v in (("map", self.map), ("units", self.units)) if v}
+        out = {k: dict(v) for k, v in (("map", self.map), ("units", self.units)) if v}
+        if self.coupling:
+            out["coupling"] = self.coupling
+        return out
 
     @classmethod
     def from_spec(cls, spec, where: str = "binding") -> "RoleBinding":
@@ -104,7 +117,7 @@ class RoleBinding:
         if not isinstance(spec, Mapping):
             raise BindingError(f"{where}: a binding is a mapping with 'map' and/or 'units', "
                                f"got {type(spec).__name__}")
-        extra = [k for k in spec if k not in ("map", "units")]
+        extra = [k for k in spec if k not in ("map", "units", "coupling")]
         if extra:
             raise BindingError(f"{where}: unknown key(s) {extra} (a binding has 'map' and "
                                f"'units'; a role parameter is mapped in 'map' too, e.g. "
@@ -121,7 +134,13 @@ class RoleBinding:
                     raise BindingError(f"{where}.{key}.{k}: must be a non-empty string, got "
                                        f"{type(v).__name__} {v!r}")
             out[key] = {k: v.strip() for k, v in d.items()}
-        return cls(out.get("map", {}), out.get("units", {}))
+        coupling = spec.get("coupling") or ""
+        if coupling not in COUPLINGS:
+            raise BindingError(f"{where}.coupling: {coupling!r} is not one of "
+                               f"{sorted(c for c in COUPLINGS if c)} (step: a "
+                               f"Co-Simulation-only FMU exchanged with its coupled group at "
+                               f"the master step)")
+        return cls(out.get("map", {}), out.get("units", {}), coupling)
 
     def static_diffs(self, contract: RoleContract) -> list[tuple[str, str, str]]:
         """What is wrong with the binding whatever the FMU: (key, contract variable,
@@ -160,7 +179,8 @@ class RoleBinding:
 
     def merged(self, other: "RoleBinding") -> "RoleBinding":
         """This binding with ``other``'s entries over it."""
-        return RoleBinding({**self.map, **other.map}, {**self.units, **other.units})
+        return RoleBinding({**self.map, **other.map}, {**self.units, **other.units},
+                           other.coupling or self.coupling)
 
 
 def unit_problem(where: str, unit: str, src, cunit: str) -> str | None:
@@ -413,6 +433,12 @@ class BoundSlave(FMUSlave):
             msg = unit_problem(where, unit, src, cunit)
             if msg:
                 diffs.append(msg)
+                reported.add(cp)
+                continue
+            if not declared and norm(fu) != norm(cunit):
+                # as for a variable: the binding states every conversion it makes
+                diffs.append(f"{where} is in {fu!r} (the FMU's unit), the role's in "
+                             f"{cunit!r}: the binding converts it with units: {{{cp}: {fu}}}")
                 reported.add(cp)
                 continue
             gain, offset = affine(src, base_unit(cunit))

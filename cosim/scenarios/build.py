@@ -37,7 +37,8 @@ class FMUSwap(str):
 
     def __new__(cls, path, binding: dict | None = None):
         obj = super().__new__(cls, str(path))
-        obj.binding = {k: dict(v) for k, v in (binding or {}).items() if v}
+        obj.binding = {k: dict(v) if isinstance(v, dict) else v
+                       for k, v in (binding or {}).items() if v}
         return obj
 
     def __reduce__(self):
@@ -104,37 +105,57 @@ def _missing_parameters(sc, role, slave, params, control, by_procedure) -> str |
     own = set(((sc.data["system"]["fmus"].get(role) or {}).get("parameters")) or {})
     fv = getattr(slave, "fmu_variables", slave.variables)
     theirs = [n for n, v in fv.items() if v.causality == "parameter"]
-    lines = []
+    said = []
     for k in missing:
-        who = ("the procedure" if k in by_procedure.get(role, ()) else
-               f"the scenario's role entry" if k in own and not control else
-               f"negative control {control!r}" if control else "a case of the scenario")
         unit, meaning = known.get(k, ("", ""))
-        lines.append(f"{who} sets parameter {k!r}" + (f" [{unit}]" if unit else "")
-                     + (f" ({meaning})" if meaning else ""))
+        said.append(f"{k!r}" + (f" [{unit}]" if unit else "") + (f" ({meaning})" if meaning
+                                                                  else ""))
+    who = {("procedure" if k in by_procedure.get(role, ()) else
+            "role" if k in own and not control else "control" if control else "case")
+           for k in missing}
+    who = ("the procedure" if who == {"procedure"} else
+           f"the negative control {control!r}" if "control" in who else
+           "a case of the scenario" if who == {"case"} else "the scenario")
     k = missing[0]
     unit = known.get(k, ("",))[0]
-    hint = (f"map it to the FMU's own parameter in the role's binding: map: {{{k}: "
-            f"<its parameter>}}" + (f", units: {{{k}: <its unit, e.g. {unit}>}}" if unit
-                                     else "")
+    hint = (f"map {'each' if len(missing) > 1 else 'it'} to the FMU's own parameter in the "
+            f"role's binding: map: {{{k}: <its parameter>}}"
+            + (f", units: {{{k}: <its unit, e.g. {unit}>}}" if unit else "")
             + f" (or --map {role}.{k}=<its parameter>" + (":<unit>" if unit else "") + ")")
     if slave_contract is not None and k not in known:
         hint = (f"the {slave_contract.name!r} contract has no parameter {k!r} to bind "
                 f"(its parameters: {', '.join(known) or 'none'})")
-    return (f"role {role!r}: {slave.path.name} has no counterpart for "
-            + "; ".join(lines) + f": {hint}. The FMU's parameters: {theirs or 'none'}"
-            + (f". Without it the negative control {control!r} cannot run, and the "
-               f"requirements it backs are reported as errors" if control else ""))
+    return (f"role {role!r}: {who} sets parameter{'s' if len(missing) > 1 else ''} "
+            f"{', '.join(said)}, which {slave.path.name} has no counterpart for: {hint}. "
+            f"The FMU's parameters: {theirs or 'none'}"
+            + (f". Without it the negative control {control!r} cannot run: the "
+               f"requirements it backs are errors, not passes" if control else ""))
 
 
-def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict | None = None,
-                 control: str = "", by_procedure: dict | None = None):
+def _no_me(role: str, path, group: list, d: dict) -> str:
+    """Why a Co-Simulation-only FMU cannot take a role of a coupled group, and what
+    would make it fit."""
+    name = Path(str(path)).name
+    return (f"role {role!r}: {name} has no Model Exchange interface (it is Co-Simulation "
+            f"only), and this scenario solves {role!r} with {[r for r in group if r != role]} "
+            f"as one coupled group (system.coupled): the stiff element between them (a "
+            f"load cell or wall of 1e4-1e5 N/m and more) is integrated by one implicit "
+            f"solver over the members' Model Exchange equations, because exchanged at the "
+            f"{float(d.get('step', 1e-3)):g} s master step it is off or unstable. To fit: "
+            f"export the FMU with a Model Exchange interface as well; or, accepting the "
+            f"error of an explicit exchange, add `coupling: step` to the role's binding "
+            f"(--binding FILE: {role}: {{fmu: ..., coupling: step}}): the FMU then runs as "
+            f"Co-Simulation and its connections to the group are exchanged at the master "
+            f"step (the accuracy measured on the zero-force trial: "
+            f"docs/bring-your-own-fmu.md, 'Co-Simulation-only plants')")
 
 
 def _err(sc, path, exc):
     return ScenarioError(f"{sc.where(path)}: {exc}")
 
 
+def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict | None = None,
+                 control: str = "", by_procedure: dict | None = None):
     """A System from the (merged) scenario data. System errors carry the line of the
     item that caused them; a parameter the role's FMU has no counterpart for is a
     :class:`MissingParameter` naming who sets it (``control``: the negative control
@@ -150,6 +171,11 @@ def _err(sc, path, exc):
     present = d["system"]["fmus"]
     groups = [(i, [r for r in g if r in present])
               for i, g in enumerate(d["system"].get("coupled") or [])]
+    # a swapped-in Co-Simulation-only FMU whose binding says coupling: step leaves its
+    # group: its connections to the group are exchanged at the master step
+    at_step = {r for _, g in groups for r in g
+               if swap_binding(swaps.get(r)).get("coupling") == "step"}
+    groups = [(i, [r for r in g if r not in at_step]) for i, g in groups]
     groups = [(i, g) for i, g in groups if len(g) >= 2]
     in_group = {r for _, g in groups for r in g}
     for role, spec in d["system"]["fmus"].items():
@@ -185,6 +211,9 @@ def _err(sc, path, exc):
                 system.set_parameters(role, {k: f * float(slave.variables[k].start)
                                              for k, f in rel.items()})
         except (SystemError_, FMUError) as exc:
+            if role in in_group and "has no Model Exchange interface" in str(exc):
+                g = next(g for _, g in groups if role in g)
+                raise _err(sc, ("system", "fmus", role), _no_me(role, path, g, d)) from None
             raise _err(sc, ("system", "fmus", role), exc) from None
     if swaps:
         raise ScenarioError(f"--fmu: unknown role(s) {sorted(swaps)} (roles of {sc.name}: "
