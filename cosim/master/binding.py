@@ -150,6 +150,14 @@ class RoleBinding:
         out = []
         params = role_parameters(contract)
         names = [n for n, *_ in contract.variables()] + list(params)
+        other = _written_for(self, contract)
+        if other is not None:
+            # a binding of another role's FMU (a 1-DOF unit for a rig): one line, why
+            return [("map", "", f"the binding is written for the {other.name!r} contract "
+                     f"({other.description}), and this role plays the {contract.name!r} "
+                     f"contract ({contract.description}): the FMU does not fit the role"
+                     + (f"; {_SEPARATE[contract.name]}" if contract.name in _SEPARATE
+                        else ""))]
         for key, table in (("map", self.map), ("units", self.units)):
             for cv in table:
                 if contract.unit(cv) is None and cv not in params:
@@ -181,6 +189,34 @@ class RoleBinding:
         """This binding with ``other``'s entries over it."""
         return RoleBinding({**self.map, **other.map}, {**self.units, **other.units},
                            other.coupling or self.coupling)
+
+
+#: where a unit FMU takes part in a trial whose role here is a composite rig
+_SEPARATE = {
+    "zero_force_rig": "a unit FMU ('ballscrew') takes part in the zero-force trial as the "
+                      "unit under test of scenarios/coupled/zero_force_separate.yaml "
+                      "(--fmu unit=PATH or unit: in the binding file)",
+    "wall_rig": "a unit FMU ('ballscrew') takes part in the bilateral trial as its master "
+                "(role master here) or as the slave of "
+                "scenarios/coupled/bilateral_separate.yaml (role slave)",
+    "xy_table": "the circular and reaching trials need a 2-DOF table (a force command and "
+                "a hand force per axis): one 1-DOF unit does not make one",
+}
+
+
+def _written_for(b: "RoleBinding", contract: RoleContract):
+    """The other contract all of ``b``'s names belong to when none of a few of them is
+    ``contract``'s, else None."""
+    from .roles import CONTRACTS
+    names = set(b.map) | set(b.units)
+    mine = {n for n, *_ in contract.variables()} | set(role_parameters(contract))
+    if len(names) < 3 or names & mine == names or len(names - mine) < len(names) / 2:
+        return None
+    for c in CONTRACTS.values():
+        if c.name != contract.name and names <= ({n for n, *_ in c.variables()}
+                                                 | set(role_parameters(c))):
+            return c
+    return None
 
 
 def unit_problem(where: str, unit: str, src, cunit: str) -> str | None:
