@@ -523,6 +523,9 @@ class BoundSlave(FMUSlave):
             conv = "" if (g, o) == (1.0, 0.0) else \
                 f" ({cunit} = {g:.10g} x {unit}" + (f" + {o:.10g}" if o else "") + ")"
             out.append(f"parameter {cp} <- {fname} [{unit}]{conv}")
+        if self.binding.coupling == "step":
+            out.append("coupling: step (Co-Simulation; exchanged with its coupled group at "
+                       "the master step, not solved in it)")
         return out
 
     # ------------------------------------------------------------ conversions
