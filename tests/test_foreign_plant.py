@@ -245,3 +245,17 @@ def test_free_motion_with_the_foreign_axis_starts_at_w0_and_the_aakf_beats_encdi
     e_kf = np.sqrt(np.mean((s["aakf.omega_rad_s"].to_numpy()[m] - w[m]) ** 2))
     e_enc = np.sqrt(np.mean((s["encdiff.omega_rad_s"].to_numpy()[m] - w[m]) ** 2))
     assert np.isfinite(e_kf) and e_kf / e_enc < 0.5
+
+
+def test_bilateral_refuses_a_master_without_its_true_parameters_before_running(
+        axis, tmp_path, fmus):
+    """The start-up identification compares the identified J, b, fc, Kt with the truth
+    read through the binding: with Kt left out of the binding the run stops before the
+    identification (not after it, as non-finite Kt_true_master), saying what to map."""
+    b = {"map": {k: v for k, v in AXIS_BINDING["map"].items() if k != "Kt"},
+         "units": {k: v for k, v in AXIS_BINDING["units"].items() if k != "Kt"}}
+    info, _ = _one_run(tmp_path, "bilateral.yaml", "seeds: [1]", 1, {"master": _swap(axis, b)})
+    assert info["status"] == "error"
+    assert "unit 'master' (role 'master') has no parameter for ['Kt']" in info["error"]
+    assert "map: {Kt: <its parameter>}" in info["error"]
+    assert info["wall_s"] < 30          # no 10 s identification, no 6 s trial ran
