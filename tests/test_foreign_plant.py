@@ -187,6 +187,19 @@ def test_a_negative_control_the_plant_cannot_take_names_itself_and_the_fix(axis,
                  "units: {fs: <its unit, e.g. N.m>}", "'inertia'"):
         assert part in msg, (part, msg)
     assert issubclass(MissingParameter, Exception)
+    # coarse_encoder sets delta_enc = 5.817764e-3 rad: through the binding the axis's
+    # enc_res becomes 0.33333 deg (20 x 360/21600)
+    from cosim.scenarios import registry as reg
+    from cosim.scenarios.build import make_builder
+    run = next(r for r in all_runs(sc) if r.control == "coarse_encoder")
+    ctx = reg.BuildContext(scenario=sc.name, case=run.case, seed=run.seed, step_s=run.step,
+                           duration_s=run.duration, fmu_dir=str(REPO / "fmus"))
+    system, _ = make_builder(sc, run, ctx, swaps)()
+    Master(system, ["plant.theta_enc"]).run(0.002)
+    slave = system.roles["plant"]
+    assert FMUSlave.get_value(slave, slave.fmu_variables["enc_res"])[0] == \
+        pytest.approx(5.817764e-3 * 180 / math.pi, rel=1e-12)
+    system.close()
 
 
 def test_a_cs_only_plant_in_a_coupled_group_says_why_and_takes_coupling_step(axis, fmus):
