@@ -135,7 +135,9 @@ def _cmd_roles(a) -> int:
                        + f" (contracts: {', '.join(CONTRACTS)})")
     for k, name in enumerate(names):
         c = CONTRACTS[name]
-        rows = c.variables()
+        from .master.binding import role_parameters      # a binding maps these too
+        rows = c.variables() + [(n, "parameter", u, m)
+                                for n, (u, m) in role_parameters(c).items()]
         w = max(len(n) for n, *_ in rows)
         wu = max(len(u or "1") for _, _, u, _ in rows)
         if k:

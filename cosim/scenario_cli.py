@@ -82,56 +82,17 @@ def _ensure_fmus(a) -> int | None:
 
 def _swaps(a) -> dict:
     """role -> :class:`~cosim.scenarios.build.FMUSwap` from ``--fmu``, ``--binding``
-    files and ``--map`` options (a --map entry over the file's, --fmu's path over the
-    file's ``fmu``)."""
-    import yaml
-
-    from cosim.master.binding import BindingError, RoleBinding, parse_map_option
+    files and ``--map`` options (:func:`cosim.master.binding.cli_bindings`)."""
+    from cosim.master.binding import BindingError, cli_bindings
     from cosim.scenarios.build import FMUSwap
     from cosim.scenarios.runner import parse_fmu_swaps
     from cosim.scenarios.schema import ScenarioError
-    paths = parse_fmu_swaps(getattr(a, "fmu", None))
-    bindings: dict[str, RoleBinding] = {}
-    for f in getattr(a, "binding", None) or []:
-        f = Path(f)
-        try:
-            doc = yaml.safe_load(f.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise ScenarioError(f"--binding {f}: {exc}") from None
-        if not isinstance(doc, dict):
-            raise ScenarioError(f"--binding {f}: expected a mapping role -> {{fmu: PATH, "
-                                f"map: {{...}}, units: {{...}}}}")
-        for role, spec in doc.items():
-            if not isinstance(spec, dict):
-                raise ScenarioError(f"--binding {f}: {role}: expected a mapping with fmu, "
-                                    f"map, units")
-            spec = dict(spec)
-            fmu = spec.pop("fmu", None)
-            try:
-                bindings[role] = bindings.get(role, RoleBinding()).merged(
-                    RoleBinding.from_spec(spec, f"--binding {f}: {role}"))
-            except BindingError as exc:
-                raise ScenarioError(str(exc)) from None
-            if fmu is not None and role not in paths:
-                p = Path(fmu) if Path(fmu).is_absolute() else f.parent / fmu
-                if not p.is_file():
-                    raise ScenarioError(f"--binding {f}: {role}.fmu: FMU file {p} does not "
-                                        f"exist")
-                paths[role] = str(p.resolve())
-    for item in getattr(a, "map", None) or []:
-        try:
-            role, cvar, fvar, unit = parse_map_option(item)
-        except BindingError as exc:
-            raise ScenarioError(str(exc)) from None
-        b = RoleBinding({cvar: fvar} if fvar != cvar else {}, {cvar: unit} if unit else {})
-        bindings[role] = bindings.get(role, RoleBinding()).merged(b)
-    missing = sorted(set(bindings) - set(paths))
-    if missing:
-        raise ScenarioError(f"--map/--binding for role(s) {missing} without an FMU swapped in "
-                            f"(--fmu ROLE=PATH, or fmu: in the binding file); a scenario's own "
-                            f"FMU is bound in the scenario file (map:/units: in its fmus entry)")
-    return {r: FMUSwap(p, bindings[r].to_dict() if r in bindings else None)
-            for r, p in paths.items()}
+    try:
+        swaps = cli_bindings(parse_fmu_swaps(getattr(a, "fmu", None)),
+                             getattr(a, "binding", None), getattr(a, "map", None))
+    except BindingError as exc:
+        raise ScenarioError(str(exc)) from None
+    return {r: FMUSwap(p, b.to_dict() or None) for r, (p, b) in swaps.items()}
 
 
 def _guarded(a, cmd: str, work):
@@ -248,8 +209,9 @@ def add_commands(sub) -> None:
 def _binding_options(p) -> None:
     p.add_argument("--map", action="append", metavar="ROLE.VAR=FMU_VAR[:UNIT]",
                    help="bind a swapped-in FMU's variable (and the unit of its values) to "
-                        "the role's contract variable VAR, e.g. master.theta=motor.phi:deg "
-                        "(`cosim roles` lists the contracts); repeat per variable")
+                        "the role's contract variable or parameter VAR, e.g. "
+                        "master.theta=motor.phi:deg, plant.J=inertia:g.cm2 (`cosim roles` "
+                        "lists the contracts); repeat per variable")
     p.add_argument("--binding", action="append", metavar="FILE.yaml",
                    help="role bindings from a file: ROLE: {fmu: PATH, map: {VAR: FMU_VAR}, "
                         "units: {VAR: UNIT}} (docs/bring-your-own-fmu.md)")

@@ -361,8 +361,8 @@ def test_a_wrong_dimension_or_unknown_name_is_refused(c_fmu, tmp_path, capsys, f
     assert "with its binding (4 differences)" in err
     assert "'f_ext' (the FMU's 'load_N'): unit 'deg' (rad) is not of the dimension of the " \
            "role's 'N' (kg.m.s-2)" in err
-    assert "binding map: 'thetaa' is not a variable of the 'ballscrew' contract (did you " \
-           "mean 'theta'" in err
+    assert "binding map: 'thetaa' is not a variable or parameter of the 'ballscrew' " \
+           "contract (did you mean 'theta'" in err
     assert "'v' [m/s] is bound to 'velo', which the FMU does not have (its outputs 'vel'" in err
     assert "unit 'furlong' is not defined by the FMU nor a unit of the Modelica unit syntax" \
         in err
@@ -455,10 +455,15 @@ def test_cosim_roles_prints_each_contract(capsys):
     assert lines[0].startswith("ballscrew: 1-DOF ball-screw unit")
     assert lines[1].split() == ["variable", "causality", "unit", "meaning"]
     rows = {ln.split()[0]: ln.split()[1:3] for ln in lines[2:]}
-    assert rows == {"i": ["input", "A"], "f_ext": ["input", "N"], "theta": ["output", "rad"],
-                    "w": ["output", "rad/s"], "x": ["output", "m"], "v": ["output", "m/s"],
-                    "a": ["output", "m/s2"], "theta_enc": ["output", "rad"]}
-    assert "encoder" in lines[-1]
+    variables = {n: r for n, r in rows.items() if r[0] != "parameter"}
+    assert variables == {"i": ["input", "A"], "f_ext": ["input", "N"],
+                         "theta": ["output", "rad"], "w": ["output", "rad/s"],
+                         "x": ["output", "m"], "v": ["output", "m/s"], "a": ["output", "m/s2"],
+                         "theta_enc": ["output", "rad"]}
+    # the role parameters a binding maps (issue 22), with the units of BallScrewUnit.mo
+    params = {n: r[1] for n, r in rows.items() if r[0] == "parameter"}
+    assert params["J"] == "kg.m2" and params["w0"] == "rad/s" and params["fc"] == "N.m"
+    assert "encoder" in lines[2 + len(variables) - 1]
     rc, cap = _cli(["roles"], capsys)
     from cosim.master.roles import CONTRACTS
     assert rc == 0 and all(f"\n{n}: " in "\n" + cap.out for n in CONTRACTS)

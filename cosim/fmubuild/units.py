@@ -3,6 +3,11 @@
 Grammar (Modelica spec 19.1): factors separated by '.', one optional '/' after
 which factors are in the denominator; a factor is a unit symbol, optionally with
 an SI prefix, followed by an integer exponent ("m2", "s-1"); "1" is dimensionless.
+
+Besides the SI symbols, the non-SI units exporters write for a drive: ``rev`` (one
+revolution, 2 pi rad; ``rev/min`` is Modelica's ``NonSI.AngularVelocity_rpm``), ``rpm``
+(= ``rev/min``), ``deg``, ``min`` and ``h`` (so ``m/min``, ``mm/min``, ``rev/h``), ``bar``
+and ``Nm`` (a common spelling of ``N.m``; Modelica writes ``N.m``).
 """
 from __future__ import annotations
 
@@ -25,6 +30,10 @@ _UNITS: dict[str, tuple[float, dict[str, int]]] = {
     "Hz": (1.0, {"s": -1}),
     "C": (1.0, {"s": 1, "A": 1}),
     "min": (60.0, {"s": 1}), "h": (3600.0, {"s": 1}),
+    "rev": (2 * 3.141592653589793, {"rad": 1}),
+    "rpm": (2 * 3.141592653589793 / 60.0, {"rad": 1, "s": -1}),
+    "bar": (1e5, {"kg": 1, "m": -1, "s": -2}),
+    "Nm": (1.0, {"kg": 1, "m": 2, "s": -2}),
 }
 _PREFIX = {"m": 1e-3, "u": 1e-6, "n": 1e-9, "k": 1e3, "M": 1e6, "c": 1e-2}
 _FACTOR = re.compile(r"^([A-Za-z]+)(-?\d+)?$")

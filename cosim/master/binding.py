@@ -5,11 +5,23 @@ An FMU from another tool rarely has the contract's names and units: its motor an
 no unit at all. A :class:`RoleBinding` says, per contract variable (``cosim roles``),
 
 * ``map``: which FMU variable plays it (``theta -> motor.phi``; default: the same name);
-* ``units``: the unit the FMU's values are in (``theta: deg``). A unit of the contract's
-  dimension is converted (scale and offset: mm -> m, deg -> rad, mA -> A, degC -> K);
-  a variable without a unit in the FMU is accepted only with a declared unit, never
-  silently; an FMU whose declared unit differs from the contract's is converted only
-  when the binding names that unit (the binding states every conversion it makes).
+  the role's *parameters* (:data:`ROLE_PARAMETERS`, ``cosim roles``: ``J``, ``b``,
+  ``fc``, ``w0``... of a ball-screw unit) are mapped the same way (``J: inertia``), so
+  the parameters a scenario, a case or a negative control sets and the true values a
+  procedure reads (``System.parameter_values``) reach the FMU's own parameter;
+* ``units``: the unit the FMU's values are in (``theta: deg``, ``J: g.cm2``). A unit of
+  the contract's dimension is converted (scale and offset: mm -> m, deg -> rad, rpm ->
+  rad/s, kN -> N, m/min -> m/s, mA -> A, degC -> K); a unit is looked up in the FMU's
+  UnitDefinitions first (any unit it defines with a BaseUnit), else in the Modelica
+  unit syntax (:mod:`cosim.fmubuild.units`); a variable without a unit in the FMU is
+  accepted only with a declared unit, never silently; an FMU whose declared unit
+  differs from the contract's is converted only when the binding names that unit (the
+  binding states every conversion it makes).
+
+A binding comes from a scenario's ``fmus:`` entry (``map:``/``units:``), a binding file
+(``cosim run --binding FILE``: ``ROLE: {fmu: PATH, map: {...}, units: {...}}``,
+:func:`load_binding_file`) or ``--map ROLE.NAME=FMU_NAME[:UNIT]``
+(:func:`parse_map_option`); :func:`cli_bindings` merges them for the command line.
 
 The system then sees the FMU through its binding (:class:`BoundSlave`): variables under
 the contract's names and in the contract's units, so connections, controllers,
@@ -32,8 +44,38 @@ from .fmu import FMUError, FMUSlave, VarInfo, suggest
 from .roles import RoleContract
 from .units import affine, base_unit, dimension, norm
 
-_SYNTAX = ("Modelica unit syntax, e.g. m, mm, deg, rad/s, rev/min, mA, N, N.m, m/s2, "
-           "degC")
+_SYNTAX = ("Modelica unit syntax, e.g. m, mm, deg, rad/s, rev/min, rpm, mA, N, kN, N.m, "
+           "m/s2, m/min, degC")
+
+#: ``coupling`` values of a binding (see :class:`RoleBinding`)
+COUPLINGS = ("", "group", "step")
+
+#: The parameters of a role (contract name -> parameter -> (unit, meaning)) that the
+#: package's scenarios and procedures set or read by name: a binding maps them to an
+#: FMU's own parameters (``map: {J: inertia}``) and converts their units. The values
+#: are those of the package's FMU for the role (BallScrewUnit.mo).
+ROLE_PARAMETERS: dict[str, dict[str, tuple[str, str]]] = {
+    "ballscrew": {
+        "J": ("kg.m2", "total inertia at the motor shaft (Table 1); the procedures' true J"),
+        "b": ("N.m.s/rad", "viscous friction coefficient (Table 1); the true b"),
+        "fc": ("N.m", "Coulomb friction torque (Table 1); the true fc"),
+        "Kt": ("N.m/A", "motor torque constant (Table 1); the true Kt"),
+        "fs": ("N.m", "static (breakaway) friction torque (a negative control raises it)"),
+        "ws": ("rad/s", "Stribeck speed"),
+        "sigma0": ("N.m/rad", "LuGre bristle stiffness"),
+        "sigma1": ("N.m.s/rad", "LuGre bristle damping"),
+        "wd": ("rad/s", "speed over which the bristle damping fades"),
+        "lead": ("m", "ball-screw lead: nut travel per motor revolution"),
+        "delta_enc": ("rad", "encoder resolution (a negative control coarsens it)"),
+        "theta0": ("rad", "initial motor angle"),
+        "w0": ("rad/s", "initial motor speed (free_motion starts in motion)"),
+    },
+}
+
+
+def role_parameters(contract: RoleContract | None) -> dict[str, tuple[str, str]]:
+    """The parameters a binding may map for ``contract`` (parameter -> (unit, meaning))."""
+    return ROLE_PARAMETERS.get(getattr(contract, "name", None), {})
 
 
 class BindingError(ValueError):
@@ -42,16 +84,27 @@ class BindingError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class RoleBinding:
-    """How an FMU plays a role: ``map`` contract variable -> FMU variable, ``units``
-    contract variable -> the unit of the FMU's values (both optional per variable)."""
+    """How an FMU plays a role: ``map`` contract variable or role parameter -> FMU
+    variable, ``units`` the same names -> the unit of the FMU's values (both optional
+    per name)."""
     map: Mapping[str, str] = dataclasses.field(default_factory=dict)
     units: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    #: how a scenario may solve this FMU when its role is in a coupled group
+    #: (``system.coupled``, a stiff load cell or wall): ``""`` as the scenario says
+    #: (Model Exchange in the group); ``"step"``: a Co-Simulation-only FMU leaves the
+    #: group and its connections to it are exchanged at the master step (explicit;
+    #: the accuracy this costs is in docs/bring-your-own-fmu.md). Not a view of the
+    #: FMU: :class:`BoundSlave` ignores it, :mod:`cosim.scenarios.build` reads it.
+    coupling: str = ""
 
     def __bool__(self) -> bool:
         return bool(self.map or self.units)
 
     def to_dict(self) -> dict:
-        return {k: dict(v) for k, v in (("map", self.map), ("units", self.units)) if v}
+        out = {k: dict(v) for k, v in (("map", self.map), ("units", self.units)) if v}
+        if self.coupling:
+            out["coupling"] = self.coupling
+        return out
 
     @classmethod
     def from_spec(cls, spec, where: str = "binding") -> "RoleBinding":
@@ -64,10 +117,11 @@ class RoleBinding:
         if not isinstance(spec, Mapping):
             raise BindingError(f"{where}: a binding is a mapping with 'map' and/or 'units', "
                                f"got {type(spec).__name__}")
-        extra = [k for k in spec if k not in ("map", "units")]
+        extra = [k for k in spec if k not in ("map", "units", "coupling")]
         if extra:
             raise BindingError(f"{where}: unknown key(s) {extra} (a binding has 'map' and "
-                               f"'units')")
+                               f"'units'; a role parameter is mapped in 'map' too, e.g. "
+                               f"map: {{J: inertia}}, units: {{J: g.cm2}})")
         out = {}
         for key in ("map", "units"):
             d = spec.get(key) or {}
@@ -80,7 +134,13 @@ class RoleBinding:
                     raise BindingError(f"{where}.{key}.{k}: must be a non-empty string, got "
                                        f"{type(v).__name__} {v!r}")
             out[key] = {k: v.strip() for k, v in d.items()}
-        return cls(out.get("map", {}), out.get("units", {}))
+        coupling = spec.get("coupling") or ""
+        if coupling not in COUPLINGS:
+            raise BindingError(f"{where}.coupling: {coupling!r} is not one of "
+                               f"{sorted(c for c in COUPLINGS if c)} (step: a "
+                               f"Co-Simulation-only FMU exchanged with its coupled group at "
+                               f"the master step)")
+        return cls(out.get("map", {}), out.get("units", {}), coupling)
 
     def static_diffs(self, contract: RoleContract) -> list[tuple[str, str, str]]:
         """What is wrong with the binding whatever the FMU: (key, contract variable,
@@ -88,27 +148,75 @@ class RoleBinding:
         units or not of the contract variable's dimension (a scenario checks these at
         load time, with the line)."""
         out = []
-        names = [n for n, *_ in contract.variables()]
+        params = role_parameters(contract)
+        names = [n for n, *_ in contract.variables()] + list(params)
+        other = _written_for(self, contract)
+        if other is not None:
+            # a binding of another role's FMU (a 1-DOF unit for a rig): one line, why
+            return [("map", "", f"the binding is written for the {other.name!r} contract "
+                     f"({other.description}), and this role plays the {contract.name!r} "
+                     f"contract ({contract.description}): the FMU does not fit the role"
+                     + (f"; {_SEPARATE[contract.name]}" if contract.name in _SEPARATE
+                        else ""))]
         for key, table in (("map", self.map), ("units", self.units)):
             for cv in table:
-                if contract.unit(cv) is None:
+                if contract.unit(cv) is None and cv not in params:
                     close = suggest(cv, names, 3)
-                    out.append((key, cv, f"binding {key}: {cv!r} is not a variable of the "
-                                f"{contract.name!r} contract" + (
+                    out.append((key, cv, f"binding {key}: {cv!r} is not a variable or "
+                                f"parameter of the {contract.name!r} contract" + (
                                     f" (did you mean {', '.join(map(repr, close))}?)" if close
                                     else f" ({', '.join(contract.inputs)} in; "
-                                    f"{', '.join(contract.outputs)} out)")))
+                                    f"{', '.join(contract.outputs)} out"
+                                    + (f"; parameters {', '.join(params)}" if params else "")
+                                    + ")")))
         for cv, unit in self.units.items():
-            cunit = contract.unit(cv)
-            if cunit is not None:
-                msg = unit_problem(repr(cv), unit, base_unit(unit), cunit)
+            cunit = contract.unit(cv) or params.get(cv, (None,))[0]
+            src = base_unit(unit)
+            # a unit the syntax does not know may be one the FMU defines: checked when
+            # the FMU is bound (BoundSlave), with its UnitDefinitions
+            if cunit is not None and src is not None:
+                msg = unit_problem(repr(cv), unit, src, cunit)
                 if msg:
                     out.append(("units", cv, msg))
         return out
 
+    def parameters(self, contract: RoleContract | None) -> dict[str, str]:
+        """The mapped role parameters: role parameter -> FMU variable."""
+        return {k: v for k, v in self.map.items()
+                if contract is None or contract.unit(k) is None}
+
     def merged(self, other: "RoleBinding") -> "RoleBinding":
         """This binding with ``other``'s entries over it."""
-        return RoleBinding({**self.map, **other.map}, {**self.units, **other.units})
+        return RoleBinding({**self.map, **other.map}, {**self.units, **other.units},
+                           other.coupling or self.coupling)
+
+
+#: where a unit FMU takes part in a trial whose role here is a composite rig
+_SEPARATE = {
+    "zero_force_rig": "a unit FMU ('ballscrew') takes part in the zero-force trial as the "
+                      "unit under test of scenarios/coupled/zero_force_separate.yaml "
+                      "(--fmu unit=PATH or unit: in the binding file)",
+    "wall_rig": "a unit FMU ('ballscrew') takes part in the bilateral trial as its master "
+                "(role master here) or as the slave of "
+                "scenarios/coupled/bilateral_separate.yaml (role slave)",
+    "xy_table": "the circular and reaching trials need a 2-DOF table (a force command and "
+                "a hand force per axis): one 1-DOF unit does not make one",
+}
+
+
+def _written_for(b: "RoleBinding", contract: RoleContract):
+    """The other contract all of ``b``'s names belong to when none of a few of them is
+    ``contract``'s, else None."""
+    from .roles import CONTRACTS
+    names = set(b.map) | set(b.units)
+    mine = {n for n, *_ in contract.variables()} | set(role_parameters(contract))
+    if len(names) < 3 or names & mine == names or len(names - mine) < len(names) / 2:
+        return None
+    for c in CONTRACTS.values():
+        if c.name != contract.name and names <= ({n for n, *_ in c.variables()}
+                                                 | set(role_parameters(c))):
+            return c
+    return None
 
 
 def unit_problem(where: str, unit: str, src, cunit: str) -> str | None:
@@ -124,9 +232,10 @@ def unit_problem(where: str, unit: str, src, cunit: str) -> str | None:
 
 
 def parse_map_option(text: str) -> tuple[str, str, str, str | None]:
-    """``ROLE.CONTRACT_VAR=FMU_VAR[:UNIT]`` (``--map``) -> (role, contract variable, FMU
-    variable, unit or None). An empty FMU_VAR keeps the contract's name
-    (``master.theta=:deg`` declares a unit only)."""
+    """``ROLE.NAME=FMU_VAR[:UNIT]`` (``--map``; NAME a contract variable or a role
+    parameter, ``plant.J=inertia:g.cm2``) -> (role, name, FMU variable, unit or None).
+    An empty FMU_VAR keeps the contract's name (``master.theta=:deg`` declares a unit
+    only)."""
     lhs, eq, rhs = str(text).partition("=")
     role, dot, cvar = lhs.strip().partition(".")
     if not eq or not dot or not role or not cvar:
@@ -139,6 +248,65 @@ def parse_map_option(text: str) -> tuple[str, str, str, str | None]:
     if colon and not unit:
         raise BindingError(f"--map {text!r}: empty unit after ':'")
     return role, cvar, fvar, unit or None
+
+
+def load_binding_file(path) -> dict[str, tuple[str | None, "RoleBinding"]]:
+    """A binding file (``cosim run --binding FILE``): role -> (its FMU's path or None,
+    its binding). The file is YAML, per role ``{fmu: PATH, map: {...}, units: {...}}``;
+    a relative ``fmu`` is relative to the file. Errors name the file, the role and the
+    field (:class:`BindingError`)."""
+    import yaml
+    from pathlib import Path
+    f = Path(path)
+    try:
+        doc = yaml.safe_load(f.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise BindingError(f"--binding {f}: {exc}") from None
+    if not isinstance(doc, Mapping):
+        raise BindingError(f"--binding {f}: expected a mapping role -> {{fmu: PATH, "
+                           f"map: {{...}}, units: {{...}}}}")
+    out = {}
+    for role, spec in doc.items():
+        if not isinstance(spec, Mapping):
+            raise BindingError(f"--binding {f}: {role}: expected a mapping with fmu, map, "
+                               f"units")
+        spec = dict(spec)
+        fmu = spec.pop("fmu", None)
+        binding = RoleBinding.from_spec(spec, f"--binding {f}: {role}")
+        if fmu is not None:
+            if not isinstance(fmu, str) or not fmu.strip():
+                raise BindingError(f"--binding {f}: {role}.fmu: expected a path, got {fmu!r}")
+            p = Path(fmu) if Path(fmu).is_absolute() else f.parent / fmu
+            if not p.is_file():
+                raise BindingError(f"--binding {f}: {role}.fmu: FMU file {p} does not exist")
+            fmu = str(p.resolve())
+        out[str(role)] = (fmu, binding)
+    return out
+
+
+def cli_bindings(fmu_paths: Mapping[str, str], files=(), maps=()) \
+        -> dict[str, tuple[str, "RoleBinding"]]:
+    """The command line's swaps: role -> (FMU path, binding) from ``--fmu`` paths
+    (``fmu_paths``, role -> path), ``--binding`` files and ``--map`` options (a --map
+    entry over the files', a file's over an earlier file's; --fmu's path over a file's
+    ``fmu``). A binding for a role without an FMU swapped in is refused."""
+    paths = dict(fmu_paths)
+    bindings: dict[str, RoleBinding] = {}
+    for f in files or ():
+        for role, (fmu, b) in load_binding_file(f).items():
+            bindings[role] = bindings.get(role, RoleBinding()).merged(b)
+            if fmu is not None and role not in paths:
+                paths[role] = fmu
+    for item in maps or ():
+        role, name, fvar, unit = parse_map_option(item)
+        b = RoleBinding({name: fvar} if fvar != name else {}, {name: unit} if unit else {})
+        bindings[role] = bindings.get(role, RoleBinding()).merged(b)
+    missing = sorted(set(bindings) - set(paths))
+    if missing:
+        raise BindingError(f"--map/--binding for role(s) {missing} without an FMU swapped in "
+                           f"(--fmu ROLE=PATH, or fmu: in the binding file); a scenario's own "
+                           f"FMU is bound in the scenario file (map:/units: in its fmus entry)")
+    return {r: (p, bindings.get(r, RoleBinding())) for r, p in paths.items()}
 
 
 class BoundSlave(FMUSlave):
@@ -169,7 +337,9 @@ class BoundSlave(FMUSlave):
         b, c, fv = self.binding, self.contract, self.fmu_variables
         diffs, reported = self.binding_diffs, self.binding_reported
         defs = self.md.unitDefinitions
-        diffs += [m for _, cv, m in b.static_diffs(c) if c.unit(cv) is None]
+        params = role_parameters(c)
+        diffs += [m for _, cv, m in b.static_diffs(c) if c.unit(cv) is None
+                  and cv not in params]
         bound: dict[str, VarInfo] = {}
         claims: dict[int, tuple[float, float]] = {}     # vr -> (gain, offset) of its binding
         for cv, kind, cunit, _ in c.variables():
@@ -198,13 +368,13 @@ class BoundSlave(FMUSlave):
                 reported.add(cv)
                 continue
             if declared and fu and norm(declared) != norm(fu):
-                a, d = base_unit(fu, defs), base_unit(declared)
+                a, d = base_unit(fu, defs), base_unit(declared, defs)
                 if a is not None and d is not None and a != d:
                     diffs.append(f"{where}: the binding declares unit {declared!r}, the FMU "
                                  f"declares {fu!r}")
                     reported.add(cv)
                     continue
-            src = base_unit(unit, defs if unit == fu else ())
+            src = base_unit(unit, defs)      # a unit the FMU defines, else the syntax
             msg = unit_problem(where, unit, src, cunit)
             if msg:
                 if src is None and not declared:    # the FMU's own, unknown unit string
@@ -240,6 +410,7 @@ class BoundSlave(FMUSlave):
                 except ValueError:
                     pass
             bound[cv] = dataclasses.replace(v, name=cv, unit=cunit, start=start)
+        self._bind_parameters(bound, claims)
         view = {}
         for n, v in fv.items():
             if n in self._renamed or n in bound:
@@ -249,6 +420,78 @@ class BoundSlave(FMUSlave):
             view[n] = dataclasses.replace(v, unit=conv[2]) if conv else v
         view.update(bound)
         self.variables = view
+
+    def _bind_parameters(self, bound: dict, claims: dict):
+        """The role parameters the binding maps (``J: inertia``): renamed, and converted
+        from the FMU's unit to the role's (:data:`ROLE_PARAMETERS`) like a variable."""
+        b, c, fv = self.binding, self.contract, self.fmu_variables
+        diffs, reported, defs = self.binding_diffs, self.binding_reported, \
+            self.md.unitDefinitions
+        params = role_parameters(c)
+        for cp, fname in b.parameters(c).items():
+            if cp not in params:
+                continue                    # static_diffs said it is no parameter
+            cunit = params[cp][0]
+            v = fv.get(fname)
+            if v is None:
+                close = suggest(fname, [n for n, x in fv.items()
+                                        if x.causality in ("parameter", "input")], 3)
+                diffs.append(f"parameter {cp!r} [{cunit}] is bound to {fname!r}, which the "
+                             f"FMU does not have" + (f" (its parameters "
+                                                     f"{', '.join(map(repr, close))})"
+                                                     if close else ""))
+                reported.add(cp)
+                continue
+            where = f"parameter {cp!r} (the FMU's {fname!r})"
+            self._renamed[fname] = cp
+            if v.type != "Real" or v.shape:
+                diffs.append(f"{where} is a {v.fmi_type or v.type}"
+                             f"{' array' if v.shape else ''}: a role parameter binds a "
+                             f"scalar Real")
+                reported.add(cp)
+                continue
+            declared, fu = b.units.get(cp), v.unit
+            unit = declared or fu
+            if not unit:
+                diffs.append(f"{where} has no unit in the FMU and the binding declares none: "
+                             f"declare the unit of its value, units: {{{cp}: {cunit}}} if it "
+                             f"is in {cunit}")
+                reported.add(cp)
+                continue
+            if declared and fu and norm(declared) != norm(fu):
+                a, d = base_unit(fu, defs), base_unit(declared, defs)
+                if a is not None and d is not None and a != d:
+                    diffs.append(f"{where}: the binding declares unit {declared!r}, the FMU "
+                                 f"declares {fu!r}")
+                    reported.add(cp)
+                    continue
+            src = base_unit(unit, defs)
+            msg = unit_problem(where, unit, src, cunit)
+            if msg:
+                diffs.append(msg)
+                reported.add(cp)
+                continue
+            if not declared and norm(fu) != norm(cunit):
+                # as for a variable: the binding states every conversion it makes
+                diffs.append(f"{where} is in {fu!r} (the FMU's unit), the role's in "
+                             f"{cunit!r}: the binding converts it with units: {{{cp}: {fu}}}")
+                reported.add(cp)
+                continue
+            gain, offset = affine(src, base_unit(cunit))
+            if claims.setdefault(v.vr, (gain, offset)) != (gain, offset):
+                diffs.append(f"{where}: the FMU's {fname!r} (value reference {v.vr}) is "
+                             f"bound twice with different units")
+                reported.add(cp)
+                continue
+            if (gain, offset) != (1.0, 0.0):
+                self.conversions[v.vr] = (gain, offset, cunit)
+            start = v.start
+            if start is not None and (gain, offset) != (1.0, 0.0):
+                try:
+                    start = repr(float(start) * gain + offset)
+                except ValueError:
+                    pass
+            bound[cp] = dataclasses.replace(v, name=cp, unit=cunit, start=start)
 
     def var(self, name: str) -> VarInfo:
         if name not in self.variables and name in self._renamed:
@@ -269,6 +512,20 @@ class BoundSlave(FMUSlave):
             conv = "" if (g, o) == (1.0, 0.0) else \
                 f" ({cunit} = {g:.10g} x {unit}" + (f" + {o:.10g}" if o else "") + ")"
             out.append(f"{cv} <- {fname} [{unit}]{conv}")
+        params = role_parameters(self.contract)
+        for cp, fname in self.binding.parameters(self.contract).items():
+            v = self.variables.get(cp)
+            if v is None or cp not in params:
+                continue
+            cunit = params[cp][0]
+            g, o, _ = self.conversions.get(v.vr, (1.0, 0.0, cunit))
+            unit = self.binding.units.get(cp) or self.fmu_variables[fname].unit
+            conv = "" if (g, o) == (1.0, 0.0) else \
+                f" ({cunit} = {g:.10g} x {unit}" + (f" + {o:.10g}" if o else "") + ")"
+            out.append(f"parameter {cp} <- {fname} [{unit}]{conv}")
+        if self.binding.coupling == "step":
+            out.append("coupling: step (Co-Simulation; exchanged with its coupled group at "
+                       "the master step, not solved in it)")
         return out
 
     # ------------------------------------------------------------ conversions

@@ -377,6 +377,20 @@ class System:
         self._check_params(role, slave, values)
         self.params[role].update(values)
 
+    def parameter_value(self, role: str, name: str) -> float | None:
+        """The value parameter (or start value) ``name`` of ``role`` has as the system
+        runs it: the value set (``add_fmu``/``set_parameters``), else the FMU's start
+        value; seen through the role's binding (a mapped role parameter under the
+        role's name and in the role's unit, :mod:`cosim.master.binding`). None if the
+        FMU has no such variable or it has no start value."""
+        slave = self._role(role)
+        if name in self.params.get(role, {}):
+            return float(self.params[role][name])
+        v = slave.variables.get(name)
+        if v is None or v.start is None:
+            return None
+        return float(v.start)
+
     @staticmethod
     def _check_params(role: str, slave: FMUSlave, values: Mapping):
         for name, value in values.items():

@@ -37,7 +37,8 @@ class FMUSwap(str):
 
     def __new__(cls, path, binding: dict | None = None):
         obj = super().__new__(cls, str(path))
-        obj.binding = {k: dict(v) for k, v in (binding or {}).items() if v}
+        obj.binding = {k: dict(v) if isinstance(v, dict) else v
+                       for k, v in (binding or {}).items() if v}
         return obj
 
     def __reduce__(self):
@@ -67,6 +68,12 @@ def fmu_file(spec_fmu: str, fmu_dir) -> Path:
     return Path(fmu_dir or paths.fmus_dir()) / f"{spec_fmu}.fmu"
 
 
+class MissingParameter(ScenarioError):
+    """A parameter the scenario, a case, a negative control or the procedure sets on a
+    role whose FMU has no counterpart for it (a user's plant without a Stribeck term or
+    an initial speed): the message names who sets it and the binding line to add."""
+
+
 def make_builder(sc: Scenario, run: reg.RunSpec, ctx: reg.BuildContext,
                  fmu_swaps: dict | None = None):
     """``build(overrides=None) -> (System, record)`` for a procedure."""
@@ -74,17 +81,88 @@ def make_builder(sc: Scenario, run: reg.RunSpec, ctx: reg.BuildContext,
         d = deep_merge(sc.data, run.overrides)
         if overrides:
             d = deep_merge(d, overrides)
-        return build_system(sc, d, ctx, fmu_swaps)
+        return build_system(sc, d, ctx, fmu_swaps, control=run.control,
+                            by_procedure=_role_parameters(overrides or {}))
     return build
+
+
+def _role_parameters(d: dict) -> dict[str, set]:
+    """role -> the parameter names ``d`` (the file's structure) sets."""
+    fmus = ((d.get("system") or {}).get("fmus") or {})
+    return {r: set((spec or {}).get("parameters") or {}) for r, spec in fmus.items()
+            if isinstance(spec, dict)}
+
+
+def _missing_parameters(sc, role, slave, params, control, by_procedure) -> str | None:
+    """Why the FMU of ``role`` cannot take ``params`` (names it has no variable for), or
+    None: who sets each (the scenario, the negative control, the procedure) and what to
+    add to the role's binding."""
+    from cosim.master.binding import role_parameters
+    missing = [k for k in params if k not in slave.variables]
+    if not missing:
+        return None
+    known = role_parameters(slave_contract := getattr(slave, "contract", None))
+    own = set(((sc.data["system"]["fmus"].get(role) or {}).get("parameters")) or {})
+    fv = getattr(slave, "fmu_variables", slave.variables)
+    theirs = [n for n, v in fv.items() if v.causality == "parameter"]
+    said = []
+    for k in missing:
+        unit, meaning = known.get(k, ("", ""))
+        said.append(f"{k!r}" + (f" [{unit}]" if unit else "") + (f" ({meaning})" if meaning
+                                                                  else ""))
+    # the scenario's own runs are built (checked) first: a name the role entry sets
+    # fails there; on a control's run the others come from the control's override
+    who = {("procedure" if k in by_procedure.get(role, ()) else
+            "role" if k in own else "control" if control else "case") for k in missing}
+    control = control if "control" in who else ""
+    who = ("the procedure" if who == {"procedure"} else
+           f"the negative control {control!r}" if "control" in who else
+           "a case of the scenario" if who == {"case"} else "the scenario")
+    k = missing[0]
+    unit = known.get(k, ("",))[0]
+    hint = (f"map {'each' if len(missing) > 1 else 'it'} to the FMU's own parameter in the "
+            f"role's binding: map: {{{k}: <its parameter>}}"
+            + (f", units: {{{k}: <its unit, e.g. {unit}>}}" if unit else "")
+            + f" (or --map {role}.{k}=<its parameter>" + (":<unit>" if unit else "") + ")")
+    if slave_contract is not None and k not in known:
+        hint = (f"the {slave_contract.name!r} contract has no parameter {k!r} to bind "
+                f"(its parameters: {', '.join(known) or 'none'})")
+    return (f"role {role!r}: {who} sets parameter{'s' if len(missing) > 1 else ''} "
+            f"{', '.join(said)}, which {slave.path.name} has no counterpart for: {hint}. "
+            f"The FMU's parameters: {theirs or 'none'}"
+            + (f". Without it the negative control {control!r} cannot run: the "
+               f"requirements it backs are errors, not passes" if control else ""))
+
+
+def _no_me(role: str, path, group: list, d: dict) -> str:
+    """Why a Co-Simulation-only FMU cannot take a role of a coupled group, and what
+    would make it fit."""
+    name = Path(str(path)).name
+    return (f"role {role!r}: {name} has no Model Exchange interface (it is Co-Simulation "
+            f"only), and this scenario solves {role!r} with {[r for r in group if r != role]} "
+            f"as one coupled group (system.coupled): the stiff element between them (a "
+            f"load cell, a wall) is integrated by one implicit "
+            f"solver over the members' Model Exchange equations, because exchanged at the "
+            f"{float(d.get('step', 1e-3)):g} s master step it is off or unstable. To fit: "
+            f"export the FMU with a Model Exchange interface as well; or, accepting the "
+            f"error of an explicit exchange, add `coupling: step` to the role's binding "
+            f"(--binding FILE: {role}: {{fmu: ..., coupling: step}}): the FMU then runs as "
+            f"Co-Simulation and its connections to the group are exchanged at the master "
+            f"step (the accuracy measured on the zero-force trial: "
+            f"docs/bring-your-own-fmu.md, 'Co-Simulation-only plants')")
 
 
 def _err(sc, path, exc):
     return ScenarioError(f"{sc.where(path)}: {exc}")
 
 
-def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict | None = None):
+def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict | None = None,
+                 control: str = "", by_procedure: dict | None = None):
     """A System from the (merged) scenario data. System errors carry the line of the
-    item that caused them."""
+    item that caused them; a parameter the role's FMU has no counterpart for is a
+    :class:`MissingParameter` naming who sets it (``control``: the negative control
+    this run belongs to; ``by_procedure``: role -> names the procedure's own overrides
+    set)."""
     from cosim.master.fmu import FMUError
     from cosim.master.system import System, SystemError_
     from cosim.profiles import human_parameters
@@ -95,6 +173,11 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
     present = d["system"]["fmus"]
     groups = [(i, [r for r in g if r in present])
               for i, g in enumerate(d["system"].get("coupled") or [])]
+    # a swapped-in Co-Simulation-only FMU whose binding says coupling: step leaves its
+    # group: its connections to the group are exchanged at the master step
+    at_step = {r for _, g in groups for r in g
+               if swap_binding(swaps.get(r)).get("coupling") == "step"}
+    groups = [(i, [r for r in g if r not in at_step]) for i, g in groups]
     groups = [(i, g) for i, g in groups if len(g) >= 2]
     in_group = {r for _, g in groups for r in g}
     for role, spec in d["system"]["fmus"].items():
@@ -114,13 +197,25 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
             else:
                 params[k] = v
         try:
-            slave = system.add_fmu(role, path, contract=spec.get("contract"), parameters=params,
+            slave = system.add_fmu(role, path, contract=spec.get("contract"),
                                    kind="me" if role in in_group else spec.get("kind", "auto"),
                                    binding=binding or None)
+            why = _missing_parameters(sc, role, slave, {**params, **rel}, control,
+                                      by_procedure or {})
+            if why:
+                at = ("system", "fmus", role)
+                if control and ("negative_controls", control) in sc.lines:
+                    at = ("negative_controls", control)      # the control's line
+                raise MissingParameter(f"{sc.where(at)}: {why}")
+            system.set_parameters(role, params)
             if rel:
-                starts = {v.name: v.start for v in slave.md.modelVariables}
-                system.set_parameters(role, {k: f * float(starts[k]) for k, f in rel.items()})
+                # relative to the start value as the role sees it (through its binding)
+                system.set_parameters(role, {k: f * float(slave.variables[k].start)
+                                             for k, f in rel.items()})
         except (SystemError_, FMUError) as exc:
+            if role in in_group and "has no Model Exchange interface" in str(exc):
+                g = next(g for _, g in groups if role in g)
+                raise _err(sc, ("system", "fmus", role), _no_me(role, path, g, d)) from None
             raise _err(sc, ("system", "fmus", role), exc) from None
     if swaps:
         raise ScenarioError(f"--fmu: unknown role(s) {sorted(swaps)} (roles of {sc.name}: "
@@ -180,7 +275,14 @@ def check_build(sc: Scenario, fmu_dir=None, fmu_swaps=None, runs=None):
         seen.add((run.case, run.control))
         ctx = reg.BuildContext(scenario=sc.name, case=run.case, seed=run.seed, step_s=run.step,
                                duration_s=run.duration, fmu_dir=str(fmu_dir or ""))
-        system, record = make_builder(sc, run, ctx, fmu_swaps)()
+        try:
+            system, record = make_builder(sc, run, ctx, fmu_swaps)()
+        except MissingParameter:
+            if not run.control:
+                raise
+            # a negative control the swapped-in FMU cannot take: its runs record why
+            # and the requirements it backs are errors; the scenario's own runs go on
+            continue
         try:
             _faults_act(sc, run, system)        # a fault either acts or is refused
             Master(system, record)._plan()

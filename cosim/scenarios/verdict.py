@@ -203,7 +203,11 @@ def judge(r, mvalues: dict, merrors: dict, infos: list, case: str | None) -> dic
     expected = [i for i in infos if case is None or i.get("case") == case]
     failed = [i["label"] for i in expected if i.get("status") != "ok"]
     if failed and "*" not in mv:
-        out["message"] = f"run(s) failed: {', '.join(failed)}"
+        # why, once: the first failed run's error (e.g. a swapped-in FMU's missing
+        # parameter, which every run of a negative control shares)
+        why = next((i.get("error") for i in expected if i.get("status") != "ok"
+                    and i.get("error")), None)
+        out["message"] = f"run(s) failed: {', '.join(failed)}" + (f" ({why})" if why else "")
     elif failed:
         out["message"] = f"scenario-wide metric with failed run(s): {', '.join(failed)}"
     elif not vals:

@@ -61,9 +61,21 @@ BAND = 0.10
 
 def fmu_values(system, role: str, variables: Mapping[str, str]) -> dict[str, float]:
     """``{name: value}`` of FMU ``role``'s ``variables`` (name -> FMU variable) as the FMU
-    is run: the values set on it, else its start values."""
-    starts = {v.name: v.start for v in system.roles[role].md.modelVariables}
-    return {k: float(system.params[role].get(var, starts[var])) for k, var in variables.items()}
+    is run: the values set on it, else its start values, through the role's binding (a
+    user's FMU maps its own parameters to the role's: ``map: {J: inertia}``)."""
+    out, missing = {}, []
+    for k, var in variables.items():
+        x = system.parameter_value(role, var)
+        if x is None:
+            missing.append(var)
+        out[k] = x
+    if missing:
+        slave = system.roles[role]
+        raise ValueError(f"role {role!r}: the procedure reads the true value of "
+                         f"{missing}, which {slave.path.name} has no parameter for: map "
+                         f"each to the FMU's own parameter (with its unit) in the role's "
+                         f"binding, e.g. map: {{{missing[0]}: <its parameter>}}")
+    return out
 
 
 def _true_parameters(system, role="plant") -> dict:

@@ -204,7 +204,7 @@ def true_values(system, unit: dict) -> dict:
     """The unit's J, b, fc, Kt as its FMU runs them (set values, else start values);
     NaN for one the FMU has no parameter of that name for (a user's FMU bound to the
     role by its contract need not expose them: the report then shows no truth)."""
-    names = {v.name for v in system.roles[unit["role"]].md.modelVariables}
+    names = system.roles[unit["role"]].variables      # through the role's binding
     known = {k: var for k, var in unit["true_parameters"].items() if var in names}
     got = fmu_values(system, unit["role"], known)
     return {k: got.get(k, math.nan) for k in unit["true_parameters"]}
@@ -314,10 +314,21 @@ def identify_then_run(run, build, ctx) -> tuple[ProcedureResult, dict]:
                            "stimuli": list(system.stimuli)}
     for slave in system.roles.values():
         slave.terminate()
+    # "true": the unit as the main phase runs it (the plant the observers act on); read
+    # before the runs: a unit without them would end the run as non-finite values
+    truth = {name: true_values(system, u) for name, u in cfg["units"].items()}
+    lack = {n: [k for k, x in v.items() if math.isnan(x)] for n, v in truth.items()}
+    lack = {n: ks for n, ks in lack.items() if ks}
+    if lack:
+        n = next(iter(lack))
+        raise ValueError(
+            f"startup_identification: the identified J, b, fc, Kt are compared with each "
+            f"unit's true values, and the FMU of unit {n!r} (role "
+            f"{cfg['units'][n]['role']!r}) has no parameter for {lack[n]}: map each to the "
+            f"FMU's own parameter in the role's binding (map: {{{lack[n][0]}: <its "
+            f"parameter>}}, units: {{{lack[n][0]}: <its unit>}})")
     id_res, ident, travel = identify(run, build, ctx, cfg)
     ctx.phase = "main"
-    # "true": the unit as the main phase runs it (the plant the observers act on)
-    truth = {name: true_values(system, u) for name, u in cfg["units"].items()}
     used = ident if cfg["source"] == "identified" else truth
     if cfg["source"] != "identified":
         bad = {n: [k for k, x in v.items() if math.isnan(x)] for n, v in truth.items()}
