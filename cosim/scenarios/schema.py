@@ -100,6 +100,9 @@ TOP = {
     "monte_carlo": (dict, False), "parameters": (dict, False),
     "negative_controls": (dict, False), "faults": (dict, False),
     "timeout_s": (NUM, False),      # per-run wall-clock limit [s] (cosim.scenarios.isolate)
+    # the user's own modules (files beside the scenario or module names) that register
+    # metrics, stimuli, controllers, procedures (cosim.scenarios.plugins)
+    "plugins": (list, False),
 }
 ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
         "human_profile": (str, False), "grasp": (str, False), "kind": (str, False),
@@ -111,13 +114,17 @@ CONN = {"from": (str, True), "to": (str, True), "scale": (NUM, False),
 CTRL = {"type": (str, True), "params": (dict, False), "wiring": (dict, False),
         "outputs": (dict, False), "record": (list, False)}
 STIM = {"type": (str, True), "params": (dict, False)}
-METRIC = {"type": (str, True), "phase": (str, False)}
+METRIC = {"type": (str, True), "phase": (str, False),
+          # the unit of the value where the metric cannot derive it from its signal's
+          "unit": (str, False)}
 REQ = {"id": (str, True), "description": (str, True), "metric": (str, True),
        "rule": (str, True), "limit": ((int, float, list), True), "case": (str, False),
        "aggregate": (str, False), "negative_control": ((dict, str), False),
        "thesis_inconsistent": (dict, False),
        # what the requirement is (KINDS), where it comes from and where its limit comes from
-       "kind": (str, False), "source": (str, False), "limit_source": (str, False)}
+       "kind": (str, False), "source": (str, False), "limit_source": (str, False),
+       # the unit of the limit and value (default: the metric's, cosim.scenarios.metrics)
+       "unit": (str, False)}
 #: a negative control: the scenario again, under which the requirement must NOT hold
 NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
        "runs": (list, False), "apply_to": (list, False)}
@@ -164,6 +171,7 @@ class Requirement:
     kind: str = "user"                    # one of KINDS
     source: str | None = None             # the thesis section/figure, or the user's document
     limit_source: str | None = None       # the thesis's number, or a package limit and why
+    unit: str | None = None               # of the limit and the value (default: the metric's)
 
 
 @dataclasses.dataclass
@@ -252,6 +260,7 @@ def load(path, fmu_dir=None) -> Scenario:
     d = m.data
     c.keys(d, TOP, (), "scenario")
     sc.name = d["scenario"]
+    _load_plugins(c, d)
     _include_ssp(c, d)
     c.positive(d["duration"], ("duration",), "duration [s]")
     step = d.get("step", 1e-3)
@@ -514,6 +523,21 @@ def _check_signal_head(c, d, name, path, cases_merged=None):
                  f" (roles: {list(roles)}, controllers: {list(ctrls)})"))
 
 
+def _load_plugins(c: _Checker, d: dict):
+    """Import the scenario's ``plugins`` (files or module names), whose registrations
+    its metrics, stimuli, controllers and procedure may name; an error names the
+    plug-in's file and line."""
+    from .plugins import PluginError, load as load_plugin
+    for i, ref in enumerate(d.get("plugins") or []):
+        if not isinstance(ref, str) or not ref.strip():
+            c.err(("plugins", i), f"a plug-in is a file name (my_metrics.py) or a module "
+                  f"name, got {ref!r}")
+        try:
+            load_plugin(ref, c.sc.path)
+        except PluginError as exc:
+            c.err(("plugins", i), str(exc))
+
+
 def _include_ssp(c: _Checker, d: dict):
     """``system: {ssp: FILE.ssp, fmus: {...}, connections: [...]}``: the SSP's
     components become roles (FMUs extracted to ``<cache>/ssp/<sha>/``, parameters from
@@ -530,9 +554,8 @@ def _include_ssp(c: _Checker, d: dict):
     ref = sysd["ssp"]
     if not isinstance(ref, str) or not ref.endswith(".ssp"):
         c.err(("system", "ssp"), f"system.ssp must be the path of an .ssp file, got {ref!r}")
-    f = Path(ref).expanduser()
-    if not f.is_absolute():
-        f = Path(c.sc.path).parent / f
+    from .plugins import resolve
+    f = resolve(ref, c.sc.path)          # a shipped copy on a worker
     if not f.is_file():
         c.err(("system", "ssp"), f"SSP file {f} not found (relative paths are read from the "
               f"scenario file's folder)")
