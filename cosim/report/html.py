@@ -26,6 +26,14 @@ tr.cannot-fail td{background:#f3e3f7} tr.thesis-inconsistent td{background:#e4eb
 code,pre{font-family:DejaVu Sans Mono,monospace;font-size:12px} pre{background:#f5f5f8;
 padding:8px;overflow-x:auto;white-space:pre-wrap} .fig{margin:10px 0}
 .fig img{max-width:100%;border:1px solid #dde} .muted{color:#666;font-size:12px}
+.scroll{max-width:100%;overflow-x:auto} td code{overflow-wrap:anywhere}
+td{overflow-wrap:anywhere} .unit{color:#445;font-size:11px}
+table.record td,table.record th{padding:3px 10px} table.signoff{width:100%}
+table.signoff td{height:34px;vertical-align:bottom} table.signoff th{width:16%}
+details summary{cursor:pointer;color:#335}
+@media print{body{max-width:none;margin:0}.scroll{overflow:visible}
+table{font-size:10px;page-break-inside:auto} tr{page-break-inside:avoid}
+table.signoff{page-break-inside:avoid} details>*{display:block}}
 """
 
 
@@ -57,6 +65,21 @@ def _fmt(v) -> str:
     return esc(v)
 
 
+def _unit(unit) -> str:
+    return f' <span class="unit">{esc(unit)}</span>' if unit else ""
+
+
+def _fmt_u(v, unit, known: bool = True) -> str:
+    """A limit or value with its unit (``unit?`` where the metric cannot derive it and
+    the scenario gives none: a ``unit:`` key on the metric or requirement says it)."""
+    if v is None:
+        return "-"
+    if unit:
+        return _fmt(v) + _unit(unit)
+    return _fmt(v) + (' <span class="unit" title="no unit: give the metric or the '
+                      'requirement a unit: key">unit?</span>' if known else "")
+
+
 def _held(h) -> str:
     return "holds" if h else "does not hold" if h is False else "-"
 
@@ -78,7 +101,7 @@ def requirements_table(verdict: dict) -> str:
                        f'override <code>{esc(json.dumps(nc.get("override"), default=str))}</code>'
                        + (f' on runs {esc(nc.get("runs"))}' if nc.get("runs") else ""))
                     + "</span>")
-            ncv = f'{_fmt(nc["value"])} ({_held(nc["held"])}){ncm}'
+            ncv = f'{_fmt_u(nc["value"], r.get("unit"))} ({_held(nc["held"])}){ncm}'
         elif r.get("thesis_inconsistent"):
             what, ncv = '<span class="muted">(thesis-inconsistent: see below)</span>', "-"
         else:
@@ -91,7 +114,8 @@ def requirements_table(verdict: dict) -> str:
                     f'<td>{esc(r.get("kind") or "user")}</td>'
                     f'<td>{esc(r["description"])}{src}</td><td>{esc(r["metric"])}</td>'
                     f'<td>{esc(r.get("case") or "all")}</td><td>{esc(r["rule"])}</td>'
-                    f'<td>{_fmt(r["limit"])}{lsrc}</td><td>{_fmt(r["value"])}</td>'
+                    f'<td>{_fmt_u(r["limit"], r.get("unit"))}{lsrc}</td>'
+                    f'<td>{_fmt_u(r["value"], r.get("unit"))}</td>'
                     f'<td>{what}</td><td>{ncv}</td>'
                     f'<td>{badge(v)} {esc(v)}{msg}</td></tr>')
     rows.append("</table>")
@@ -306,8 +330,10 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
                          f"{esc(type(exc).__name__)}: {esc(exc)}</p>")
     for title, fig in figs:
         figs_html.append(f'<div class="fig"><h3>{esc(title)}</h3>{fig_png(fig)}</div>')
+    from .record import configuration_html, record_html, signoff_html, sweep_html
     errs = "".join(f"<li><code>{esc(e)}</code></li>" for e in verdict.get("errors", []))
     body = [f"<h1>{esc(sc.name)} {badge(verdict['status'])}</h1>",
+            record_html(verdict.get("record")),
             f"<p>{esc(sc.data.get('description', ''))}</p>",
             f'<p class="muted">scenario file <code>{esc(sc.path)}</code>; trial '
             f'<code>{esc(sc.trial)}</code>; procedure <code>{esc(sc.procedure)}</code>; '
@@ -317,6 +343,12 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
     if errs:
         body.append(f"<h2>Errors</h2><ul>{errs}</ul>")
     body += ["<h2>Requirements</h2>", requirements_table(verdict)]
+    try:
+        sweeps = sweep_html(verdict, sc.data.get("sweep") or {})
+    except Exception as exc:       # a broken figure must not hide the verdict
+        sweeps = f"<p class='error'>sweep figures failed: {esc(type(exc).__name__)}: {esc(exc)}</p>"
+    if sweeps:
+        body += ["<h2>Requirements over the sweep</h2>", sweeps]
     try:
         t78 = thesis_tables_html(infos)
     except Exception as exc:       # a broken comparison must not hide the verdict
@@ -331,12 +363,19 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
              "<h2>Runs</h2>", runs_table(verdict),
              "<h2>Recorded signals and units</h2>", signals_table(runs),
              "<h2>Provenance</h2>", provenance_html(verdict),
-             "<h2>Configuration</h2><pre>" + esc(sc.text) + "</pre>"]
+             "<h2>Configuration that ran</h2>", configuration_html(verdict, sc.text)]
+    if not back_link:              # a suite's pages are signed once, on its overview
+        body.append(signoff_html(verdict.get("record"), f"the verification of {sc.name}"))
     return page(f"{sc.name}: verification report", "\n".join(body))
 
 
 def page(title: str, body: str) -> str:
-    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{esc(title)}</title>"
+    """A self-contained page; every table in a container that scrolls sideways when it
+    is wider than the page (readable at 1280 px), printed in full."""
+    body = body.replace("<table", '<div class="scroll"><table').replace("</table>",
+                                                                         "</table></div>")
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'>"
+            f"<meta name='viewport' content='width=device-width'><title>{esc(title)}</title>"
             f"<style>{CSS}</style></head><body>{body}</body></html>")
 
 
@@ -360,7 +399,9 @@ def suite_page(summary: dict, links: dict) -> str:
                     f'<td>{len(s.get("runs", []))} ({s.get("cached_runs", 0)})</td>'
                     f'<td class="muted">{esc(msg)}</td></tr>')
     rows.append("</table>")
+    from .record import record_html, signoff_html
     body = [f"<h1>Verification suite {badge(summary['status'])}</h1>",
+            record_html(summary.get("record")),
             f"<p>{c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
             f"{c['error']} error; {c['requirements']} requirement(s). Wall time "
             f"{summary.get('wall_s', 0):.1f} s on {esc(summary.get('cluster'))}.</p>",
@@ -372,7 +413,9 @@ def suite_page(summary: dict, links: dict) -> str:
             "<h2>Assumed values (not in the thesis): source or calibration</h2>",
             assumptions_table(),
             "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
-            + "</pre>"]
+            + "</pre>",
+            signoff_html(summary.get("record"), f"this suite of {c['scenarios']} scenario(s) "
+                         f"and the scenario pages it links")]
     return page("cosim verification suite", "\n".join(body))
 
 
@@ -444,8 +487,10 @@ def failing_requirements(summary: dict) -> str:
         for r in s.get("requirements", []):
             if r["verdict"] in FAILING:
                 rows.append(f'<tr class="{esc(r["verdict"])}"><td>{esc(s["scenario"])}</td>'
-                            f'<td><b>{esc(r["id"])}</b></td><td>{_fmt(r["value"])}</td>'
-                            f'<td>{esc(r.get("rule"))}</td><td>{_fmt(r["limit"])}</td>'
+                            f'<td><b>{esc(r["id"])}</b></td>'
+                            f'<td>{_fmt_u(r["value"], r.get("unit"))}</td>'
+                            f'<td>{esc(r.get("rule"))}</td>'
+                            f'<td>{_fmt_u(r["limit"], r.get("unit"))}</td>'
                             f'<td>{badge(r["verdict"])} {esc(r["verdict"])}</td>'
                             f'<td class="muted">{esc(r.get("message") or "")}</td></tr>')
         if s["status"] == "error" and not s.get("requirements"):
@@ -472,9 +517,11 @@ def suite_requirements(summary: dict) -> str:
             rows.append(f'<tr class="{esc(v)}"><td>{esc(s["scenario"])}</td>'
                         f'<td><b>{esc(r["id"])}</b></td><td>{esc(r.get("kind") or "user")}</td>'
                         f'<td>{esc(r.get("rule"))}</td>'
-                        f'<td>{_fmt(r["limit"])}</td><td>{_fmt(r["value"])}</td>'
+                        f'<td>{_fmt_u(r["limit"], r.get("unit"))}</td>'
+                        f'<td>{_fmt_u(r["value"], r.get("unit"))}</td>'
                         f'<td>{esc(nc.get("what", "-"))}</td>'
-                        f'<td>{_fmt(nc.get("value"))} ({_held(nc.get("held"))})</td>'
+                        f'<td>{_fmt_u(nc.get("value"), r.get("unit"))} '
+                        f'({_held(nc.get("held"))})</td>'
                         f'<td>{badge(v)} {esc(v)}</td></tr>')
     rows.append("</table>")
     return "\n".join(rows)
