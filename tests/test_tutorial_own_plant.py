@@ -62,8 +62,10 @@ def local(client):
     from cosim.report.render import render_scenario
     from cosim.scenarios.runner import run_scenario
     out = client / "local"
+    # isolation none: the default (auto) runs a foreign FMU in a child process of its
+    # own, whose start (a forkserver importing the package) is most of this test's time
     v = run_scenario(client / "ps114.yaml", out, fmu_dir=client / "fmus",
-                     operator="A. Engineer")
+                     operator="A. Engineer", isolation="none")
     render_scenario(client / "ps114.yaml", out)
     return v, out
 
@@ -168,7 +170,8 @@ def test_cluster_without_shared_disk_gives_the_local_verdicts(client, local, clu
         (probe,) = c.run(_probe, str(client / "ps114.yaml")).values()
     assert probe["uid"] == NOBODY and probe["readable"] is False   # no shared disk
     s = run_suite([client / "ps114.yaml"], client / "cluster", scheduler=address,
-                  fmu_dir=client / "fmus", progress=False, operator="A. Engineer")
+                  fmu_dir=client / "fmus", progress=False, operator="A. Engineer",
+                  isolation="none")
     sc = s["scenarios"][0]
     assert s["status"] == "pass", sc["errors"]
     assert s["runs_executed"] == 4 and s["cluster"] == f"Dask scheduler {address}"
@@ -200,14 +203,14 @@ def test_shared_fs_relative_out_is_the_clients(client, cluster, monkeypatch):
         os.chmod(runs, 0o777)                        # the worker (nobody) writes here
         monkeypatch.chdir(shared)
         s = run_suite(["ps114.yaml"], "out_rel", scheduler=address, fmu_dir="fmus",
-                      progress=False, ship=False)
+                      progress=False, ship=False, isolation="none")
         assert s["status"] == "pass", s["scenarios"][0]["errors"]
         assert len(list(runs.glob("*/run.json"))) == 4
         assert not (wdir / "tmp" / "out_rel").exists()
         # a folder the worker cannot write: every run's error names it
         (shared / "ro").mkdir()
         s = run_suite(["ps114.yaml"], "ro", scheduler=address, fmu_dir="fmus",
-                      progress=False, ship=False)
+                      progress=False, ship=False, isolation="none")
         errs = s["scenarios"][0]["errors"]
         assert s["status"] == "error"
         for label in ("step", "hold", "soft", "heavy"):
