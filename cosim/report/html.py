@@ -1,12 +1,11 @@
 """HTML pages of a scenario and of a suite (no external assets; PNG figures inline)."""
 from __future__ import annotations
 
-import base64
-import html
-import io
 import json
 import math
 from pathlib import Path
+
+from .fmt import _fmt, _fmt_u, _unit, esc, fig_png  # noqa: F401  (used by the pages)
 
 COLOURS = {"pass": ("#1b7f2a", "#e3f4e5"), "fail": ("#b3261e", "#fbe4e2"),
            "cannot-fail": ("#7a1f8f", "#f3e3f7"), "thesis-inconsistent": ("#3a5a9a", "#e4ebf7"),
@@ -37,47 +36,8 @@ table.signoff{page-break-inside:avoid} details>*{display:block}}
 """
 
 
-def esc(x) -> str:
-    return html.escape(str(x))
-
-
 def badge(status: str) -> str:
     return f'<span class="badge {esc(status)}">{esc(status.upper())}</span>'
-
-
-def fig_png(fig) -> str:
-    """A matplotlib figure as an inline <img> (base64 PNG); the figure is closed."""
-    import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return ('<img alt="figure" src="data:image/png;base64,'
-            + base64.b64encode(buf.getvalue()).decode() + '">')
-
-
-def _fmt(v) -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    if isinstance(v, list):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return esc(v)
-
-
-def _unit(unit) -> str:
-    return f' <span class="unit">{esc(unit)}</span>' if unit else ""
-
-
-def _fmt_u(v, unit, known: bool = True) -> str:
-    """A limit or value with its unit (``unit?`` where the metric cannot derive it and
-    the scenario gives none: a ``unit:`` key on the metric or requirement says it)."""
-    if v is None:
-        return "-"
-    if unit:
-        return _fmt(v) + _unit(unit)
-    return _fmt(v) + (' <span class="unit" title="no unit: give the metric or the '
-                      'requirement a unit: key">unit?</span>' if known else "")
 
 
 def _held(h) -> str:

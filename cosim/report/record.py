@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import math
 
-from .html import _fmt, _fmt_u, esc, fig_png
+from .fmt import _fmt, _fmt_u, esc, fig_png
 
 #: who signs a verification report, in order
 SIGNERS = ("Prepared by", "Reviewed by", "Approved by")

@@ -347,9 +347,10 @@ def load_trials() -> list[str]:
     _loaded = True
     if "aakf" not in _REG["controller"]:
         _register_algorithms()           # the blocks of cosim.algorithms (below)
-    from . import metrics  # noqa: F401  (the built-in step/error/frequency metrics)
-    from .plugins import load_entry_points
-    load_entry_points()                  # installed plug-ins (entry points)
+    # the built-in step/error/frequency metrics, then the installed plug-ins (entry
+    # points); imported by name as the trials are: both register into this module
+    importlib.import_module("cosim.scenarios.metrics")
+    importlib.import_module("cosim.scenarios.plugins").load_entry_points()
     import cosim.trials as pkg
     names = []
     for info in pkgutil.iter_modules(pkg.__path__):
