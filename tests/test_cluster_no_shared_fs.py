@@ -258,3 +258,50 @@ def test_shipped_run_in_process_with_swap(tmp_path):
         np.testing.assert_array_equal(a[k], b[k])
     with pytest.raises(ValueError, match="unexpected file name"):
         store_run_files(tmp_path / "bad", "r", {"run.json": b"{}", "../x.parquet": b""})
+
+
+@needs_sandbox
+def test_ssp_and_plugin_travel_to_the_worker(cluster, client_dir):
+    """A scenario whose system is an SSP archive beside it and whose metric is a
+    plug-in in a folder beside it (``../lib``): both travel by content (the worker sees
+    neither file) and the verdict is the one made here. Before, the worker failed with
+    ``SSP file <worker-tmp>/.../plant.ssp not found``."""
+    import textwrap
+
+    import yaml
+    from test_scenarios import BASE
+
+    from cosim.scenarios.runner import run_scenario
+    from cosim.scenarios.ssp_export import export_ssp
+    from cosim.scenarios.suite import run_suite
+    address, _ = cluster
+    d = client_dir / "ssp_case"
+    (d / "scen").mkdir(parents=True)
+    (d / "lib").mkdir()
+    base = yaml.safe_load(textwrap.dedent(BASE))
+    (d / "src.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
+    export_ssp(d / "src.yaml", d / "scen" / "plant.ssp", fmu_dir=client_dir / "fmus")
+    (d / "lib" / "twice.py").write_text(textwrap.dedent('''\
+        from cosim.scenarios.registry import metric
+
+        @metric("twice_final_ssp", unit="rad/s")
+        def twice(params, ctx):
+            return 2.0 * float(ctx.signals[params["signal"]][-1])
+        '''))
+    data = {k: v for k, v in base.items() if k != "system"}
+    data["plugins"] = ["../lib/twice.py"]
+    data["system"] = {"ssp": "plant.ssp", "fmus": {"plant": {"contract": "ballscrew"}},
+                      "connections": ["stim.i -> plant.i"]}
+    data["metrics"]["w2"] = {"type": "twice_final_ssp", "signal": "plant.w"}
+    data["requirements"][0] = {**data["requirements"][0], "metric": "w2",
+                               "limit": [11.8, 12.2]}
+    scen = d / "scen" / "via_ssp.yaml"
+    scen.write_text(yaml.safe_dump(data, sort_keys=False))
+    s = run_suite([scen], d / "out", scheduler=address, fmu_dir=client_dir / "fmus",
+                  progress=False, isolation="none")
+    sc = s["scenarios"][0]
+    assert not sc["errors"], sc["errors"]
+    by = {r["id"]: r for r in sc["requirements"]}
+    assert by["R-pass"]["verdict"] == "pass" and by["R-pass"]["unit"] == "rad/s"
+    here = run_scenario(scen, d / "here", fmu_dir=client_dir / "fmus", isolation="none")
+    assert by["R-pass"]["value"] == {r["id"]: r for r in here["requirements"]}["R-pass"]["value"]

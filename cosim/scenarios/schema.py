@@ -13,6 +13,7 @@ import dataclasses
 import fnmatch
 import hashlib
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -560,8 +561,16 @@ def _include_ssp(c: _Checker, d: dict):
         c.err(("system", "ssp"), f"SSP file {f} not found (relative paths are read from the "
               f"scenario file's folder)")
     sha = hashlib.sha256(f.read_bytes()).hexdigest()
+    dest = cache_dir() / "ssp"
     try:
-        got = read_ssp(f, cache_dir() / "ssp" / sha[:16])
+        dest.mkdir(parents=True, exist_ok=True)
+        if not os.access(dest, os.W_OK):
+            raise PermissionError(dest)
+    except OSError:      # a worker without a writable home: its temporary folder
+        import tempfile
+        dest = Path(tempfile.gettempdir()) / f"cosim-ssp-{os.getuid()}"
+    try:
+        got = read_ssp(f, dest / sha[:16])
     except SSPError as exc:
         c.err(("system", "ssp"), str(exc))
     own = sysd.get("fmus") or {}
