@@ -371,7 +371,12 @@ def suite_page(summary: dict, links: dict) -> str:
             "<h2>Requirements</h2>", suite_requirements(summary),
             "<h2>Wall time</h2>", timing_table(summary),
             "<h2>Assumed values (not in the thesis): source or calibration</h2>",
-            assumptions_table(),
+            # a suite of the user's own requirements only: the package's assumptions
+            # about the thesis's devices are kept, folded away
+            (assumptions_table() if set(summary.get("by_kind") or {}) - {"user"} else
+             "<details><summary>The package's assumed values about the thesis's devices "
+             "(none of this suite's requirements is a thesis claim)</summary>"
+             + assumptions_table() + "</details>"),
             "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
             + "</pre>",
             signoff_html(summary.get("record"), f"this suite of {c['scenarios']} scenario(s) "
