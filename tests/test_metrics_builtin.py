@@ -168,3 +168,13 @@ def test_bad_parameters_are_named():
         m("step_settling_time", {"signal": "y"}, ctx(t, y=y))
     with pytest.raises(ValueError, match="no step"):
         m("overshoot", {"signal": "y", "initial": 1.0, "final": 1.0}, ctx(t, y=y))
+
+
+def test_units_stated_by_names():
+    from cosim.scenarios.metrics import unit_from_name as u
+    assert u("settle_s_aakf_minus_encoder") == "s"
+    assert u("table6_off_force_N") == "N"
+    assert u("bump_N_per_m") == "N/m"
+    # ratios of like quantities are dimensionless; a leading symbol is not a unit
+    assert u("J_rel_err_aakf") == "1" and u("case_ratio") == "1" and u("else_over_alpha0") == "1"
+    assert u("arm_err") is None and u("coh_min") is None and u("N") is None

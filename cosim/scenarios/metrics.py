@@ -309,3 +309,28 @@ def vibration_frequency(params, ctx):
         d = 0.5 * (a - c) / (a - 2 * b + c)
         return float(f[k] + d * (f[1] - f[0]))
     return float(f[k])
+
+
+# --------------------------------------------------------------------------- units by name
+#: the unit tokens a value's name may carry (``settle_s``, ``force_N``, ``err_mm``)
+UNIT_TOKENS = {"s": "s", "ms": "ms", "N": "N", "Nm": "N m", "mm": "mm", "m": "m", "um": "um",
+               "rad": "rad", "deg": "deg", "Hz": "Hz", "A": "A", "mA": "mA", "W": "W",
+               "pct": "%", "percent": "%", "kg": "kg"}
+#: words that make a value a ratio of like quantities (dimensionless, unit "1")
+RATIO_WORDS = ("ratio", "rel", "over", "fraction", "frac")
+
+
+def unit_from_name(name: str) -> str | None:
+    """The unit a value's name states by the package's naming rule (units in names,
+    ``docs/scenario-format.md``): a ratio (``..._ratio``, ``..._rel_err``, ``a_over_b``,
+    ``..._fraction``) is ``1``; ``X_per_Y`` is ``X/Y``; else the last unit token after the
+    first word (``settle_s_aakf`` -> s, ``table6_off_force_N`` -> N; the first word is a
+    quantity's symbol, ``J_rel_err`` is not in joule). None when the name says nothing."""
+    parts = [p for p in str(name).split("_") if p]
+    if any(p in RATIO_WORDS for p in parts):
+        return "1"
+    for i in range(1, len(parts) - 2):
+        if parts[i + 1] == "per" and parts[i] in UNIT_TOKENS and parts[i + 2] in UNIT_TOKENS:
+            return f"{UNIT_TOKENS[parts[i]]}/{UNIT_TOKENS[parts[i + 2]]}"
+    hits = [UNIT_TOKENS[p] for p in parts[1:] if p in UNIT_TOKENS]
+    return hits[-1] if hits else None

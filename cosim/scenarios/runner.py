@@ -200,6 +200,14 @@ def requirement_units(sc: Scenario, out_dir: Path) -> dict:
             if e is not None:
                 params = {k: v for k, v in spec.items() if k not in ("type", "phase", "unit")}
                 unit = e.value_unit(params, by_phase.get(spec.get("phase"), first))
+        if unit is None:
+            # a procedure's value or a trial's metric: the unit its name states (a ratio
+            # of two cases, ``settle_s``, ``force_N``), by the package's naming rule
+            from .metrics import unit_from_name
+            key = (spec.get("params") or {}).get("key") or spec.get("key")
+            unit = next((u for u in (unit_from_name(spec.get("type", "")),   # case_ratio: 1
+                                     unit_from_name(key) if key else None,
+                                     unit_from_name(r.metric)) if u), None)
         out[r.id] = unit
     return out
 

@@ -461,10 +461,14 @@ def _record_crash(sdir: Path, run: reg.RunSpec, key, exc, scenario: str = ""):
     d = Path(sdir) / "runs" / safe_name(run.label)
     if (d / "run.json").is_file():
         return
-    _record_error(sdir, run, f"run {run.label}{f' of {scenario}' if scenario else ''}: "
-                             f"worker crashed or was lost: {type(exc).__name__}: {exc} (a run "
-                             f"in the worker's own process; with --isolation process a crash "
-                             f"is recorded with its signal, role, FMU, time and rows)", key)
+    who = f"run {run.label}{f' of {scenario}' if scenario else ''}"
+    if type(exc).__name__ in ("KilledWorker", "CommClosedError", "CancelledError"):
+        msg = (f"{who}: worker crashed or was lost: {type(exc).__name__}: {exc} (a run in "
+               f"the worker's own process; with --isolation process a crash is recorded "
+               f"with its signal, role, FMU, time and rows)")
+    else:                   # raised on the worker outside the run's own error handling
+        msg = f"{who}: failed on its worker: {type(exc).__name__}: {exc}"
+    _record_error(sdir, run, msg, key)
 
 
 def _record_error(sdir: Path, run: reg.RunSpec, error: str, key=None):
