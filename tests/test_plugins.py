@@ -135,3 +135,18 @@ def test_shipped_run_takes_the_plugin_by_content(tmp_path):
     out = execute_shipped(str(p), sc.text, run.label, fmus, {}, run_key(sc, run))
     info = json.loads(out["files"]["run.json"])
     assert info["status"] == "error" and "team_metrics.py not found" in info["error"]
+
+
+def test_the_cache_key_covers_the_plugin_code(tmp_path):
+    """A changed plug-in (a stimulus or procedure in it changes the runs) is a new
+    cache key; the same bytes are the same key."""
+    from cosim.scenarios.store import run_key
+    from cosim.scenarios.verdict import all_runs
+    f = tmp_path / "k.py"
+    f.write_text(PLUGIN.format(tag="k"))
+    p = scenario_with(tmp_path, "k.py", "twice_final_k")
+    key = lambda: run_key(sc := load(p), all_runs(sc)[0])      # noqa: E731
+    k1 = key()
+    assert key() == k1
+    f.write_text(PLUGIN.format(tag="k").replace("2.0 * float", "2.0000001 * float"))
+    assert key() != k1

@@ -261,8 +261,8 @@ def load(path, fmu_dir=None) -> Scenario:
     d = m.data
     c.keys(d, TOP, (), "scenario")
     sc.name = d["scenario"]
-    _load_plugins(c, d)
     _include_ssp(c, d)
+    _load_plugins(c, d)
     c.positive(d["duration"], ("duration",), "duration [s]")
     step = d.get("step", 1e-3)
     c.positive(step, ("step",), "step [s]")
@@ -534,9 +534,15 @@ def _load_plugins(c: _Checker, d: dict):
             c.err(("plugins", i), f"a plug-in is a file name (my_metrics.py) or a module "
                   f"name, got {ref!r}")
         try:
-            load_plugin(ref, c.sc.path)
+            mod = load_plugin(ref, c.sc.path)
         except PluginError as exc:
             c.err(("plugins", i), str(exc))
+        # the cache key covers the plug-in's code (a changed stimulus or procedure
+        # changes the runs), as it covers an SSP's bytes
+        f = getattr(mod, "__file__", None)
+        sha = getattr(mod, "__cosim_sha256__", None) or (
+            hashlib.sha256(Path(f).read_bytes()).hexdigest() if f and Path(f).is_file() else "")
+        c.sc.included += f"|plugin:{ref}:{sha}"
 
 
 def _include_ssp(c: _Checker, d: dict):
