@@ -93,7 +93,9 @@ def cluster():
         procs.append(subprocess.Popen(
             [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
              "--port", "0", "--no-dashboard", "--scheduler-file", str(sfile)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+            # a task whose worker dies is not retried (as the suite's local cluster)
+            env={**os.environ, "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "0"}))
         t0 = time.time()
         while not sfile.is_file() and time.time() - t0 < 30:
             time.sleep(0.2)
@@ -305,3 +307,37 @@ def test_ssp_and_plugin_travel_to_the_worker(cluster, client_dir):
     assert by["R-pass"]["verdict"] == "pass" and by["R-pass"]["unit"] == "rad/s"
     here = run_scenario(scen, d / "here", fmu_dir=client_dir / "fmus", isolation="none")
     assert by["R-pass"]["value"] == {r["id"]: r for r in here["requirements"]}["R-pass"]["value"]
+
+
+@needs_sandbox
+def test_a_lost_worker_is_an_error_naming_the_run(cluster, client_dir):
+    """A run that takes its worker down (a plug-in procedure that exits the process,
+    as a crash in native code would): the suite records an error naming the run and
+    the scenario, never a silent 'did not finish'. (Last in this module: the worker
+    restarts after it.)"""
+    import textwrap
+
+    from test_scenarios import BASE
+
+    from cosim.scenarios.suite import run_suite
+    address, _ = cluster
+    d = client_dir / "lost"
+    d.mkdir()
+    (d / "die.py").write_text(textwrap.dedent('''\
+        import os
+        from cosim.scenarios.registry import procedure
+
+        @procedure("exit_worker")
+        def exit_worker(run, build, ctx):
+            os._exit(3)
+        '''))
+    text = textwrap.dedent(BASE).replace("seeds: [1]\n", "seeds: [1]\nplugins: [die.py]\n"
+                                         "procedure: exit_worker\n")
+    (d / "lost.yaml").write_text(text)
+    s = run_suite([d / "lost.yaml"], d / "out", scheduler=address,
+                  fmu_dir=client_dir / "fmus", progress=False, isolation="none")
+    errs = s["scenarios"][0]["errors"]
+    assert s["status"] == "error" and errs
+    assert all("worker crashed or was lost" in e for e in errs), errs
+    assert any(e.startswith("default/seed1: run default/seed1 of spin:") for e in errs), errs
+    assert not any("did not finish" in e for e in errs)

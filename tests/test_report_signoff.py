@@ -145,3 +145,4 @@ def test_page_fits_1280_px_and_prints_to_pdf(swept, tmp_path):
     # sign-off block, kept on one page
     doc = combined_html(out)
     assert "Sign-off" in doc and "table.signoff{page-break-inside:avoid}" in doc
+    assert "<details open><summary>The scenario file as written" in doc
