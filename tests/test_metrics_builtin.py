@@ -120,8 +120,8 @@ def test_bandwidth_from_a_step(system):
 
 
 def test_bandwidth_from_a_chirp():
-    """A tapered chirp 0.2-40 Hz through tau = 0.01 s (corner 15.9 Hz; 15.89 Hz for the sampled system), integrated
-    exactly per step (zero-order hold)."""
+    """A tapered chirp 0.2-40 Hz through tau = 0.01 s (corner 15.9 Hz; 15.89 Hz for the
+    sampled system), integrated exactly per step (zero-order hold)."""
     t = np.arange(0, 8.0, DT)
     f0, f1 = 0.2, 40.0
     k = (f1 - f0) / t[-1]

@@ -214,7 +214,8 @@ def test_shared_fs_relative_out_is_the_clients(client, cluster, monkeypatch):
         errs = s["scenarios"][0]["errors"]
         assert s["status"] == "error"
         for label in ("step", "hold", "soft", "heavy"):
-            assert any(e.startswith(f"{label}: run {label} of ps114-acceptance") for e in errs), errs
+            assert any(e.startswith(f"{label}: run {label} of ps114-acceptance")
+                       for e in errs), errs
         assert not any("did not finish" in e for e in errs)
     finally:
         shutil.rmtree(shared, ignore_errors=True)

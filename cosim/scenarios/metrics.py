@@ -16,9 +16,10 @@ textbook ones, e.g. Ogata, *Modern Control Engineering*, Sec. 5-3):
 * rise time: from the first crossing of ``initial + low (final - initial)`` to the
   first crossing of ``initial + high (final - initial)`` (10 % - 90 % by default);
 * settling time (``step_settling_time``; the trials' ``settling_time`` is the
-  absolute time a signal enters a band around a given target): from ``from_s`` (the step's instant) to the last time the signal is
-  outside ``final +- band`` (``band`` in the signal's unit, or ``band_rel`` times
-  the step size), the crossing interpolated between samples;
+  absolute time a signal enters a band around a given target): from ``from_s`` (the
+  step's instant) to the last time the signal is outside ``final +- band``
+  (``band`` in the signal's unit, or ``band_rel`` times the step size), the crossing
+  interpolated between samples;
 * overshoot: ``100 (peak - final) / (final - initial)`` [%], the peak taken in the
   step's direction, 0 when the signal never passes ``final``;
 * bandwidth: the lowest frequency where the response's gain falls 3 dB under its
