@@ -341,3 +341,51 @@ def test_a_lost_worker_is_an_error_naming_the_run(cluster, client_dir):
     assert all("worker crashed or was lost" in e for e in errs), errs
     assert any(e.startswith("default/seed1: run default/seed1 of spin:") for e in errs), errs
     assert not any("did not finish" in e for e in errs)
+
+
+def test_shipped_ssp_scenario_in_process(tmp_path):
+    """execute_shipped of a scenario whose system is an SSP archive, from values only:
+    the archive's bytes travel with the scenario text (the worker's copy of the
+    scenario finds it by the scenario's own relative name) and the run equals the
+    one made on the paths; without the archive's bytes the worker reports it missing."""
+    import textwrap
+
+    import yaml
+    from test_scenarios import BASE
+
+    from cosim.master.system import RunResult
+    from cosim.scenarios.plugins import included_files
+    from cosim.scenarios.runner import execute_run
+    from cosim.scenarios.schema import load
+    from cosim.scenarios.ship import execute_shipped, run_fmus
+    from cosim.scenarios.ssp_export import export_ssp
+    from cosim.scenarios.store import _fmu_sha, run_key, store_run_files
+    from cosim.scenarios.verdict import all_runs
+    base = yaml.safe_load(textwrap.dedent(BASE))
+    (tmp_path / "src.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
+    (tmp_path / "scen").mkdir()
+    export_ssp(tmp_path / "src.yaml", tmp_path / "scen" / "plant.ssp")
+    data = {k: v for k, v in base.items() if k != "system"}
+    data["system"] = {"ssp": "plant.ssp", "fmus": {"plant": {"contract": "ballscrew"}},
+                      "connections": ["stim.i -> plant.i"]}
+    scen = tmp_path / "scen" / "via_ssp.yaml"
+    scen.write_text(yaml.safe_dump(data, sort_keys=False))
+    sc = load(scen)
+    run = all_runs(sc)[0]
+    files = {ref: (_fmu_sha(f), f.read_bytes(), str(f))
+             for ref, f in included_files(sc.path, sc.text).items()}
+    assert list(files) == ["plant.ssp"]
+    by_spec, _ = run_fmus(sc, run)
+    fmus = {k: (sha, Path(p).read_bytes(), p) for k, (sha, p) in by_spec.items()}
+    key = run_key(sc, run)
+    out = execute_shipped(str(scen), sc.text, run.label, fmus, {}, key, files=files)
+    d = store_run_files(tmp_path / "shipped", run.label, out["files"])
+    assert json.loads((d / "run.json").read_text())["status"] == "ok"
+    execute_run(str(scen), run.label, str(tmp_path / "local"), None, None, key)
+    a = RunResult.read_parquet(d / "main.parquet")
+    b = RunResult.read_parquet(tmp_path / "local" / "runs" / d.name / "main.parquet")
+    for k in b.names:
+        np.testing.assert_array_equal(a[k], b[k])
+    out = execute_shipped(str(scen), sc.text, run.label, fmus, {}, key)
+    info = json.loads(out["files"]["run.json"])
+    assert info["status"] == "error" and "plant.ssp not found" in info["error"]
