@@ -489,8 +489,9 @@ def junit_xml(summary: dict) -> str:
         for r in s["requirements"]:
             tc = ET.Element("testcase", classname=s["scenario"], name=r["id"])
             nc = r.get("negative_control")
-            msg = (f"value {r['value']} {r['rule']} {r['limit']}: {r['description']}"
-                   + (f"; negative control ({nc['what']}): value {nc['value']}, "
+            u = f" {r['unit']}" if r.get("unit") else ""
+            msg = (f"value {r['value']}{u} {r['rule']} {r['limit']}{u}: {r['description']}"
+                   + (f"; negative control ({nc['what']}): value {nc['value']}{u}, "
                       f"{'holds' if nc['held'] else 'does not hold' if nc['held'] is False else 'no verdict'}"
                       if nc else "")
                    + (f" ({r['message']})" if r.get("message") else ""))
