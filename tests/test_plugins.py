@@ -150,3 +150,15 @@ def test_the_cache_key_covers_the_plugin_code(tmp_path):
     assert key() == k1
     f.write_text(PLUGIN.format(tag="k").replace("2.0 * float", "2.0000001 * float"))
     assert key() != k1
+
+
+def test_two_plugin_files_registering_one_name_clash(tmp_path):
+    """Two different files of one name in two folders registering one metric name: an
+    error naming both modules, never one silently replacing the other (the same code
+    from two places, e.g. a worker's copy per run, is one module)."""
+    for sub in ("a", "b"):
+        (tmp_path / sub).mkdir()
+        (tmp_path / sub / "same.py").write_text(PLUGIN.format(tag="clash") + f"# {sub}\n")
+    load(scenario_with(tmp_path / "a", "same.py", "twice_final_clash"))
+    with pytest.raises(ScenarioError, match="registered twice"):
+        load(scenario_with(tmp_path / "b", "same.py", "twice_final_clash"))

@@ -6,7 +6,7 @@ A scenario names them::
 
 * a file (a name ending in ``.py`` or holding a ``/``): read relative to the scenario
   file's folder (or an absolute path) and imported as the module
-  ``cosim_plugins.<stem>``;
+  ``cosim_plugins.<stem>_<hash of its content>``;
 * a module name: imported from the Python path (an installed package).
 
 Either registers with the decorators of :mod:`cosim.scenarios.registry` (``@metric``,
@@ -105,8 +105,9 @@ def _located(fn, file: str, what: str):
 
 
 def load_file(path: Path, ref: str | None = None):
-    """Import a plug-in file as ``cosim_plugins.<stem>`` (again when its content
-    changed); its registrations join the registry."""
+    """Import a plug-in file as ``cosim_plugins.<stem>_<content hash>`` (once per
+    content; a changed file replaces what its earlier content registered); its
+    registrations join the registry."""
     path = Path(path)
     if not path.is_file():
         raise PluginError(f"plug-in file {path} not found" + (
@@ -114,10 +115,16 @@ def load_file(path: Path, ref: str | None = None):
             if ref else ""))
     data = path.read_bytes()
     sha = hashlib.sha256(data).hexdigest()
-    name = f"cosim_plugins.{_ident(path.stem)}"
+    # one module per content: the same code from another path (a worker's copy per
+    # run) is the module already imported; two different files registering one name
+    # clash loudly; a file changed where it is replaces its own earlier registrations
+    name = f"cosim_plugins.{_ident(path.stem)}_{sha[:12]}"
     old = sys.modules.get(name)
-    if old is not None and getattr(old, "__cosim_sha256__", None) == sha:
+    if old is not None:
         return old
+    key = str(path.resolve())
+    if key in _BY_PATH and _BY_PATH[key] != name:
+        _forget(_BY_PATH.pop(key))
     if "cosim_plugins" not in sys.modules:          # a namespace for the plug-in modules
         import types
         pkg = types.ModuleType("cosim_plugins")
@@ -135,7 +142,21 @@ def load_file(path: Path, ref: str | None = None):
         raise PluginError(f"{at}: plug-in {path.name} failed to import: "
                           f"{type(exc).__name__}: {exc}") from exc
     _wrap_entries(name, str(path))
+    _BY_PATH[key] = name
     return mod
+
+
+#: resolved path of a plug-in file -> the module its current content was imported as
+_BY_PATH: dict = {}
+
+
+def _forget(module_name: str) -> None:
+    """Drop a plug-in module and what it registered (its file has changed)."""
+    from . import registry as reg
+    for table in reg._REG.values():
+        for n in [n for n, e in table.items() if e.module == module_name]:
+            del table[n]
+    sys.modules.pop(module_name, None)
 
 
 def _ident(stem: str) -> str:
