@@ -124,7 +124,7 @@ def _cmd_run(a) -> int:
 
     def work(out, swaps):
         v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
-                         isolation=a.isolation, timeout_s=a.timeout)
+                         isolation=a.isolation, timeout_s=a.timeout, operator=a.operator)
         render_scenario(a.scenario, out)
         return v
     rc, v = _guarded(a, "cosim run", work)
@@ -151,7 +151,7 @@ def _cmd_suite(a) -> int:
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
                       progress=not a.no_progress, serial=a.serial,
                       ship=False if a.shared_fs else None,
-                      isolation=a.isolation, timeout_s=a.timeout)
+                      isolation=a.isolation, timeout_s=a.timeout, operator=a.operator)
         render_suite(out)
         return s
     rc, s = _guarded(a, "cosim suite", work)
@@ -179,6 +179,7 @@ def add_commands(sub) -> None:
     r.add_argument("--no-build", action="store_true",
                    help="do not (re)build the package's FMUs from Modelica first")
     _isolation_args(r)
+    _operator_arg(r)
     r.set_defaults(func=_cmd_run)
     s = sub.add_parser("suite", help="run scenario files/folders on Dask: summary.json, "
                        "junit.xml, report.html")
@@ -203,6 +204,7 @@ def add_commands(sub) -> None:
     s.add_argument("--serial", action="store_true",
                    help="run every run in this process, one after the other (no Dask)")
     _isolation_args(s)
+    _operator_arg(s)
     s.set_defaults(func=_cmd_suite)
 
 
@@ -215,6 +217,11 @@ def _binding_options(p) -> None:
     p.add_argument("--binding", action="append", metavar="FILE.yaml",
                    help="role bindings from a file: ROLE: {fmu: PATH, map: {VAR: FMU_VAR}, "
                         "units: {VAR: UNIT}} (docs/bring-your-own-fmu.md)")
+
+
+def _operator_arg(p) -> None:
+    p.add_argument("--operator", default=None, metavar="NAME",
+                   help="who ran it, for the report's record and sign-off (default: $USER)")
 
 
 def _isolation_args(p) -> None:

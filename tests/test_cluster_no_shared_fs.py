@@ -93,7 +93,9 @@ def cluster():
         procs.append(subprocess.Popen(
             [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
              "--port", "0", "--no-dashboard", "--scheduler-file", str(sfile)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+            # a task whose worker dies is not retried (as the suite's local cluster)
+            env={**os.environ, "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "0"}))
         t0 = time.time()
         while not sfile.is_file() and time.time() - t0 < 30:
             time.sleep(0.2)
@@ -258,3 +260,132 @@ def test_shipped_run_in_process_with_swap(tmp_path):
         np.testing.assert_array_equal(a[k], b[k])
     with pytest.raises(ValueError, match="unexpected file name"):
         store_run_files(tmp_path / "bad", "r", {"run.json": b"{}", "../x.parquet": b""})
+
+
+@needs_sandbox
+def test_ssp_and_plugin_travel_to_the_worker(cluster, client_dir):
+    """A scenario whose system is an SSP archive beside it and whose metric is a
+    plug-in in a folder beside it (``../lib``): both travel by content (the worker sees
+    neither file) and the verdict is the one made here. Before, the worker failed with
+    ``SSP file <worker-tmp>/.../plant.ssp not found``."""
+    import textwrap
+
+    import yaml
+    from test_scenarios import BASE
+
+    from cosim.scenarios.runner import run_scenario
+    from cosim.scenarios.ssp_export import export_ssp
+    from cosim.scenarios.suite import run_suite
+    address, _ = cluster
+    d = client_dir / "ssp_case"
+    (d / "scen").mkdir(parents=True)
+    (d / "lib").mkdir()
+    base = yaml.safe_load(textwrap.dedent(BASE))
+    (d / "src.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
+    export_ssp(d / "src.yaml", d / "scen" / "plant.ssp", fmu_dir=client_dir / "fmus")
+    (d / "lib" / "twice.py").write_text(textwrap.dedent('''\
+        from cosim.scenarios.registry import metric
+
+        @metric("twice_final_ssp", unit="rad/s")
+        def twice(params, ctx):
+            return 2.0 * float(ctx.signals[params["signal"]][-1])
+        '''))
+    data = {k: v for k, v in base.items() if k != "system"}
+    data["plugins"] = ["../lib/twice.py"]
+    data["system"] = {"ssp": "plant.ssp", "fmus": {"plant": {"contract": "ballscrew"}},
+                      "connections": ["stim.i -> plant.i"]}
+    data["metrics"]["w2"] = {"type": "twice_final_ssp", "signal": "plant.w"}
+    data["requirements"][0] = {**data["requirements"][0], "metric": "w2",
+                               "limit": [11.8, 12.2]}
+    scen = d / "scen" / "via_ssp.yaml"
+    scen.write_text(yaml.safe_dump(data, sort_keys=False))
+    s = run_suite([scen], d / "out", scheduler=address, fmu_dir=client_dir / "fmus",
+                  progress=False, isolation="none")
+    sc = s["scenarios"][0]
+    assert not sc["errors"], sc["errors"]
+    by = {r["id"]: r for r in sc["requirements"]}
+    assert by["R-pass"]["verdict"] == "pass" and by["R-pass"]["unit"] == "rad/s"
+    here = run_scenario(scen, d / "here", fmu_dir=client_dir / "fmus", isolation="none")
+    assert by["R-pass"]["value"] == {r["id"]: r for r in here["requirements"]}["R-pass"]["value"]
+
+
+@needs_sandbox
+def test_a_lost_worker_is_an_error_naming_the_run(cluster, client_dir):
+    """A run that takes its worker down (a plug-in procedure that exits the process,
+    as a crash in native code would): the suite records an error naming the run and
+    the scenario, never a silent 'did not finish'. (Last in this module: the worker
+    restarts after it.)"""
+    import textwrap
+
+    from test_scenarios import BASE
+
+    from cosim.scenarios.suite import run_suite
+    address, _ = cluster
+    d = client_dir / "lost"
+    d.mkdir()
+    (d / "die.py").write_text(textwrap.dedent('''\
+        import os
+        from cosim.scenarios.registry import procedure
+
+        @procedure("exit_worker")
+        def exit_worker(run, build, ctx):
+            os._exit(3)
+        '''))
+    text = textwrap.dedent(BASE).replace("seeds: [1]\n", "seeds: [1]\nplugins: [die.py]\n"
+                                         "procedure: exit_worker\n")
+    (d / "lost.yaml").write_text(text)
+    s = run_suite([d / "lost.yaml"], d / "out", scheduler=address,
+                  fmu_dir=client_dir / "fmus", progress=False, isolation="none")
+    errs = s["scenarios"][0]["errors"]
+    assert s["status"] == "error" and errs
+    assert all("worker crashed or was lost" in e for e in errs), errs
+    assert any(e.startswith("default/seed1: run default/seed1 of spin:") for e in errs), errs
+    assert not any("did not finish" in e for e in errs)
+
+
+def test_shipped_ssp_scenario_in_process(tmp_path):
+    """execute_shipped of a scenario whose system is an SSP archive, from values only:
+    the archive's bytes travel with the scenario text (the worker's copy of the
+    scenario finds it by the scenario's own relative name) and the run equals the
+    one made on the paths; without the archive's bytes the worker reports it missing."""
+    import textwrap
+
+    import yaml
+    from test_scenarios import BASE
+
+    from cosim.master.system import RunResult
+    from cosim.scenarios.plugins import included_files
+    from cosim.scenarios.runner import execute_run
+    from cosim.scenarios.schema import load
+    from cosim.scenarios.ship import execute_shipped, run_fmus
+    from cosim.scenarios.ssp_export import export_ssp
+    from cosim.scenarios.store import _fmu_sha, run_key, store_run_files
+    from cosim.scenarios.verdict import all_runs
+    base = yaml.safe_load(textwrap.dedent(BASE))
+    (tmp_path / "src.yaml").write_text(yaml.safe_dump(base, sort_keys=False))
+    (tmp_path / "scen").mkdir()
+    export_ssp(tmp_path / "src.yaml", tmp_path / "scen" / "plant.ssp")
+    data = {k: v for k, v in base.items() if k != "system"}
+    data["system"] = {"ssp": "plant.ssp", "fmus": {"plant": {"contract": "ballscrew"}},
+                      "connections": ["stim.i -> plant.i"]}
+    scen = tmp_path / "scen" / "via_ssp.yaml"
+    scen.write_text(yaml.safe_dump(data, sort_keys=False))
+    sc = load(scen)
+    run = all_runs(sc)[0]
+    files = {ref: (_fmu_sha(f), f.read_bytes(), str(f))
+             for ref, f in included_files(sc.path, sc.text).items()}
+    assert list(files) == ["plant.ssp"]
+    by_spec, _ = run_fmus(sc, run)
+    fmus = {k: (sha, Path(p).read_bytes(), p) for k, (sha, p) in by_spec.items()}
+    key = run_key(sc, run)
+    out = execute_shipped(str(scen), sc.text, run.label, fmus, {}, key, files=files)
+    d = store_run_files(tmp_path / "shipped", run.label, out["files"])
+    assert json.loads((d / "run.json").read_text())["status"] == "ok"
+    execute_run(str(scen), run.label, str(tmp_path / "local"), None, None, key)
+    a = RunResult.read_parquet(d / "main.parquet")
+    b = RunResult.read_parquet(tmp_path / "local" / "runs" / d.name / "main.parquet")
+    for k in b.names:
+        np.testing.assert_array_equal(a[k], b[k])
+    out = execute_shipped(str(scen), sc.text, run.label, fmus, {}, key)
+    info = json.loads(out["files"]["run.json"])
+    assert info["status"] == "error" and "plant.ssp not found" in info["error"]

@@ -151,7 +151,8 @@ def test_overview_lists_failing_requirements_first(suite, tmp_path):
         row = next(r for r in s["scenarios"] if r["scenario"] == scen)
         req = next(r for r in row["requirements"] if r["id"] == "R-fail")
         assert f"<td>{scen}</td><td><b>R-fail</b></td>" in block
-        assert f"{req['value']:.4g}"[:4] in block and "<td>1</td>" in block
+        assert f"{req['value']:.4g}"[:4] in block
+        assert '<td>1 <span class="unit">rad/s</span></td>' in block      # the limit, its unit
     assert "R-pass" not in block
     passing = {"scenarios": [{"scenario": "x", "status": "pass",
                               "requirements": [{"id": "R", "verdict": "pass", "value": 1,

@@ -1,12 +1,11 @@
 """HTML pages of a scenario and of a suite (no external assets; PNG figures inline)."""
 from __future__ import annotations
 
-import base64
-import html
-import io
 import json
 import math
 from pathlib import Path
+
+from .fmt import _fmt, _fmt_u, _unit, esc, fig_png  # noqa: F401  (used by the pages)
 
 COLOURS = {"pass": ("#1b7f2a", "#e3f4e5"), "fail": ("#b3261e", "#fbe4e2"),
            "cannot-fail": ("#7a1f8f", "#f3e3f7"), "thesis-inconsistent": ("#3a5a9a", "#e4ebf7"),
@@ -26,35 +25,19 @@ tr.cannot-fail td{background:#f3e3f7} tr.thesis-inconsistent td{background:#e4eb
 code,pre{font-family:DejaVu Sans Mono,monospace;font-size:12px} pre{background:#f5f5f8;
 padding:8px;overflow-x:auto;white-space:pre-wrap} .fig{margin:10px 0}
 .fig img{max-width:100%;border:1px solid #dde} .muted{color:#666;font-size:12px}
+.scroll{max-width:100%;overflow-x:auto} td code{overflow-wrap:anywhere}
+td{overflow-wrap:anywhere} .unit{color:#445;font-size:11px}
+table.record td,table.record th{padding:3px 10px} table.signoff{width:100%}
+table.signoff td{height:34px;vertical-align:bottom} table.signoff th{width:16%}
+details summary{cursor:pointer;color:#335}
+@media print{body{max-width:none;margin:0}.scroll{overflow:visible}
+table{font-size:10px;page-break-inside:auto} tr{page-break-inside:avoid}
+table.signoff{page-break-inside:avoid} details>*{display:block}}
 """
-
-
-def esc(x) -> str:
-    return html.escape(str(x))
 
 
 def badge(status: str) -> str:
     return f'<span class="badge {esc(status)}">{esc(status.upper())}</span>'
-
-
-def fig_png(fig) -> str:
-    """A matplotlib figure as an inline <img> (base64 PNG); the figure is closed."""
-    import matplotlib.pyplot as plt
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return ('<img alt="figure" src="data:image/png;base64,'
-            + base64.b64encode(buf.getvalue()).decode() + '">')
-
-
-def _fmt(v) -> str:
-    if v is None:
-        return "-"
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    if isinstance(v, list):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return esc(v)
 
 
 def _held(h) -> str:
@@ -78,7 +61,7 @@ def requirements_table(verdict: dict) -> str:
                        f'override <code>{esc(json.dumps(nc.get("override"), default=str))}</code>'
                        + (f' on runs {esc(nc.get("runs"))}' if nc.get("runs") else ""))
                     + "</span>")
-            ncv = f'{_fmt(nc["value"])} ({_held(nc["held"])}){ncm}'
+            ncv = f'{_fmt_u(nc["value"], r.get("unit"))} ({_held(nc["held"])}){ncm}'
         elif r.get("thesis_inconsistent"):
             what, ncv = '<span class="muted">(thesis-inconsistent: see below)</span>', "-"
         else:
@@ -91,7 +74,8 @@ def requirements_table(verdict: dict) -> str:
                     f'<td>{esc(r.get("kind") or "user")}</td>'
                     f'<td>{esc(r["description"])}{src}</td><td>{esc(r["metric"])}</td>'
                     f'<td>{esc(r.get("case") or "all")}</td><td>{esc(r["rule"])}</td>'
-                    f'<td>{_fmt(r["limit"])}{lsrc}</td><td>{_fmt(r["value"])}</td>'
+                    f'<td>{_fmt_u(r["limit"], r.get("unit"))}{lsrc}</td>'
+                    f'<td>{_fmt_u(r["value"], r.get("unit"))}</td>'
                     f'<td>{what}</td><td>{ncv}</td>'
                     f'<td>{badge(v)} {esc(v)}{msg}</td></tr>')
     rows.append("</table>")
@@ -306,8 +290,10 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
                          f"{esc(type(exc).__name__)}: {esc(exc)}</p>")
     for title, fig in figs:
         figs_html.append(f'<div class="fig"><h3>{esc(title)}</h3>{fig_png(fig)}</div>')
+    from .record import configuration_html, record_html, signoff_html, sweep_html
     errs = "".join(f"<li><code>{esc(e)}</code></li>" for e in verdict.get("errors", []))
     body = [f"<h1>{esc(sc.name)} {badge(verdict['status'])}</h1>",
+            record_html(verdict.get("record")),
             f"<p>{esc(sc.data.get('description', ''))}</p>",
             f'<p class="muted">scenario file <code>{esc(sc.path)}</code>; trial '
             f'<code>{esc(sc.trial)}</code>; procedure <code>{esc(sc.procedure)}</code>; '
@@ -317,6 +303,12 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
     if errs:
         body.append(f"<h2>Errors</h2><ul>{errs}</ul>")
     body += ["<h2>Requirements</h2>", requirements_table(verdict)]
+    try:
+        sweeps = sweep_html(verdict, sc.data.get("sweep") or {})
+    except Exception as exc:       # a broken figure must not hide the verdict
+        sweeps = f"<p class='error'>sweep figures failed: {esc(type(exc).__name__)}: {esc(exc)}</p>"
+    if sweeps:
+        body += ["<h2>Requirements over the sweep</h2>", sweeps]
     try:
         t78 = thesis_tables_html(infos)
     except Exception as exc:       # a broken comparison must not hide the verdict
@@ -331,12 +323,19 @@ def scenario_page(sc, out_dir: Path, verdict: dict, back_link: str | None = None
              "<h2>Runs</h2>", runs_table(verdict),
              "<h2>Recorded signals and units</h2>", signals_table(runs),
              "<h2>Provenance</h2>", provenance_html(verdict),
-             "<h2>Configuration</h2><pre>" + esc(sc.text) + "</pre>"]
+             "<h2>Configuration that ran</h2>", configuration_html(verdict, sc.text)]
+    if not back_link:              # a suite's pages are signed once, on its overview
+        body.append(signoff_html(verdict.get("record"), f"the verification of {sc.name}"))
     return page(f"{sc.name}: verification report", "\n".join(body))
 
 
 def page(title: str, body: str) -> str:
-    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{esc(title)}</title>"
+    """A self-contained page; every table in a container that scrolls sideways when it
+    is wider than the page (readable at 1280 px), printed in full."""
+    body = body.replace("<table", '<div class="scroll"><table').replace("</table>",
+                                                                         "</table></div>")
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'>"
+            f"<meta name='viewport' content='width=device-width'><title>{esc(title)}</title>"
             f"<style>{CSS}</style></head><body>{body}</body></html>")
 
 
@@ -360,7 +359,9 @@ def suite_page(summary: dict, links: dict) -> str:
                     f'<td>{len(s.get("runs", []))} ({s.get("cached_runs", 0)})</td>'
                     f'<td class="muted">{esc(msg)}</td></tr>')
     rows.append("</table>")
+    from .record import record_html, signoff_html
     body = [f"<h1>Verification suite {badge(summary['status'])}</h1>",
+            record_html(summary.get("record")),
             f"<p>{c['scenarios']} scenario(s): {c['pass']} pass, {c['fail']} fail, "
             f"{c['error']} error; {c['requirements']} requirement(s). Wall time "
             f"{summary.get('wall_s', 0):.1f} s on {esc(summary.get('cluster'))}.</p>",
@@ -370,9 +371,16 @@ def suite_page(summary: dict, links: dict) -> str:
             "<h2>Requirements</h2>", suite_requirements(summary),
             "<h2>Wall time</h2>", timing_table(summary),
             "<h2>Assumed values (not in the thesis): source or calibration</h2>",
-            assumptions_table(),
+            # a suite of the user's own requirements only: the package's assumptions
+            # about the thesis's devices are kept, folded away
+            (assumptions_table() if set(summary.get("by_kind") or {}) - {"user"} else
+             "<details><summary>The package's assumed values about the thesis's devices "
+             "(none of this suite's requirements is a thesis claim)</summary>"
+             + assumptions_table() + "</details>"),
             "<h2>Versions</h2><pre>" + esc(json.dumps(summary.get("versions", {}), indent=1))
-            + "</pre>"]
+            + "</pre>",
+            signoff_html(summary.get("record"), f"this suite of {c['scenarios']} scenario(s) "
+                         f"and the scenario pages it links")]
     return page("cosim verification suite", "\n".join(body))
 
 
@@ -444,8 +452,10 @@ def failing_requirements(summary: dict) -> str:
         for r in s.get("requirements", []):
             if r["verdict"] in FAILING:
                 rows.append(f'<tr class="{esc(r["verdict"])}"><td>{esc(s["scenario"])}</td>'
-                            f'<td><b>{esc(r["id"])}</b></td><td>{_fmt(r["value"])}</td>'
-                            f'<td>{esc(r.get("rule"))}</td><td>{_fmt(r["limit"])}</td>'
+                            f'<td><b>{esc(r["id"])}</b></td>'
+                            f'<td>{_fmt_u(r["value"], r.get("unit"))}</td>'
+                            f'<td>{esc(r.get("rule"))}</td>'
+                            f'<td>{_fmt_u(r["limit"], r.get("unit"))}</td>'
                             f'<td>{badge(r["verdict"])} {esc(r["verdict"])}</td>'
                             f'<td class="muted">{esc(r.get("message") or "")}</td></tr>')
         if s["status"] == "error" and not s.get("requirements"):
@@ -472,9 +482,11 @@ def suite_requirements(summary: dict) -> str:
             rows.append(f'<tr class="{esc(v)}"><td>{esc(s["scenario"])}</td>'
                         f'<td><b>{esc(r["id"])}</b></td><td>{esc(r.get("kind") or "user")}</td>'
                         f'<td>{esc(r.get("rule"))}</td>'
-                        f'<td>{_fmt(r["limit"])}</td><td>{_fmt(r["value"])}</td>'
+                        f'<td>{_fmt_u(r["limit"], r.get("unit"))}</td>'
+                        f'<td>{_fmt_u(r["value"], r.get("unit"))}</td>'
                         f'<td>{esc(nc.get("what", "-"))}</td>'
-                        f'<td>{_fmt(nc.get("value"))} ({_held(nc.get("held"))})</td>'
+                        f'<td>{_fmt_u(nc.get("value"), r.get("unit"))} '
+                        f'({_held(nc.get("held"))})</td>'
                         f'<td>{badge(v)} {esc(v)}</td></tr>')
     rows.append("</table>")
     return "\n".join(rows)

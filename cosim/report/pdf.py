@@ -54,6 +54,8 @@ def combined_html(report_dir) -> str:
         parts.append(f'<section id="{esc(anchor)}" style="page-break-before: always">'
                      f"{body}</section>")
     parts[0] = f'<section id="top">{head}</section>'
+    # folded sections (the scenario file as written) are part of the signed record
+    parts = [x.replace("<details>", "<details open>") for x in parts]
     css = CSS + "\n@page { size: A4; margin: 12mm; } img { max-width: 100%; }" \
                 "\ntable { page-break-inside: auto; } tr { page-break-inside: avoid; }"
     return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>cosim report</title>"

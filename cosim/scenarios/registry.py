@@ -200,6 +200,19 @@ class Entry:
     #: procedures: ``work(run, parameters) -> s`` simulated by a run (``@procedure(name,
     #: work=...)``; None: ``run.duration``), the suite's first guess of a run's cost
     work: typing.Callable | None = None
+    #: metrics: the unit of the value: a string ("s", "%", "Hz"), or
+    #: ``f(params, units) -> str | None`` from the recorded signals' units (None: unknown)
+    unit: typing.Any = None
+
+    def value_unit(self, params: Mapping, units: Mapping) -> str | None:
+        """The unit of this metric's value for ``params`` on a run whose recorded
+        columns have ``units`` (name -> unit); None when it cannot be derived."""
+        if callable(self.unit):
+            try:
+                return self.unit(params, units) or None
+            except Exception:
+                return None
+        return self.unit
 
     def step_mismatch(self, params: Mapping, step_s: float) -> str | None:
         """The message if ``params`` fix a sampling time other than the scenario's step."""
@@ -259,7 +272,7 @@ def _step_field(kind, name, obj, params, static):
 
 
 def _register(kind: str, name: str, obj, params=None, scope="run", static=False, uses=(),
-              work=None):
+              work=None, unit=None):
     if not isinstance(name, str) or not name:
         raise RegistryError(f"{kind} name must be a non-empty string, got {name!r}")
     if params is not None and not dataclasses.is_dataclass(params):
@@ -275,8 +288,11 @@ def _register(kind: str, name: str, obj, params=None, scope="run", static=False,
     if isinstance(uses, str) or not all(isinstance(u, str) and u for u in uses):
         raise RegistryError(f"{kind} {name!r}: uses must be a list of module names, "
                             f"got {uses!r}")
+    if unit is not None and not (isinstance(unit, str) or callable(unit)):
+        raise RegistryError(f"{kind} {name!r}: unit must be a string or a function "
+                            f"(params, units) -> str, got {unit!r}")
     _REG[kind][name] = Entry(kind, name, obj, params, scope, mod, step_field, tuple(uses),
-                             work)
+                             work, unit)
     return obj
 
 
@@ -297,9 +313,11 @@ def stimulus(name: str, params: type | None = None):
     return lambda obj: _register("stimulus", name, obj, params)
 
 
-def metric(name: str, params: type | None = None, scope: str = "run"):
-    """Register ``f(params, ctx: MetricContext) -> float`` under ``name``."""
-    return lambda obj: _register("metric", name, obj, params, scope)
+def metric(name: str, params: type | None = None, scope: str = "run", unit=None):
+    """Register ``f(params, ctx: MetricContext) -> float`` under ``name``; ``unit``: the
+    unit of its value, a string or ``f(params, units) -> str`` (``units``: the recorded
+    signals' units; e.g. the unit of the signal it measures)."""
+    return lambda obj: _register("metric", name, obj, params, scope, unit=unit)
 
 
 def procedure(name: str, uses=(), work=None):
@@ -329,6 +347,10 @@ def load_trials() -> list[str]:
     _loaded = True
     if "aakf" not in _REG["controller"]:
         _register_algorithms()           # the blocks of cosim.algorithms (below)
+    # the built-in step/error/frequency metrics, then the installed plug-ins (entry
+    # points); imported by name as the trials are: both register into this module
+    importlib.import_module("cosim.scenarios.metrics")
+    importlib.import_module("cosim.scenarios.plugins").load_entry_points()
     import cosim.trials as pkg
     names = []
     for info in pkgutil.iter_modules(pkg.__path__):
@@ -533,6 +555,13 @@ class WindowParams:
     scale: float = 1.0
 
 
+def _signal_unit(params, units):
+    """The unit of a windowed metric: its signal's (None once scaled: unknown)."""
+    if float(params.get("scale", 1.0)) != 1.0:
+        return None
+    return units.get(params.get("signal") or "")
+
+
 def _windowed(params, ctx):
     p = {k: v for k, v in params.items() if v is not None}
     x, sel = _window(p, ctx)
@@ -542,31 +571,31 @@ def _windowed(params, ctx):
     return x * float(params.get("scale", 1.0))
 
 
-@metric("mean_abs", params=WindowParams)
+@metric("mean_abs", params=WindowParams, unit=_signal_unit)
 def _mean_abs(params, ctx):
     """Mean absolute value of a signal over [from_s, to_s]."""
     return float(np.mean(np.abs(_windowed(params, ctx))))
 
 
-@metric("rms", params=WindowParams)
+@metric("rms", params=WindowParams, unit=_signal_unit)
 def _rms(params, ctx):
     """Root mean square of a signal (or of signal - minus) over [from_s, to_s]."""
     return float(np.sqrt(np.mean(_windowed(params, ctx) ** 2)))
 
 
-@metric("max_abs", params=WindowParams)
+@metric("max_abs", params=WindowParams, unit=_signal_unit)
 def _max_abs(params, ctx):
     """Largest absolute value over [from_s, to_s]."""
     return float(np.max(np.abs(_windowed(params, ctx))))
 
 
-@metric("mean", params=WindowParams)
+@metric("mean", params=WindowParams, unit=_signal_unit)
 def _mean(params, ctx):
     """Mean value over [from_s, to_s]."""
     return float(np.mean(_windowed(params, ctx)))
 
 
-@metric("final", params=WindowParams)
+@metric("final", params=WindowParams, unit=_signal_unit)
 def _final(params, ctx):
     """Last value within [from_s, to_s]."""
     return float(_windowed(params, ctx)[-1])
@@ -589,7 +618,7 @@ class RecoveryParams:
             raise ValueError(f"band must be > 0, got {self.band!r}")
 
 
-@metric("recovery_time", params=RecoveryParams)
+@metric("recovery_time", params=RecoveryParams, unit="s")
 def _recovery_time(params, ctx):
     """Time [s] after ``after_s`` from which |signal - minus - target| <= band until ``to_s``:
     0 if it never leaves the band, the window's length plus one step if it never comes

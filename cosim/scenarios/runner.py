@@ -152,20 +152,146 @@ def _isolated(scenario_path, run_label, out_dir, fmu_swaps, fmu_dir, key, isolat
                         key, timeout_s, base=base)
 
 
-def finish_scenario(sc: Scenario, out_dir: Path, fmu_swaps=None) -> dict:
-    """The verdict of a scenario whose runs are stored, written to ``verdict.json``."""
+def finish_scenario(sc: Scenario, out_dir: Path, fmu_swaps=None, operator: str | None = None,
+                    record: dict | None = None) -> dict:
+    """The verdict of a scenario whose runs are stored, written to ``verdict.json``:
+    each requirement with the unit of its limit and value, the configuration that ran
+    and the record a person signs (:func:`run_record`; ``record``: one made already,
+    e.g. the suite's)."""
     verdict = evaluate(sc, out_dir)
     verdict["versions"] = versions()
     verdict["negative_control_runs"] = [r.label for r in all_runs(sc) if r.control]
     verdict["seeds"] = sorted({r.seed for r in expand(sc)})
     verdict["fmu_swaps"] = {k: str(v) for k, v in (fmu_swaps or {}).items()}
+    units = requirement_units(sc, out_dir)
+    for r in verdict["requirements"]:
+        r["unit"] = units.get(r["id"])
+    verdict["configuration"] = effective_configuration(sc, verdict, fmu_swaps)
+    verdict["record"] = record or run_record(operator)
     write_verdict(out_dir, verdict)
     return verdict
 
 
+def recorded_units(sc: Scenario, out_dir: Path) -> dict:
+    """phase -> {signal: unit} of the scenario's first stored run that finished."""
+    from .store import read_runs
+    for run in expand(sc):
+        try:
+            views, infos = read_runs(sc, out_dir, runs=[run])
+        except Exception:
+            continue
+        if views and infos and infos[0].get("status") == "ok":
+            return {v.phase: dict(v.units or {}) for v in views}
+    return {}
+
+
+def requirement_units(sc: Scenario, out_dir: Path) -> dict:
+    """Requirement id -> the unit of its limit and value: the requirement's ``unit``,
+    else its metric's ``unit``, else the metric's own (``s``, ``%``, ``Hz`` or its
+    signal's recorded unit); None when none of these says."""
+    by_phase = recorded_units(sc, out_dir)
+    first = next(iter(by_phase.values()), {})
+    out = {}
+    for r in sc.requirements:
+        spec = sc.metrics.get(r.metric) or {}
+        unit = r.unit or spec.get("unit")
+        if unit is None:
+            e = reg.get("metric", spec.get("type", ""))
+            if e is not None:
+                params = {k: v for k, v in spec.items() if k not in ("type", "phase", "unit")}
+                unit = e.value_unit(params, by_phase.get(spec.get("phase"), first))
+        if unit is None:
+            # a procedure's value or a trial's metric: the unit its name states (a ratio
+            # of two cases, ``settle_s``, ``force_N``), by the package's naming rule
+            from .metrics import unit_from_name
+            key = (spec.get("params") or {}).get("key") or spec.get("key")
+            unit = next((u for u in (unit_from_name(spec.get("type", "")),   # case_ratio: 1
+                                     unit_from_name(key) if key else None,
+                                     unit_from_name(r.metric)) if u), None)
+        out[r.id] = unit
+    return out
+
+
+def effective_configuration(sc: Scenario, verdict: dict, fmu_swaps=None) -> dict:
+    """What ran, not the file as written: per role the FMU actually used (a ``--fmu``
+    swap, an SSP component), its binding (contract name <- FMU variable [unit]) and
+    the parameters set on it; the controllers and stimuli with their parameters;
+    duration and step (the scenario's base run, its SSP and cases resolved)."""
+    run = expand(sc)[0]
+    d = deep_merge(sc.data, run.overrides)
+    prov = {p.get("role"): p for p in verdict.get("provenance") or []}
+    roles = {}
+    for role, spec in (d.get("system") or {}).get("fmus", {}).items():
+        p = prov.get(role, {})
+        swap = (fmu_swaps or {}).get(role)
+        roles[role] = {
+            "fmu": p.get("path") or (str(swap) if swap else spec.get("fmu")),
+            "as_written": spec.get("fmu"), "swapped": swap is not None,
+            "model": p.get("model_name"), "sha256": p.get("sha256"),
+            "fmi": p.get("fmi_version"), "kind": p.get("kind"),
+            "generation_tool": p.get("generation_tool"),
+            "contract": spec.get("contract"),
+            "binding": (p.get("binding") or {}).get("lines") or [
+                f"{k} <- {v}" for k, v in (spec.get("map") or {}).items()],
+            "units": spec.get("units") or {},
+            "parameters": spec.get("parameters") or {}}
+    blocks = {k: {"type": v.get("type"), "params": v.get("params") or {}}
+              for k, v in (d.get("controllers") or {}).items()}
+    stims = {k: {"type": v.get("type"), "params": v.get("params") or {}}
+             for k, v in (d.get("stimuli") or {}).items()}
+    return {"run": run.label, "roles": roles, "controllers": blocks, "stimuli": stims,
+            "parameters": d.get("parameters") or {}, "duration_s": run.duration,
+            "step_s": run.step, "plugins": list(sc.data.get("plugins") or []),
+            "sweep": {k: list(v) for k, v in (sc.data.get("sweep") or {}).items()}}
+
+
+def git_commit(where: Path | None = None) -> str | None:
+    """The git commit of the package's checkout (``+dirty`` with uncommitted changes
+    to tracked files); None for an installed wheel or without git."""
+    import subprocess
+    where = Path(where or Path(__file__).resolve().parents[2])
+    if not (where / ".git").exists():
+        return None
+    try:
+        head = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"],
+                              capture_output=True, text=True, timeout=10)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain",
+                                "--untracked-files=no"], capture_output=True, text=True,
+                               timeout=10)
+        return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def run_record(operator: str | None = None) -> dict:
+    """Who made the results, when, where and with what (the report's sign-off header):
+    UTC date and time, host, operator (``operator``, else $USER / the login name),
+    package version, git commit (None: an installed wheel: its version says) and the
+    hash of the package source."""
+    import datetime
+    import getpass
+    import socket
+    import cosim
+    from .store import source_hash
+    if not operator:
+        try:
+            operator = getpass.getuser()
+        except Exception:
+            operator = None
+    commit = git_commit()
+    return {"created_utc": datetime.datetime.now(datetime.timezone.utc)
+            .strftime("%Y-%m-%d %H:%M:%S UTC"),
+            "host": socket.gethostname(), "operator": operator or "(unknown)",
+            "cosim_version": getattr(cosim, "__version__", "?"),
+            "git_commit": commit, "installed_as": "git checkout" if commit else "package",
+            "source_sha256": source_hash()[:16]}
+
+
 def run_scenario(path, out_dir, fmu_swaps: dict | None = None, fmu_dir=None,
                  use_cache: bool = True, progress=None, isolation: str = "auto",
-                 timeout_s: float | None = None) -> dict:
+                 timeout_s: float | None = None, operator: str | None = None) -> dict:
     """``cosim run``: every run of one scenario (serially), then its verdict (the
     page: :func:`cosim.report.render.render_scenario`). ``isolation``: see
     :func:`execute_run`; ``timeout_s``: the per-run wall-clock limit when the scenario
@@ -184,7 +310,7 @@ def run_scenario(path, out_dir, fmu_swaps: dict | None = None, fmu_dir=None,
                     isolation=isolation, timeout_s=run_timeout(sc, timeout_s))
         if progress:
             progress(i + 1, len(runs))
-    return finish_scenario(sc, out_dir, fmu_swaps)
+    return finish_scenario(sc, out_dir, fmu_swaps, operator=operator)
 
 
 def parse_fmu_swaps(items) -> dict:

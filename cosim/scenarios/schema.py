@@ -13,6 +13,7 @@ import dataclasses
 import fnmatch
 import hashlib
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -100,6 +101,9 @@ TOP = {
     "monte_carlo": (dict, False), "parameters": (dict, False),
     "negative_controls": (dict, False), "faults": (dict, False),
     "timeout_s": (NUM, False),      # per-run wall-clock limit [s] (cosim.scenarios.isolate)
+    # the user's own modules (files beside the scenario or module names) that register
+    # metrics, stimuli, controllers, procedures (cosim.scenarios.plugins)
+    "plugins": (list, False),
 }
 ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters": (dict, False),
         "human_profile": (str, False), "grasp": (str, False), "kind": (str, False),
@@ -111,13 +115,17 @@ CONN = {"from": (str, True), "to": (str, True), "scale": (NUM, False),
 CTRL = {"type": (str, True), "params": (dict, False), "wiring": (dict, False),
         "outputs": (dict, False), "record": (list, False)}
 STIM = {"type": (str, True), "params": (dict, False)}
-METRIC = {"type": (str, True), "phase": (str, False)}
+METRIC = {"type": (str, True), "phase": (str, False),
+          # the unit of the value where the metric cannot derive it from its signal's
+          "unit": (str, False)}
 REQ = {"id": (str, True), "description": (str, True), "metric": (str, True),
        "rule": (str, True), "limit": ((int, float, list), True), "case": (str, False),
        "aggregate": (str, False), "negative_control": ((dict, str), False),
        "thesis_inconsistent": (dict, False),
        # what the requirement is (KINDS), where it comes from and where its limit comes from
-       "kind": (str, False), "source": (str, False), "limit_source": (str, False)}
+       "kind": (str, False), "source": (str, False), "limit_source": (str, False),
+       # the unit of the limit and value (default: the metric's, cosim.scenarios.metrics)
+       "unit": (str, False)}
 #: a negative control: the scenario again, under which the requirement must NOT hold
 NEG = {"what": (str, True), "case": (str, False), "override": (dict, False),
        "runs": (list, False), "apply_to": (list, False)}
@@ -164,6 +172,7 @@ class Requirement:
     kind: str = "user"                    # one of KINDS
     source: str | None = None             # the thesis section/figure, or the user's document
     limit_source: str | None = None       # the thesis's number, or a package limit and why
+    unit: str | None = None               # of the limit and the value (default: the metric's)
 
 
 @dataclasses.dataclass
@@ -253,6 +262,7 @@ def load(path, fmu_dir=None) -> Scenario:
     c.keys(d, TOP, (), "scenario")
     sc.name = d["scenario"]
     _include_ssp(c, d)
+    _load_plugins(c, d)
     c.positive(d["duration"], ("duration",), "duration [s]")
     step = d.get("step", 1e-3)
     c.positive(step, ("step",), "step [s]")
@@ -514,6 +524,27 @@ def _check_signal_head(c, d, name, path, cases_merged=None):
                  f" (roles: {list(roles)}, controllers: {list(ctrls)})"))
 
 
+def _load_plugins(c: _Checker, d: dict):
+    """Import the scenario's ``plugins`` (files or module names), whose registrations
+    its metrics, stimuli, controllers and procedure may name; an error names the
+    plug-in's file and line."""
+    from .plugins import PluginError, load as load_plugin
+    for i, ref in enumerate(d.get("plugins") or []):
+        if not isinstance(ref, str) or not ref.strip():
+            c.err(("plugins", i), f"a plug-in is a file name (my_metrics.py) or a module "
+                  f"name, got {ref!r}")
+        try:
+            mod = load_plugin(ref, c.sc.path)
+        except PluginError as exc:
+            c.err(("plugins", i), str(exc))
+        # the cache key covers the plug-in's code (a changed stimulus or procedure
+        # changes the runs), as it covers an SSP's bytes
+        f = getattr(mod, "__file__", None)
+        sha = getattr(mod, "__cosim_sha256__", None) or (
+            hashlib.sha256(Path(f).read_bytes()).hexdigest() if f and Path(f).is_file() else "")
+        c.sc.included += f"|plugin:{ref}:{sha}"
+
+
 def _include_ssp(c: _Checker, d: dict):
     """``system: {ssp: FILE.ssp, fmus: {...}, connections: [...]}``: the SSP's
     components become roles (FMUs extracted to ``<cache>/ssp/<sha>/``, parameters from
@@ -530,15 +561,22 @@ def _include_ssp(c: _Checker, d: dict):
     ref = sysd["ssp"]
     if not isinstance(ref, str) or not ref.endswith(".ssp"):
         c.err(("system", "ssp"), f"system.ssp must be the path of an .ssp file, got {ref!r}")
-    f = Path(ref).expanduser()
-    if not f.is_absolute():
-        f = Path(c.sc.path).parent / f
+    from .plugins import resolve
+    f = resolve(ref, c.sc.path)          # a shipped copy on a worker
     if not f.is_file():
         c.err(("system", "ssp"), f"SSP file {f} not found (relative paths are read from the "
               f"scenario file's folder)")
     sha = hashlib.sha256(f.read_bytes()).hexdigest()
+    dest = cache_dir() / "ssp"
     try:
-        got = read_ssp(f, cache_dir() / "ssp" / sha[:16])
+        dest.mkdir(parents=True, exist_ok=True)
+        if not os.access(dest, os.W_OK):
+            raise PermissionError(dest)
+    except OSError:      # a worker without a writable home: its temporary folder
+        import tempfile
+        dest = Path(tempfile.gettempdir()) / f"cosim-ssp-{os.getuid()}"
+    try:
+        got = read_ssp(f, dest / sha[:16])
     except SSPError as exc:
         c.err(("system", "ssp"), str(exc))
     own = sysd.get("fmus") or {}

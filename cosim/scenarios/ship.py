@@ -1,7 +1,8 @@
 """Runs on Dask workers that do not share the client's filesystem.
 
 A shipped run (:func:`execute_shipped`) takes everything it needs as values: the
-scenario's text and the bytes of its FMUs, and returns its results as values: the
+scenario's text, the bytes of its FMUs and of the other files it names (plug-ins, an
+SSP archive: :mod:`.plugins`), and returns its results as values: the
 run folder's files (``<phase>.parquet``, ``run.json``) as bytes. The client alone
 writes its output folder (:func:`cosim.scenarios.store.store_run_files`, atomically).
 
@@ -97,7 +98,8 @@ def _client_paths(text: str, subst: dict) -> str:
 
 def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
                     fmus: dict, swaps: dict, key: str | None = None,
-                    isolation: str = "none", timeout_s: float | None = None) -> dict:
+                    isolation: str = "none", timeout_s: float | None = None,
+                    files: dict | None = None) -> dict:
     """One run on a worker from values only (a Dask task).
 
     ``scenario_file``: the client's path of the scenario (a name, never opened);
@@ -107,16 +109,27 @@ def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
     and returns ``{"files": {name: bytes}}``: the run folder, with the worker's
     paths replaced by the client's in run.json and the Parquet metadata. ``isolation``,
     ``timeout_s``: as :func:`~cosim.scenarios.runner.execute_run` (decided by the
-    client, which knows which FMUs are the project's)."""
+    client, which knows which FMUs are the project's). ``files``: the other files the
+    scenario names (plug-ins, its SSP archive: :func:`.plugins.included_files`), its
+    name for each -> (sha256, bytes, client path), written where the worker's copy of
+    the scenario finds them (:func:`.plugins.place`)."""
     import pyarrow.parquet as pq
 
     from .build import LOCAL_FMUS
+    from .plugins import INCLUDED, place
     from .runner import execute_run
     work = Path(tempfile.mkdtemp(prefix="cosim-run-"))
     try:
-        scen = work / Path(scenario_file).name
+        blobs = {}
+        for ref, (sha, blob, _) in (files or {}).items():
+            if hashlib.sha256(blob).hexdigest() != sha:
+                raise RuntimeError(f"{ref}: bytes do not match their sha256 {sha[:12]}...")
+            blobs[ref] = blob
+        scen, included = place(work, scenario_file, blobs)
         scen.write_text(scenario_text)
         subst = {str(scen): scenario_file}
+        for ref, local_path in included.items():
+            subst[local_path] = str((files or {})[ref][2])
         local, local_swaps = {}, {}
         for table, dest in ((fmus, local), (swaps, local_swaps)):
             for name, (sha, blob, client_path) in table.items():
@@ -126,10 +139,12 @@ def execute_shipped(scenario_file: str, scenario_text: str, run_label: str,
                     else str(p)
                 subst[str(p)] = client_path
         token = LOCAL_FMUS.set(local)
+        token_inc = INCLUDED.set(included)
         try:
             execute_run(str(scen), run_label, str(work / "out"), local_swaps, None, key,
                         isolation=isolation, timeout_s=timeout_s)
         finally:
+            INCLUDED.reset(token_inc)
             LOCAL_FMUS.reset(token)
         d = work / "out" / "runs" / safe_name(run_label)
         files = {}

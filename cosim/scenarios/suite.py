@@ -37,11 +37,12 @@ from . import registry as reg
 from .build import check_build
 from .expand import deep_merge
 from .isolate import run_timeout, wants_process
-from .runner import execute_run, finish_scenario
+from .plugins import included_files
+from .runner import execute_run, finish_scenario, run_record
 from .schema import Scenario, load
 from .ship import execute_shipped, run_fmus, scatter_fmus
-from .store import (OutDirLock, OutDirLocked, clean_run_tmp, run_done, run_fmu_paths, run_key,
-                    safe_name, store_run_files, versions)
+from .store import (OutDirLock, OutDirLocked, _fmu_sha, clean_run_tmp, run_done,
+                    run_fmu_paths, run_key, safe_name, store_run_files, versions)
 from .verdict import all_runs, summary_row
 
 
@@ -152,7 +153,8 @@ def _locked(fn):
 def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None = None,
               fmu_swaps: dict | None = None, fmu_dir=None, use_cache: bool = True,
               progress: bool = True, serial: bool = False, ship: bool | None = None,
-              isolation: str = "auto", timeout_s: float | None = None) -> dict:
+              isolation: str = "auto", timeout_s: float | None = None,
+              operator: str | None = None) -> dict:
     """Run every run of every scenario; ``serial=True`` runs in this process (no Dask;
     used by the benchmark as the baseline). ``isolation`` (:mod:`.isolate`): a run
     whose FMUs are not all the project's (``auto``), every run (``process``) or none
@@ -166,7 +168,10 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
     if ship is None:
         ship = scheduler is not None
     t0 = time.perf_counter()
-    out_dir = Path(out_dir)
+    # the client's paths, absolute: a worker (shared filesystem or not) never resolves
+    # a relative name against its own working directory
+    out_dir = Path(out_dir).resolve()
+    fmu_dir = Path(fmu_dir).resolve() if fmu_dir else None
     files = collect(paths)
     scenarios: list[Scenario] = []
     names = {}
@@ -250,8 +255,12 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             if ship:      # values in, values out: the workers need no shared filesystem
                 fmus = {(sc.name, run.label): run_fmus(sc, run, fmu_dir, swaps)
                         for sc, run, key, sdir, swaps, *_ in todo}
+                incl = {sc.name: {ref: (_fmu_sha(p), str(p)) for ref, p in
+                                  included_files(sc.path, sc.text).items()}
+                        for sc in scenarios}
                 blobs = scatter_fmus(client, [v for pair in fmus.values() for t in pair
-                                              for v in t.values()])
+                                              for v in t.values()]
+                                     + [v for t in incl.values() for v in t.values()])
             # longest first (estimated: this folder's or the last suite's measured
             # durations, else the procedure's simulated time), so that the workers
             # finish together instead of one running the longest runs at the end
@@ -267,7 +276,9 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                     f = client.submit(_timed, execute_shipped, str(sc.path), sc.text,
                                       run.label, by_spec, by_swap, key, pure=False, key=tkey,
                                       priority=len(todo) - rank,
-                                      isolation=iso, timeout_s=tmo)
+                                      isolation=iso, timeout_s=tmo,
+                                      files={r: (sha, blobs[sha], p) for r, (sha, p)
+                                             in incl[sc.name].items()})
                 else:
                     f = client.submit(_timed, execute_run, str(sc.path), run.label, str(sdir),
                                       swaps, str(fmu_dir) if fmu_dir else None, key,
@@ -278,12 +289,25 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                 sc, run, sdir = futs[f]
                 try:
                     res = f.result()
-                    out = res.pop("out")
+                except Exception as exc:     # the worker died (crash in native code)
+                    _record_crash(sdir, run, key=None, exc=exc, scenario=sc.name)
+                    bar.step(f"{sc.name}:{run.label}")
+                    continue
+                out = res.pop("out")
+                try:
                     if ship:
                         store_run_files(sdir, run.label, out["files"])
+                    elif not (sdir / "runs" / safe_name(run.label) / "run.json").is_file():
+                        raise FileNotFoundError(
+                            f"the worker {res.get('worker')} finished it but its results are "
+                            f"not in {sdir / 'runs'} (a worker that does not see this "
+                            f"machine's files: drop --shared-fs so that the results are "
+                            f"shipped back)")
                     done[sc.name, run.label] = res
-                except Exception as exc:     # the worker died (crash in native code)
-                    _record_crash(sdir, run, key=None, exc=exc)
+                except Exception as exc:     # a result that cannot be stored here
+                    _record_error(sdir, run, f"run {run.label} of {sc.name}: its result "
+                                             f"could not be stored: {type(exc).__name__}: "
+                                             f"{exc}")
                 bar.step(f"{sc.name}:{run.label}")
             timing["runs_s"] = time.perf_counter() - t1
             timing.update(worker_stats(done.values(), t_sub, time.time()))
@@ -304,12 +328,13 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             cluster.close()
     write_durations(out_dir, history, done)
     t1 = time.perf_counter()
+    record = run_record(operator)
     results = []
     for sc in scenarios:
         sdir = out_dir / safe_name(sc.name)
         swaps = {r: p for r, p in (fmu_swaps or {}).items() if r in sc.data["system"]["fmus"]}
         t2 = time.perf_counter()
-        v = finish_scenario(sc, sdir, swaps)
+        v = finish_scenario(sc, sdir, swaps, record=record)
         walls = [d["wall_s"] for (name, _), d in done.items() if name == sc.name]
         v["timing"] = {**sc_time[sc.name], "runs_executed": len(walls),
                        "runs_wall_s": sum(walls), "longest_run_s": max(walls, default=0.0),
@@ -337,12 +362,13 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                                         for r in v["requirements"]})},
         "runs_executed": len(todo), "runs_cached": sum(cached.values()),
         "wall_s": time.perf_counter() - t0, "cluster": cluster_desc, "versions": versions(),
+        "record": record,
         "timing": {**timing, "verdicts_s": time.perf_counter() - t1,
                    "runs_wall_s": sum(d["wall_s"] for d in done.values())},
         "scenarios": [{k: v.get(k) for k in ("scenario", "file", "status", "errors",
                                              "control_errors", "requirements", "runs",
                                              "cached_runs", "provenance", "seeds",
-                                             "timing")}
+                                             "timing", "configuration")}
                       for v in results],
     }
     atomic_write(out_dir / "summary.json", json.dumps(summary, indent=1, default=str))
@@ -457,18 +483,30 @@ def estimates(runs, history: dict) -> list[float]:
     return out
 
 
-def _record_crash(sdir: Path, run: reg.RunSpec, key, exc):
-    """A run whose worker process died: store an error run.json (atomically)."""
+def _record_crash(sdir: Path, run: reg.RunSpec, key, exc, scenario: str = ""):
+    """A run whose worker process died or was lost: store an error run.json naming the
+    run (atomically)."""
     clean_run_tmp(sdir)                       # the dead worker's half-written folder
     d = Path(sdir) / "runs" / safe_name(run.label)
     if (d / "run.json").is_file():
         return
+    who = f"run {run.label}{f' of {scenario}' if scenario else ''}"
+    if type(exc).__name__ in ("KilledWorker", "CommClosedError", "CancelledError"):
+        msg = (f"{who}: worker crashed or was lost: {type(exc).__name__}: {exc} (a run in "
+               f"the worker's own process; with --isolation process a crash is recorded "
+               f"with its signal, role, FMU, time and rows)")
+    else:                   # raised on the worker outside the run's own error handling
+        msg = f"{who}: failed on its worker: {type(exc).__name__}: {exc}"
+    _record_error(sdir, run, msg, key)
+
+
+def _record_error(sdir: Path, run: reg.RunSpec, error: str, key=None):
+    """Store an error run.json for ``run`` (atomically), over nothing finished."""
+    d = Path(sdir) / "runs" / safe_name(run.label)
     d.mkdir(parents=True, exist_ok=True)
     atomic_write(d / "run.json", json.dumps({
         "label": run.label, "case": run.case, "seed": run.seed, "status": "error",
-        "key": key, "error": f"worker crashed: {type(exc).__name__}: {exc} (a run in the "
-                             f"worker's own process; with --isolation process a crash is "
-                             f"recorded with its signal, role, FMU, time and rows)"}))
+        "key": key, "error": error}))
 
 
 def junit_xml(summary: dict) -> str:
@@ -480,8 +518,9 @@ def junit_xml(summary: dict) -> str:
         for r in s["requirements"]:
             tc = ET.Element("testcase", classname=s["scenario"], name=r["id"])
             nc = r.get("negative_control")
-            msg = (f"value {r['value']} {r['rule']} {r['limit']}: {r['description']}"
-                   + (f"; negative control ({nc['what']}): value {nc['value']}, "
+            u = f" {r['unit']}" if r.get("unit") else ""
+            msg = (f"value {r['value']}{u} {r['rule']} {r['limit']}{u}: {r['description']}"
+                   + (f"; negative control ({nc['what']}): value {nc['value']}{u}, "
                       f"{'holds' if nc['held'] else 'does not hold' if nc['held'] is False else 'no verdict'}"
                       if nc else "")
                    + (f" ({r['message']})" if r.get("message") else ""))

@@ -162,7 +162,7 @@ def metric_table(sc: Scenario, views, infos, names=None) -> tuple[dict, dict]:
         if names is not None and name not in names:
             continue
         e = reg.get("metric", spec["type"])
-        params = {k: v for k, v in spec.items() if k not in ("type", "phase")}
+        params = {k: v for k, v in spec.items() if k not in ("type", "phase", "unit")}
         try:
             if e.scope == "scenario":
                 ok_views = [v for v in views if v.label in ok_labels]
