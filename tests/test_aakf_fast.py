@@ -31,7 +31,7 @@ import pytest
 from cosim.algorithms import aakf as aakf_mod
 from cosim.algorithms.aakf import (AakfParams, AaKF, AaKFBank, _check_params,
                                    _position_bounds, _speed_centre, discretise)
-from cosim.synth import simulate_ballscrew
+from cosim.logs.synth import simulate_ballscrew
 
 
 class _ReferenceAaKF:

@@ -49,8 +49,8 @@ from typing import Any, Callable
 import numpy as np
 
 from ..algorithms.rls import band_limited_white_noise
-from ..synth import _min_jerk_reference, _ref_at
-from ..trial_log import write_trial_log
+from ..logs.synth import _min_jerk_reference, _ref_at
+from ..logs.trial_log import write_trial_log
 from .effects import EFFECTS
 
 __all__ = ["NOMINAL", "EFFECT_SAMPLERS", "OUT_OF_CATALOGUE", "SCENARIOS",

@@ -30,8 +30,8 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from ..exitcodes import children_ignore_sigint
-from ..fileio import atomic_write_text as atomic_write
+from ..cli.exitcodes import children_ignore_sigint
+from ..logs.fileio import atomic_write_text as atomic_write
 from . import registry as reg
 from .build import check_build
 from .expand import deep_merge

@@ -12,7 +12,7 @@ from typing import Callable
 import numpy as np
 from scipy import signal
 
-from ...trial_log import TrialLog
+from ...logs.trial_log import TrialLog
 from ..effects.base import shift
 
 __all__ = ["DEVICE", "DEFAULTS", "Prep", "prepare", "log_noise", "nominal_of", "lowpass"]

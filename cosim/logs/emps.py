@@ -480,9 +480,9 @@ EMPS_AXIS_MODEL = "RehabSim.Emps.EmpsAxis"
 
 def emps_axis_fmu(fmus_dir: str | os.PathLike | None = None) -> Path:
     """Build (or take from the cache) the EmpsAxis FMU with the normal build; return its path."""
-    from .fmubuild.build import build_fmu
+    from ..fmubuild.build import build_fmu
 
-    from . import paths
+    from .. import paths
 
     out = Path(fmus_dir) if fmus_dir else paths.fmus_dir()
     return build_fmu(paths.modelica_package(), EMPS_AXIS_MODEL, out, log=lambda *_: None)
@@ -493,13 +493,13 @@ def closed_loop_replay(log: Any, axis_params: Mapping[str, float] | None = None,
                        rtol: float = 1e-6) -> dict[str, np.ndarray]:
     """Replay a trial in closed loop: the EmpsAxis FMU driven by :class:`EmpsPD` at 1 ms.
 
-    ``log``: an ``emps-1dof`` :class:`~cosim.trial_log.TrialLog`. The PD controller
+    ``log``: an ``emps-1dof`` :class:`~cosim.logs.trial_log.TrialLog`. The PD controller
     tracks the log's ``x_ref`` from the simulated encoder; the log's ``f_pulse`` (if
     any) is added to the drive force, as in the data. ``axis_params``: FMU
     parameters (M, Fv, Fc, offset and effect parameters). Returns the recorded
     signals (``time``, ``x``, ``v``, ``a``, ``f_cmd`` = PD force + pulses, ``f_drive``).
     """
-    from .master import Master, System
+    from ..master import Master, System
 
     meta = log.meta
     dt = float(log.sample_time)

@@ -21,21 +21,21 @@ from pathlib import Path
 
 from . import exitcodes as ec
 
-from . import paths
+from .. import paths
 
 DEFAULT_MODELICA = paths.modelica_package()     # checkout or package data (cosim/paths.py)
 DEFAULT_FMUS = paths.fmus_dir()                # checkout, $COSIM_FMU_DIR or the user cache
 
 
 # Modules that define ``add_commands(subparsers)``; their handlers return an exit code
-# of cosim.exitcodes and report bad input themselves (exit 2), naming the file/field.
+# of cosim.cli.exitcodes and report bad input themselves (exit 2), naming the file/field.
 COMMAND_MODULES = (
-    ".offline",          # cosim estimate / cosim identify (trial logs)
-    ".scenario_cli",     # cosim run / cosim suite (scenario files, Dask, reports)
-    ".data_cli",
-    ".gap.cli",
-    ".ssp_cli",          # cosim ssp export (SSP 1.0 archives)
-    ".results_cli",      # cosim results export / cosim report (stored results, PDF)
+    "..offline.estimation",  # cosim estimate / cosim identify (trial logs)
+    ".run",              # cosim run / cosim suite (scenario files, Dask, reports)
+    ".data",
+    ".gap",
+    ".ssp",              # cosim ssp export (SSP 1.0 archives)
+    ".results",          # cosim results export / cosim report (stored results, PDF)
 )
 
 
@@ -44,8 +44,8 @@ class CliError(Exception):
 
 
 def _cmd_fmus_build(a) -> int:
-    from .fileio import ensure_out_dir
-    from .fmubuild.build import build_all
+    from ..logs.fileio import ensure_out_dir
+    from ..fmubuild.build import build_all
     built = build_all(Path(a.modelica), ensure_out_dir(a.out), a.models or None, force=a.force,
                       fmi_version=a.fmi_version)
     print(f"{len(built)} FMU(s) in {a.out}")
@@ -54,12 +54,12 @@ def _cmd_fmus_build(a) -> int:
 
 def _cmd_fmus_check(a) -> int:
     """Exit 0 when the FMU runs here (warnings allowed unless --strict), 1 otherwise."""
-    from .fmi.check import check_fmu, format_report
+    from ..fmi.check import check_fmu, format_report
     rep = check_fmu(a.fmu, strict=a.strict)
     print(format_report(rep))
     if a.simulate and not rep.errors:
         # a smoke run through this package's master, as a scenario would run it
-        from .master.simulate import simulate_fmu
+        from ..master.simulate import simulate_fmu
         try:
             res = simulate_fmu(a.fmu, stop_time=0.01, step=1e-3)
         except Exception as exc:
@@ -93,8 +93,8 @@ def _parse_start(items) -> dict:
 
 def _cmd_fmus_simulate(a) -> int:
     """Exit 0 when the run completed, 1 when the FMU failed (rows up to it written)."""
-    from .master import FMUError, SystemError_
-    from .master.simulate import SimulateError, simulate_fmu, write_result
+    from ..master import FMUError, SystemError_
+    from ..master.simulate import SimulateError, simulate_fmu, write_result
     out = Path(a.out)
     if out.suffix.lower() not in (".csv", ".parquet"):
         raise CliError(f"--out {out}: the file must end in .csv or .parquet")
@@ -125,8 +125,8 @@ def _cmd_roles(a) -> int:
     """Print each role contract (or the one named): its variables, their causality,
     unit and meaning: what an FMU must offer, directly or through a role binding
     (docs/bring-your-own-fmu.md)."""
-    from .master.fmu import suggest
-    from .master.roles import CONTRACTS
+    from ..master.fmu import suggest
+    from ..master.roles import CONTRACTS
     names = [a.name] if a.name else list(CONTRACTS)
     if a.name and a.name not in CONTRACTS:
         close = suggest(a.name, CONTRACTS)
@@ -151,8 +151,8 @@ def _cmd_roles(a) -> int:
 
 
 def _cmd_demo(a) -> int:
-    from .demo import run_demo
-    from .fileio import ensure_out_dir
+    from ..trials.demo import run_demo
+    from ..logs.fileio import ensure_out_dir
     run_demo(ensure_out_dir(a.out), Path(a.modelica), Path(a.fmus))
     return ec.OK
 
@@ -237,13 +237,13 @@ def _unraisable(prev):
 
 
 def main(argv=None) -> int:
-    """Run one command; return its exit code (:mod:`cosim.exitcodes`). Bad input is
+    """Run one command; return its exit code (:mod:`cosim.cli.exitcodes`). Bad input is
     one line on stderr (2); Ctrl-C or SIGTERM is one line (3; ``cosim run``/``suite``
     also say what was kept); only an unexpected error (a bug) prints a traceback (3)."""
-    from .fileio import OutputPathError
-    from .fmubuild.build import BuildError
-    from .fmi.check import FMUCheckError
-    from .fmubuild.modelica import ModelicaError
+    from ..logs.fileio import OutputPathError
+    from ..fmubuild.build import BuildError
+    from ..fmi.check import FMUCheckError
+    from ..fmubuild.modelica import ModelicaError
     args = build_parser().parse_args(argv)          # usage errors: argparse exits 2
     try:
         old = signal.signal(signal.SIGTERM, _sigterm)
@@ -276,6 +276,3 @@ def main(argv=None) -> int:
             signal.signal(signal.SIGTERM, old)
             signal.signal(signal.SIGINT, old_int)
 
-
-if __name__ == "__main__":
-    sys.exit(main())

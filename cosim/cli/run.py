@@ -13,7 +13,7 @@ docs/bring-your-own-fmu.md).
 Each runs the scenarios (:mod:`cosim.scenarios`: runs, verdict.json, summary.json,
 junit.xml) and then draws the pages from what was stored (:mod:`cosim.report`).
 
-Exit codes (:mod:`cosim.exitcodes`): 0 all requirements pass, 1 a requirement fails,
+Exit codes (:mod:`cosim.cli.exitcodes`): 0 all requirements pass, 1 a requirement fails,
 2 bad input (scenario file, --fmu, scheduler, --out), 3 a run errored or crashed, or
 the command was interrupted (SIGINT/SIGTERM: the finished runs are kept, the
 half-written ones removed, and the message says where; the same command resumes).
@@ -24,7 +24,7 @@ import signal
 import sys
 from pathlib import Path
 
-from cosim import exitcodes as ec
+from cosim.cli import exitcodes as ec
 
 
 def _err(msg: str) -> int:
@@ -33,7 +33,7 @@ def _err(msg: str) -> int:
 
 
 def _out_dir(a) -> Path | int:
-    from cosim.fileio import OutputPathError, ensure_out_dir
+    from cosim.logs.fileio import OutputPathError, ensure_out_dir
     try:
         return ensure_out_dir(a.out)
     except OutputPathError as exc:

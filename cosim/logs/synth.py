@@ -3,8 +3,8 @@
 A fine-step truth simulation in numpy/pure Python stands in for the physical
 device, and its sensors are sampled the way the controller would have read them;
 the result is written as a trial log (``<stem>.csv`` + ``<stem>.json``, see
-``spec/trial-log.md``) with :func:`cosim.trial_log.write_trial_log`. Used by the
-tests of :mod:`cosim.offline`, and usable to try the offline commands.
+``spec/trial-log.md``) with :func:`cosim.logs.trial_log.write_trial_log`. Used by the
+tests of :mod:`cosim.offline.estimation`, and usable to try the offline commands.
 
 Truth model (motor side, thesis Sec. 2.3, Table 1)::
 
@@ -62,7 +62,7 @@ from typing import Any
 
 import numpy as np
 
-from .algorithms.rls import band_limited_white_noise
+from ..algorithms.rls import band_limited_white_noise
 from .trial_log import write_trial_log
 
 __all__ = ["TRUTH_DEFAULTS", "simulate_ballscrew", "simulate_ballscrew_log", "SCENARIOS"]
@@ -282,5 +282,5 @@ def simulate_ballscrew_log(out_stem: str | Path, scenario: str = "identification
     }[scenario]
     return write_trial_log(out_stem, "ballscrew-1dof", sim["data"], sim["signals"], sim["Ts"],
                            nominal=nominal, scenario=scenario, description=desc,
-                           generator="cosim.synth.simulate_ballscrew_log", seed=int(seed),
+                           generator="cosim.logs.synth.simulate_ballscrew_log", seed=int(seed),
                            truth=tr)

@@ -4,15 +4,15 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from ..exitcodes import BAD_INPUT, CANNOT_TELL, OK
-from .device import GapInputError, known_devices
+from .exitcodes import BAD_INPUT, CANNOT_TELL, OK
+from ..gap.device import GapInputError, known_devices
 
 __all__ = ["add_commands"]
 
 
 def _cmd_diagnose(a: Any) -> int:
-    from ..fileio import OutputPathError, check_out_dir
-    from .diagnose import diagnose
+    from ..logs.fileio import OutputPathError, check_out_dir
+    from ..gap.diagnose import diagnose
     try:
         check_out_dir(a.out)        # created by diagnose once the inputs are read
         res = diagnose(a.device, a.fit, a.test, a.out, report=not a.no_report, margin=a.margin)

@@ -52,7 +52,7 @@ with its default integral regression, which takes the viscous term from
 
 Errors and outputs
 ------------------
-Every problem with the input log is a :class:`cosim.trial_log.TrialLogError` that
+Every problem with the input log is a :class:`cosim.logs.trial_log.TrialLogError` that
 names the file and, where it applies, the column (a non-existent log names the
 missing file). All checks run, and the whole computation is done, before anything is
 written; the output is written to a temporary file in the target folder and renamed
@@ -71,13 +71,13 @@ from typing import Any
 
 import numpy as np
 
-from .algorithms.aakf import AakfParams, AaKF, EncoderDifferentiator
-from .algorithms.aakf import EncoderDifferentiatorParams
-from .algorithms.rls import RLSIdentifier, RLSParams, identification_verdict, speed_timing_for
-from .algorithms.whiteness import cumulative_periodogram
-from .fileio import atomic_write_text, check_out_file, jsonable
-from .exitcodes import BAD_INPUT, CANNOT_TELL, OK
-from .trial_log import TrialLog, TrialLogError, format_csv, read_trial_log, require_columns
+from ..algorithms.aakf import AakfParams, AaKF, EncoderDifferentiator
+from ..algorithms.aakf import EncoderDifferentiatorParams
+from ..algorithms.rls import RLSIdentifier, RLSParams, identification_verdict, speed_timing_for
+from ..algorithms.whiteness import cumulative_periodogram
+from ..logs.fileio import atomic_write_text, check_out_file, jsonable
+from ..cli.exitcodes import BAD_INPUT, CANNOT_TELL, OK
+from ..logs.trial_log import TrialLog, TrialLogError, format_csv, read_trial_log, require_columns
 
 __all__ = [
     "DEVICE",
@@ -442,7 +442,7 @@ def add_commands(subparsers: Any) -> None:
     """Register ``estimate`` and ``identify`` on an argparse ``subparsers`` object.
 
     Each parser gets ``func`` (set_defaults) taking the parsed namespace and
-    returning an exit code (:mod:`cosim.exitcodes`): 0 ok, 2 on a bad log / bad
+    returning an exit code (:mod:`cosim.cli.exitcodes`): 0 ok, 2 on a bad log / bad
     arguments / I/O error (the message is printed to stderr as ``cosim: error:
     ...``; nothing is written), 4 when the log cannot tell (``identify``:
     ``cannot_identify``, ``estimate``: ``cannot_judge``; the result is written and
