@@ -32,6 +32,7 @@ from pathlib import Path
 
 from cosim.offline.estimation import identify
 from cosim.paths import independent_dir
+from cosim.devices.ballscrew import KT_NM_PER_A
 from cosim.logs.synth import simulate_ballscrew_log
 from cosim.logs.trial_log import read_trial_log, write_trial_log
 
@@ -94,7 +95,7 @@ def main(sets: list[str]) -> None:
             lab = json.loads((gd / "labels.json").read_text())
             for case in ("case-08", "case-01", "case-06", "case-13"):
                 tp = lab[case]["true_params"]
-                truth = {k: tp[k] * 0.0603 / tp["Kt"] for k in ("J", "b", "fc")}
+                truth = {k: tp[k] * KT_NM_PER_A / tp["Kt"] for k in ("J", "b", "fc")}
                 for dur in (0.2, 0.5, 2.0, 10.0):
                     tag = f"gap_{case}_{dur}s"
                     p = _window(gd / "cases" / case / "fit" / "identification-1.csv", 0.0, dur,

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim.logs.emps import EMPS_PUBLISHED, import_emps
+from cosim.logs.emps import import_emps
+from cosim.offline.emps import EMPS_PUBLISHED
 from cosim.gap.device import CannotDiagnose, GapInputError, get_device, split_params
 from cosim.gap.devices.emps import EMPS_EFFECTS, EmpsDevice, fmu_parameters
 from cosim.logs.trial_log import read_trial_log

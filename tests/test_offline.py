@@ -15,8 +15,8 @@ import pandas as pd
 import pytest
 
 from cosim.algorithms.aakf import ADXL335_NOISE_STD_M_S2, AakfParams
-from cosim.offline.estimation import (ESTIMATE_COLUMNS, add_commands, estimate, identify,
-                           settling_time)
+from cosim.cli.offline import add_commands
+from cosim.offline.estimation import ESTIMATE_COLUMNS, estimate, identify, settling_time
 from cosim.logs.synth import simulate_ballscrew, simulate_ballscrew_log
 from cosim.logs.trial_log import TrialLogError, read_trial_log, write_trial_log
 

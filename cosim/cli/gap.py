@@ -5,14 +5,14 @@ import sys
 from typing import Any
 
 from .exitcodes import BAD_INPUT, CANNOT_TELL, OK
-from ..gap.device import GapInputError, known_devices
 
 __all__ = ["add_commands"]
 
 
 def _cmd_diagnose(a: Any) -> int:
-    from ..logs.fileio import OutputPathError, check_out_dir
+    from ..gap.device import GapInputError
     from ..gap.diagnose import diagnose
+    from ..logs.fileio import OutputPathError, check_out_dir
     try:
         check_out_dir(a.out)        # created by diagnose once the inputs are read
         res = diagnose(a.device, a.fit, a.test, a.out, report=not a.no_report, margin=a.margin)
@@ -40,7 +40,9 @@ def add_commands(subparsers: Any) -> None:
                     "the catalogue effects, select those that lower the gap on held-out data, and "
                     "measure the gap on --test logs before/after. Writes DIR/diagnosis.json and "
                     "DIR/report.html.")
-    d.add_argument("--device", required=True, help=f"device name ({', '.join(known_devices())})")
+    d.add_argument("--device", required=True,
+                   help="the trial logs' device, e.g. ballscrew-1dof (an unknown name is "
+                        "refused with the list of known ones)")
     d.add_argument("--fit", nargs="+", required=True, metavar="LOG", help="trial logs to fit on (.csv or stem)")
     d.add_argument("--test", nargs="+", required=True, metavar="LOG", help="held-out trial logs")
     d.add_argument("--out", required=True, metavar="DIR", help="output directory")

@@ -70,11 +70,11 @@ def _ensure_fmus(a) -> int | None:
     second and a fresh clone needs no separate build step."""
     if a.fmus is not None or a.no_build:
         return None
-    from cosim.cli import DEFAULT_FMUS, DEFAULT_MODELICA
+    from cosim import paths
     from cosim.fmubuild.build import BuildError, build_all
     from cosim.fmubuild.modelica import ModelicaError
     try:
-        build_all(DEFAULT_MODELICA, DEFAULT_FMUS, log=lambda *_: None)
+        build_all(paths.modelica_package(), paths.fmus_dir(), log=lambda *_: None)
     except (BuildError, ModelicaError) as exc:
         return _err(f"building the package's FMUs: {exc}")
     return None
@@ -140,10 +140,13 @@ def _guarded(a, cmd: str, work):
     exit 3. Returns (exit code or None, work's result)."""
     from cosim.master.fmu import FMUError
     from cosim.master.system import SystemError_
+    from cosim.scenarios.isolate import ISOLATION
     from cosim.scenarios.registry import RegistryError
     from cosim.scenarios.schema import ScenarioError
     from cosim.scenarios.store import finished_runs
     from cosim.scenarios.suite import SuiteError
+    if a.isolation not in ISOLATION:
+        return _err(f"--isolation {a.isolation!r}: expected one of {', '.join(ISOLATION)}"), None
     if isinstance(out := _out_dir(a), int):
         return out, None
     if (rc := _ensure_fmus(a)) is not None:
@@ -253,18 +256,21 @@ def _binding_options(p) -> None:
 
 
 def _isolation_args(p) -> None:
-    from cosim.scenarios.isolate import DEFAULT_TIMEOUT_S, ISOLATION
-    p.add_argument("--isolation", choices=ISOLATION, default="auto",
+    # the modes and the default timeout are those of cosim.scenarios.isolate (ISOLATION,
+    # DEFAULT_TIMEOUT_S), checked in _guarded: importing it here would make every
+    # ``cosim --help`` pay for the scenario package (tests/test_cli_layout.py holds the
+    # text and the module's values together)
+    p.add_argument("--isolation", default="auto", metavar="{auto,process,none}",
                    help="run each run in a supervised child process, so that an FMU that "
                         "crashes or hangs ends only its run, with a record (signal, role, "
                         "FMU, last time, the rows before it): auto (default) = when one of "
                         "the run's FMUs is not the project's own; process = always; none = "
                         "never")
     p.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
-                   help=f"wall-clock limit per run for scenarios without timeout_s "
-                        f"(default {DEFAULT_TIMEOUT_S:g} s; 0 = none); a run past it ends "
-                        f"as 'error: timeout' and the others go on. Enforced on a hung FMU "
-                        f"call only for runs in a child process")
+                   help="wall-clock limit per run for scenarios without timeout_s "
+                        "(default 1800 s; 0 = none); a run past it ends "
+                        "as 'error: timeout' and the others go on. Enforced on a hung FMU "
+                        "call only for runs in a child process")
 
 
 def _seconds(text: str) -> float:

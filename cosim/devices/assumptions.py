@@ -27,11 +27,14 @@ SOURCE: what chose it.
   attributes and dataclass field defaults after ``.``);
 * ``scenarios/<file>.yaml:<dotted.path>``: a value set in a scenario file.
 
-This module is data only and imports nothing from the package (lowest floor).
+This module is data only and imports nothing from the package beyond the devices'
+Table values (lowest floor).
 """
 from __future__ import annotations
 
 import dataclasses
+
+from .ballscrew import ENCODER_COUNTS_PER_REV, J_KG_M2
 
 BASES = ("assumed", "derived", "calibrated", "datasheet")
 
@@ -105,11 +108,12 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
     # ------------------------------------------------------------------ ball screw
     _A("ball-screw friction model", "LuGre bristle stiffness", 200.0, "N.m/rad",
        (f"{_BS}:sigma0",), "derived",
-       "bristle deflection at breakaway fs/sigma0 = 1.5e-5 rad = 0.05 count of the 21600 "
-       "pulse/rev encoder (Table 1); the thesis gives no presliding data"),
+       f"bristle deflection at breakaway fs/sigma0 = 1.5e-5 rad = 0.05 count of the "
+       f"{ENCODER_COUNTS_PER_REV} pulse/rev encoder (Table 1); the thesis gives no presliding "
+       f"data"),
     _A("ball-screw friction model", "LuGre bristle damping", 0.117, "N.m.s/rad",
        (f"{_BS}:sigma1",), "derived",
-       "2 sqrt(sigma0 J) with Table 1's J = 1.7e-5 kg m^2: critical damping of the "
+       f"2 sqrt(sigma0 J) with Table 1's J = {J_KG_M2:g} kg m^2: critical damping of the "
        "presliding mode (546 Hz)"),
     _A("ball-screw friction model", "bristle damping fade speed", 0.1, "rad/s",
        (f"{_BS}:wd",), "derived", "passivity of the LuGre model needs wd <= 0.24 rad/s "
