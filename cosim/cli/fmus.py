@@ -14,11 +14,23 @@ from . import exitcodes as ec
 from .exitcodes import CliError
 
 
+def _log(a):
+    """build_all's log: each FMU's line, also the status of the progress line."""
+    prog = getattr(a, "progress", None)
+
+    def log(msg):
+        print(msg, flush=True)
+        if prog is not None:
+            prog.update(f"last: {msg.split(':')[0]}")
+    return log
+
+
 def _cmd_fmus_build(a) -> int:
     from ..logs.fileio import ensure_out_dir
     from ..fmubuild.build import build_all
+    quiet = getattr(a, "level", 0) < 0
     built = build_all(Path(a.modelica), ensure_out_dir(a.out), a.models or None, force=a.force,
-                      fmi_version=a.fmi_version)
+                      fmi_version=a.fmi_version, log=(lambda *_: None) if quiet else _log(a))
     print(f"{len(built)} FMU(s) in {a.out}")
     return 0
 

@@ -160,13 +160,27 @@ def _guarded(a, cmd: str, work):
         return _interrupted(cmd, out, before), None
 
 
+def _level(a) -> int:
+    """-1 quiet, 0 normal, 1 verbose (:mod:`cosim.cli.progress`; 0 when called directly)."""
+    return getattr(a, "level", 0)
+
+
+def _runs_done(a):
+    """The progress callback of run_scenario: the status of ``cosim run``'s progress line."""
+    prog = getattr(a, "progress", None)
+    if prog is None:
+        return None
+    return lambda i, n: prog.update(f"{i}/{n} runs done")
+
+
 def _cmd_run(a) -> int:
     from cosim.report.render import render_scenario
     from cosim.scenarios.runner import run_scenario
 
     def work(out, swaps):
         v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
-                         isolation=a.isolation, timeout_s=a.timeout)
+                         isolation=a.isolation, timeout_s=a.timeout,
+                         progress=_runs_done(a))
         render_scenario(a.scenario, out)
         return v
     rc, v = _guarded(a, "cosim run", work)
@@ -191,7 +205,7 @@ def _cmd_suite(a) -> int:
     def work(out, swaps):
         s = run_suite(a.paths, out, scheduler=a.scheduler, workers=a.workers,
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
-                      progress=not a.no_progress, serial=a.serial,
+                      progress=not a.no_progress and _level(a) >= 0, serial=a.serial,
                       ship=False if a.shared_fs else None,
                       isolation=a.isolation, timeout_s=a.timeout)
         render_suite(out)
@@ -236,13 +250,14 @@ def add_commands(sub) -> None:
     _binding_options(s)
     s.add_argument("--fmus", default=None, help="folder of the default FMUs (default: fmus/)")
     s.add_argument("--no-cache", action="store_true", help="rerun finished runs")
-    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr "
+                   "(the periodic progress line instead)")
     s.add_argument("--no-build", action="store_true",
                    help="do not (re)build the package's FMUs from Modelica first")
     s.add_argument("--serial", action="store_true",
                    help="run every run in this process, one after the other (no Dask)")
     _isolation_args(s)
-    s.set_defaults(func=_cmd_suite)
+    s.set_defaults(func=_cmd_suite, heartbeat=None)     # its own progress bar, see main()
 
 
 def _binding_options(p) -> None:
