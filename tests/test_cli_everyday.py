@@ -106,3 +106,42 @@ def test_scenarios_list_and_copy(tmp_path, capsys):
     assert main(["scenarios", "copy", str(dest), "no_such"]) == 2
     assert main(["scenarios", "copy", str(dest), "--force"]) == 0
     assert sorted(str(p.relative_to(dest)) for p in dest.rglob("*.yaml")) == shipped
+
+
+def test_run_case_seed_set_narrow_the_scenario(tmp_path):
+    """``cosim run --case/--seed/--set``: the scenario as run keeps the chosen case (and
+    the case a kept requirement's negative control names), one seed, the parameters
+    set, requirements of other cases out, relative FMU paths made absolute."""
+    import yaml
+
+    from cosim.scenarios.schema import ScenarioError
+    from cosim.scenarios.select import narrow, write_narrowed
+    (tmp_path / "sub").mkdir()
+    doc = {"scenario": "s", "seeds": [0, 1, 2], "duration": 1.0,
+           "system": {"fmus": {"plant": {"fmu": "sub/my.fmu", "parameters": {"J": 1.0}},
+                               "acc": {"fmu": "Accelerometer"}}},
+           "controllers": {"aakf": {"type": "aakf", "params": {}}},
+           "cases": {"a": {}, "b": {}, "broken": {}},
+           "negative_controls": {"nc": {"what": "w", "case": "broken"}},
+           "requirements": [{"id": "R1", "case": "a", "negative_control": "nc"},
+                            {"id": "R2", "case": "b"}, {"id": "R3"}]}
+    f = tmp_path / "s.yaml"
+    f.write_text(yaml.safe_dump(doc))
+    got, notes = narrow(f, case="a", seed=7, sets=["plant.J=2e-5", "aakf.sigma_a=300",
+                                                     "plant.grasp=soft"])
+    assert list(got["cases"]) == ["a", "broken"]
+    assert [r["id"] for r in got["requirements"]] == ["R1", "R3"]
+    assert got["seeds"] == [7]
+    assert got["system"]["fmus"]["plant"]["parameters"] == {"J": 2e-5, "grasp": "soft"}
+    assert got["controllers"]["aakf"]["params"] == {"sigma_a": 300}
+    assert got["system"]["fmus"]["plant"]["fmu"] == str(tmp_path / "sub" / "my.fmu")
+    assert got["system"]["fmus"]["acc"]["fmu"] == "Accelerometer"       # a name, not a file
+    assert "R2" in notes[0] and "broken" in notes[0]
+    assert yaml.safe_load(f.read_text()) == doc                          # the original untouched
+    out = write_narrowed(f, tmp_path / "out", got, notes)
+    assert out.name == "s.as-run.yaml" and yaml.safe_load(out.read_text()) == got
+    assert out.read_text().startswith(f"# {f.resolve()} as run by cosim run: case a")
+    for kw, msg in ((dict(case="c"), "no such case"), (dict(sets=["nobody.J=1"]), "nobody"),
+                    (dict(sets=["J=1"]), "ROLE.PARAM=VALUE"), (dict(seed=-1), "seed")):
+        with pytest.raises(ScenarioError, match=msg):
+            narrow(f, **kw)

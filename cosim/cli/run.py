@@ -178,10 +178,16 @@ def _cmd_run(a) -> int:
     from cosim.scenarios.runner import run_scenario
 
     def work(out, swaps):
-        v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
+        scenario = a.scenario
+        if a.case is not None or a.seed is not None or a.set:
+            from cosim.scenarios.select import narrow, write_narrowed
+            doc, notes = narrow(a.scenario, a.case, a.seed, a.set)
+            scenario = write_narrowed(a.scenario, out, doc, notes)
+            print(f"cosim run: {'; '.join(notes)} -> {scenario}", file=sys.stderr)
+        v = run_scenario(scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
                          isolation=a.isolation, timeout_s=a.timeout,
                          progress=_runs_done(a))
-        render_scenario(a.scenario, out)
+        render_scenario(scenario, out)
         return v
     rc, v = _guarded(a, "cosim run", work)
     if rc is not None:
@@ -224,6 +230,13 @@ def add_commands(sub) -> None:
     r = sub.add_parser("run", help="run one scenario file: results, verdict.json, report.html")
     r.add_argument("scenario", help="scenario file (YAML, docs/scenario-format.md)")
     r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--case", default=None, metavar="NAME",
+                   help="run only this case (requirements of other cases are left out)")
+    r.add_argument("--seed", type=int, default=None, metavar="N", help="run only this seed")
+    r.add_argument("--set", action="append", default=[], metavar="ROLE.PARAM=VALUE",
+                   help="set an FMU role's parameter (or a controller's), e.g. plant.J=2e-5; "
+                        "repeatable. With --case/--seed/--set the scenario as run is written "
+                        "to OUT/<name>.as-run.yaml and its results and report name it")
     r.add_argument("--fmu", action="append", metavar="ROLE=PATH",
                    help="use this FMU for ROLE (checked against the role's contract)")
     _binding_options(r)
