@@ -145,3 +145,16 @@ def test_run_case_seed_set_narrow_the_scenario(tmp_path):
                     (dict(sets=["J=1"]), "ROLE.PARAM=VALUE"), (dict(seed=-1), "seed")):
         with pytest.raises(ScenarioError, match=msg):
             narrow(f, **kw)
+
+
+def test_the_long_commands_have_a_progress_line_the_short_ones_not():
+    sub = build_parser()._subparsers._group_actions[0].choices
+    beat = {}
+    for name, sp in sub.items():
+        nested = [a for a in sp._actions if a.__class__.__name__ == "_SubParsersAction"]
+        for child, p in ([(f"{name} {k}", v) for k, v in nested[0].choices.items()]
+                         if nested else [(name, sp)]):
+            beat[child] = p.get_default("heartbeat")
+    assert all(beat[c] for c in ("run", "fmus build", "gap diagnose", "demo", "ssp export"))
+    assert beat["suite"] is None                  # its bar, or the line with --no-progress
+    assert not any(beat[c] for c in ("estimate", "identify", "roles", "scenarios list"))

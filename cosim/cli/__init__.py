@@ -136,7 +136,9 @@ def main(argv=None) -> int:
     progress.configure_logging(args.level)
     what = " ".join(["cosim", args.cmd] + [str(v) for k, v in vars(args).items()
                                            if k.endswith("_cmd") and v])
-    heartbeat = getattr(args, "heartbeat", True)
+    # the commands that can run for minutes set heartbeat=True (a short command's stderr
+    # stays exactly its message)
+    heartbeat = getattr(args, "heartbeat", False)
     if heartbeat is None:                       # cosim suite: a bar unless --no-progress
         heartbeat = bool(getattr(args, "no_progress", False))
     args.progress = progress.Progress(what, enabled=args.level >= progress.NORMAL and heartbeat)

@@ -20,4 +20,4 @@ def add_commands(sub) -> None:
     d.add_argument("--out", default="out/demo")
     d.add_argument("--modelica", default=str(paths.modelica_package()))
     d.add_argument("--fmus", default=str(paths.fmus_dir()))
-    d.set_defaults(func=_cmd_demo)
+    d.set_defaults(func=_cmd_demo, heartbeat=True)

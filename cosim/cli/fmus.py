@@ -114,7 +114,7 @@ def add_commands(sub) -> None:
     b.add_argument("--force", action="store_true", help="rebuild even if the cache is valid")
     b.add_argument("--fmi-version", choices=("2.0", "3.0"), default="2.0",
                    help="FMI 2.0 (CS + ME, fmus/<Id>.fmu) or 3.0 (CS, fmus/fmi3/<Id>.fmu)")
-    b.set_defaults(func=_cmd_fmus_build)
+    b.set_defaults(func=_cmd_fmus_build, heartbeat=True)
     c = fsub.add_parser("check", help="print an FMU's interface and validate it")
     c.add_argument("fmu")
     c.add_argument("--simulate", action="store_true",

@@ -49,4 +49,4 @@ def add_commands(subparsers: Any) -> None:
     d.add_argument("--margin", type=float, default=0.10,
                    help="minimum held-out reduction of the gap energy to select an effect (default 0.10)")
     d.add_argument("--no-report", action="store_true", help="skip report.html")
-    d.set_defaults(func=_cmd_diagnose)
+    d.set_defaults(func=_cmd_diagnose, heartbeat=True)

@@ -1,9 +1,10 @@
 """The progress line and the log level every ``cosim`` command shares.
 
-A command that runs longer than a few seconds says so on stderr: after
-:data:`FIRST_S` seconds, then every :data:`EVERY_S` seconds, one line ``cosim CMD:
-N s[: status]`` where the status is what the command last reported (e.g. ``3/12 runs
-done``). ``-q`` silences it (and the commands' own progress output), ``-v`` adds the
+A command that can run for minutes (``run``, ``suite --no-progress``, ``gap diagnose``,
+``fmus build``, ``demo``, ``ssp export``: ``heartbeat=True`` in its parser defaults) says
+so on stderr: after :data:`FIRST_S` seconds, then every :data:`EVERY_S` seconds, one
+line ``cosim CMD: N s[: status]`` where the status is what the command last reported
+(e.g. ``3/12 runs done``). ``-q`` silences it (and the commands' own progress output), ``-v`` adds the
 Python log records of level DEBUG. Lines, not a redrawn bar: they read the same in a
 terminal, a CI log and a file.
 """

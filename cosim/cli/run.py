@@ -245,7 +245,7 @@ def add_commands(sub) -> None:
     r.add_argument("--no-build", action="store_true",
                    help="do not (re)build the package's FMUs from Modelica first")
     _isolation_args(r)
-    r.set_defaults(func=_cmd_run)
+    r.set_defaults(func=_cmd_run, heartbeat=True)
     s = sub.add_parser("suite", help="run scenario files/folders on Dask: summary.json, "
                        "junit.xml, report.html")
     s.add_argument("paths", nargs="+", help="scenario files or folders of *.yaml")

@@ -39,4 +39,4 @@ def add_commands(sub) -> None:
                    help="declare the controllers' ports as system connectors without "
                         "connecting them (for libcosim 0.0.6, which refuses connections "
                         "to the system itself)")
-    e.set_defaults(func=_cmd_export)
+    e.set_defaults(func=_cmd_export, heartbeat=True)
