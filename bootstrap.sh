@@ -16,12 +16,27 @@ if ! command -v chromium >/dev/null 2>&1; then
   else sudo apt-get update -qq && sudo apt-get install -y -qq chromium >/dev/null; fi
 fi
 PY=${PYTHON:-python3}
+# pip's own WARNING/ERROR lines are shown; the build backend's notices (setuptools prints
+# a page per editable install) only when the step fails, with everything else
+pip_step() {
+  local log
+  log=$(mktemp)
+  if .venv/bin/python -m pip "$@" >"$log" 2>&1; then
+    grep -E '^(WARNING|ERROR|DEPRECATION):' "$log" >&2 || true
+    rm -f "$log"
+  else
+    cat "$log" >&2
+    rm -f "$log"
+    echo "bootstrap: pip $* failed (output above)" >&2
+    return 1
+  fi
+}
 stamp=.venv/.bootstrap-$(sha256sum requirements.lock pyproject.toml | sha256sum | cut -c1-16)
 if [ ! -f "$stamp" ]; then
   echo "bootstrap: creating .venv"
   [ -x .venv/bin/python ] || "$PY" -m venv .venv
-  .venv/bin/python -m pip install -q --upgrade "pip>=23" >/dev/null
-  .venv/bin/python -m pip install -q -r requirements.lock
-  .venv/bin/python -m pip install -q --no-deps -e .
+  pip_step install -q --upgrade "pip>=23"
+  pip_step install -q -r requirements.lock
+  pip_step install -q --no-deps -e .
   rm -f .venv/.bootstrap-*; touch "$stamp"
 fi

@@ -18,10 +18,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from cosim.data_cli import default_emps_dir  # noqa: E402
-from cosim.emps import EMPS_PUBLISHED, import_emps  # noqa: E402
+from cosim.cli.data import default_emps_dir  # noqa: E402
+from cosim.logs.emps import import_emps  # noqa: E402
+from cosim.offline.emps import EMPS_PUBLISHED  # noqa: E402
 from cosim.gap.devices.emps import EMPS_EFFECTS, EmpsDevice, select_effects  # noqa: E402
-from cosim.trial_log import read_trial_log  # noqa: E402
+from cosim.logs.trial_log import read_trial_log  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -2,8 +2,8 @@
 
 For each of the two logs of ``<independent>/estimation-dev`` (``identification``,
 ``free-motion``; the folder is :func:`cosim.paths.independent_dir`) this runs what the
-``cosim estimate`` / ``cosim identify`` commands run (:func:`cosim.offline.estimate`,
-:func:`cosim.offline.identify`) and compares with the per-sample truth
+``cosim estimate`` / ``cosim identify`` commands run (:func:`cosim.offline.estimation.estimate`,
+:func:`cosim.offline.estimation.identify`) and compares with the per-sample truth
 (``<log>.truth.npz``) and ``truth.json``:
 
 * speed RMSE of the aaKF and of encoder differencing against the true motor speed
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from cosim.algorithms.aakf import AakfParams
-from cosim.offline import estimate, identify
+from cosim.offline.estimation import estimate, identify
 from cosim.paths import independent_dir
 
 LOGS = ("identification", "free-motion")

@@ -208,7 +208,7 @@ class Probes:
             return
         import numpy as np
         import pandas as pd
-        q = 2 * math.pi / 21600
+        from cosim.devices.ballscrew import ENCODER_RESOLUTION_RAD as q
 
         def fresh(k):
             d = self.tmp / f"logs{k}"

@@ -2,9 +2,9 @@
 windows of growing length.
 
 Sets (each window is written as a trial log and run through
-:func:`cosim.offline.identify`, the ``cosim identify`` computation, aaKF speed):
+:func:`cosim.offline.estimation.identify`, the ``cosim identify`` computation, aaKF speed):
 
-* ``synth``: the project's synthetic identification trial (:mod:`cosim.synth`), 0.1-5 s,
+* ``synth``: the project's synthetic identification trial (:mod:`cosim.logs.synth`), 0.1-5 s,
   seeds 0-5; truth = the sidecar's nominal values;
 * ``ind``: ``<independent>/estimation-dev/identification`` cut into windows of 0.1-5 s
   at four start times, the whole 20 s log, and the free-motion log (no current);
@@ -30,10 +30,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-from cosim.offline import identify
+from cosim.offline.estimation import identify
 from cosim.paths import independent_dir
-from cosim.synth import simulate_ballscrew_log
-from cosim.trial_log import read_trial_log, write_trial_log
+from cosim.devices.ballscrew import KT_NM_PER_A
+from cosim.logs.synth import simulate_ballscrew_log
+from cosim.logs.trial_log import read_trial_log, write_trial_log
 
 
 def _window(src: Path, start_s: float, dur_s: float, stem: Path) -> Path | None:
@@ -94,7 +95,7 @@ def main(sets: list[str]) -> None:
             lab = json.loads((gd / "labels.json").read_text())
             for case in ("case-08", "case-01", "case-06", "case-13"):
                 tp = lab[case]["true_params"]
-                truth = {k: tp[k] * 0.0603 / tp["Kt"] for k in ("J", "b", "fc")}
+                truth = {k: tp[k] * KT_NM_PER_A / tp["Kt"] for k in ("J", "b", "fc")}
                 for dur in (0.2, 0.5, 2.0, 10.0):
                     tag = f"gap_{case}_{dur}s"
                     p = _window(gd / "cases" / case / "fit" / "identification-1.csv", 0.0, dur,

@@ -34,7 +34,7 @@ from cosim.algorithms.bilateral import BilateralController  # noqa: E402
 from cosim.algorithms.ckernel import CFLAGS, compile_shared, kernel_source  # noqa: E402
 from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams  # noqa: E402
 from cosim.algorithms.zero_force import ZeroForceController, ZeroForceParams  # noqa: E402
-from cosim.synth import simulate_ballscrew  # noqa: E402
+from cosim.logs.synth import simulate_ballscrew  # noqa: E402
 
 _LOOP_C = r"""
 #define _POSIX_C_SOURCE 199309L

@@ -5,14 +5,16 @@ Two layouts are served:
 * a source checkout (``pyproject.toml`` and ``modelica/`` beside the ``cosim``
   package, editable install or ``PYTHONPATH``): Modelica sources in ``modelica/``,
   built FMUs in ``fmus/``;
-* an installed wheel: the Modelica sources and the ``*fmus.txt`` lists are package
-  data (``cosim/_modelica``, see ``setup.py``), built FMUs and caches go to the user
+* an installed wheel: the Modelica sources, the ``*fmus.txt`` lists and the thesis
+  scenarios are package data (``cosim/_modelica``, ``cosim/_scenarios``, see ``setup.py``), built FMUs and caches go to the user
   cache folder (never into ``site-packages``).
 
 Functions (each overridable by an environment variable, read at call time):
 
 * :func:`modelica_dir`: folder holding ``fmus.txt`` and the ``RehabSim`` package,
   ``$COSIM_MODELICA_DIR``; :func:`modelica_package` is its ``RehabSim``.
+* :func:`scenarios_dir`: the thesis scenarios, ``<checkout>/scenarios`` or the package
+  data ``cosim/_scenarios`` (``cosim scenarios list | copy``).
 * :func:`cache_dir`: ``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rehab-cosim/<version>``,
   else ``~/.cache/rehab-cosim/<version>`` (per user and package version).
 * :func:`fmus_dir`: built FMUs, ``$COSIM_FMU_DIR``, else ``<checkout>/fmus``, else
@@ -31,7 +33,7 @@ import os
 from pathlib import Path
 
 __all__ = ["REPO", "PACKAGE", "source_checkout", "modelica_dir", "modelica_package",
-           "cache_dir", "fmus_dir", "shared_dir", "emps_dir", "independent_dir"]
+           "scenarios_dir", "cache_dir", "fmus_dir", "shared_dir", "emps_dir", "independent_dir"]
 
 PACKAGE = Path(__file__).resolve().parent          # .../cosim
 REPO = PACKAGE.parent
@@ -63,6 +65,12 @@ def modelica_dir() -> Path:
 def modelica_package() -> Path:
     """The ``RehabSim`` Modelica package folder (its parent holds ``fmus.txt``)."""
     return modelica_dir() / MODELICA_PACKAGE
+
+
+def scenarios_dir() -> Path:
+    """The thesis scenarios: ``<checkout>/scenarios``, else the package data."""
+    root = source_checkout()
+    return root / "scenarios" if root else PACKAGE / "_scenarios"
 
 
 def cache_dir() -> Path:

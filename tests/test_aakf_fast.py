@@ -31,7 +31,7 @@ import pytest
 from cosim.algorithms.aakf import (AakfParams, AaKF, AaKFBank, ReferenceAaKF,
                                    _position_bounds, _speed_centre, discretise)
 from cosim.algorithms.fast import aakf_fast as aakf_mod
-from cosim.synth import simulate_ballscrew
+from cosim.logs.synth import simulate_ballscrew
 
 
 #: the readable reference of the package (eq. 98-103, one equation per line)

@@ -32,9 +32,9 @@ import numpy as np
 import pytest
 
 from cosim.algorithms.aakf import AakfParams
-from cosim.offline import _run_aakf, identify
+from cosim.offline.estimation import _run_aakf, identify
 from cosim.paths import independent_dir
-from cosim.trial_log import read_trial_log
+from cosim.logs.trial_log import read_trial_log
 
 DEV = independent_dir() / "estimation-dev"
 LOGS = ("identification", "free-motion")

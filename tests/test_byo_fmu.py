@@ -431,7 +431,7 @@ def test_bindings_parse_travel_and_enter_the_cache_key(c_fmu, tmp_path):
     # a binding file: the FMU path relative to the file, --map over its entries
     from types import SimpleNamespace
 
-    from cosim.scenario_cli import _swaps
+    from cosim.cli.run import _swaps
     shutil.copy(c_fmu, tmp_path / "ScrewC.fmu")
     import yaml
     (tmp_path / "b.yaml").write_text(yaml.safe_dump({"master": {"fmu": "ScrewC.fmu",

@@ -42,7 +42,7 @@ def test_cli_build_unknown_model_is_clear_error(tmp_path):
 
 def test_free_motion_chain(fmus, tmp_path):
     """aaKF on FMU data: speed error well below differencing, bias -> the model's b0."""
-    from cosim.demo import free_motion_system
+    from cosim.trials.demo import free_motion_system
     from cosim.master.system import Master
     sys_, record = free_motion_system(REPO / "fmus", duration_s=4.0, seed=3)
     res = Master(sys_, record).run(4.0)

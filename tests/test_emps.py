@@ -14,14 +14,9 @@ import numpy as np
 import pytest
 from scipy.io import loadmat, savemat
 
-from cosim.emps import (
-    EMPS_NOMINAL,
-    EmpsImportError,
-    EmpsPD,
-    emps_pd_force,
-    import_emps,
-)
-from cosim.trial_log import read_trial_log, require_columns
+from cosim.logs.emps import EMPS_NOMINAL, EmpsImportError, import_emps
+from cosim.offline.emps import EmpsPD, emps_pd_force
+from cosim.logs.trial_log import read_trial_log, require_columns
 
 # CI and developers have shared/ beside the repository clone
 _DEFAULT_EMPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "emps"
@@ -253,7 +248,7 @@ def test_cli_import_emps_bad_source(tmp_path, capsys):
 
 @needs_data
 def test_idim_ls_reproduces_publication(imported):
-    from cosim.emps import EMPS_PUBLISHED, idim_cross_test, idim_ls
+    from cosim.offline.emps import EMPS_PUBLISHED, idim_cross_test, idim_ls
     _, _, logs = imported
     tr, pu = logs["DATA_EMPS"], logs["DATA_EMPS_PULSES"]
     p = idim_ls(tr["f_cmd"], tr["x_enc"])
@@ -298,7 +293,7 @@ def test_axis_fmu_matches_independent_integration(effects):
     """Closed loop (EmpsPD at 1 ms) on the FMU through the master vs solve_ivp per tick."""
     from scipy.integrate import solve_ivp
 
-    from cosim.emps import emps_axis_fmu
+    from cosim.offline.emps import emps_axis_fmu
     from cosim.master import Master, System
     p = {"M": 95.1, "Fv": 203.5, "Fc": 20.4, "offset": -3.16, "v_eps": 1e-3, "dFv": 0.0, "dFc": 0.0,
          "Fs": 0.0, "vs": 0.01, "Lp": 0.5, "pa1": 0.0, "pb1": 0.0, "pa2": 0.0, "pb2": 0.0,
@@ -344,7 +339,7 @@ def test_axis_fmu_matches_independent_integration(effects):
 @needs_data
 def test_closed_loop_replay_errors(imported):
     """The FMU replay with the PD controller: the publication's four errors; held-out force <= 8 %."""
-    from cosim.emps import EMPS_PUBLISHED, closed_loop_errors, closed_loop_replay, idim_ls
+    from cosim.offline.emps import EMPS_PUBLISHED, closed_loop_errors, closed_loop_replay, idim_ls
     _, _, logs = imported
     tr, pu = logs["DATA_EMPS"], logs["DATA_EMPS_PULSES"]
     p = idim_ls(tr["f_cmd"], tr["x_enc"])

@@ -12,10 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim.emps import EMPS_PUBLISHED, import_emps
+from cosim.logs.emps import import_emps
+from cosim.offline.emps import EMPS_PUBLISHED
 from cosim.gap.device import CannotDiagnose, GapInputError, get_device, split_params
 from cosim.gap.devices.emps import EMPS_EFFECTS, EmpsDevice, fmu_parameters
-from cosim.trial_log import read_trial_log
+from cosim.logs.trial_log import read_trial_log
 
 _DEFAULT_EMPS = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "emps"
 EMPS_DIR = Path(os.environ.get("COSIM_EMPS_DIR", _DEFAULT_EMPS))

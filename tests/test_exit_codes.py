@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim import exitcodes as ec
+from cosim.cli import exitcodes as ec
 from test_scenarios import BASE, write
 
 REPO = Path(__file__).resolve().parents[1]
@@ -221,7 +221,7 @@ def test_leftovers_of_a_killed_run_are_cleaned_at_the_next_start(tmp_path, fmus)
 
 @pytest.fixture(scope="module")
 def synth_logs(tmp_path_factory):
-    from cosim.synth import simulate_ballscrew_log
+    from cosim.logs.synth import simulate_ballscrew_log
     d = tmp_path_factory.mktemp("logs")
     return {"short": simulate_ballscrew_log(d / "short", duration_s=0.2, seed=0),
             "two": simulate_ballscrew_log(d / "two", duration_s=2.0, seed=0),

@@ -4,7 +4,7 @@ fmi2Error or hangs in doStep after t = 2 s, in ``cosim run``, in ``cosim suite
 intact and pass, the bad run's record names the role, the FMU, the signal (or the
 error status, or the timeout) and the last time reached, its rows up to t = 2 s are
 kept (checked against the probe's own state x = integral of u = t), the exit code is
-3 (:mod:`cosim.exitcodes`), and no half-written run folder or FMU unpack folder is
+3 (:mod:`cosim.cli.exitcodes`), and no half-written run folder or FMU unpack folder is
 left behind.
 
 The probes are probe2 of :mod:`fmi_probes` (u = 1 integrated into x; ``fail_at``
@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cosim import exitcodes as ec
+from cosim.cli import exitcodes as ec
 from fmi_probes import PROBE2_C, probe2_md
 from probe_fmu import compile_fmu
 from test_exit_codes import ENV, REPO, no_traceback

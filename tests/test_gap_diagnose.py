@@ -11,7 +11,7 @@ from cosim.cli import main
 from cosim.gap.devices.ballscrew import EFFECTS, BallscrewDevice
 from cosim.gap.diagnose import localize, run_diagnosis
 from cosim.gap.truth import NOMINAL, write_truth_log
-from cosim.trial_log import read_trial_log, write_trial_log
+from cosim.logs.trial_log import read_trial_log, write_trial_log
 
 DUR = 5.0
 
@@ -157,7 +157,7 @@ def test_too_short_or_no_motion_cannot_diagnose(tmp_path, capsys):
         out = tmp_path / f"o_{name}"
         rc, io = _cli(["gap", "diagnose", "--device", "ballscrew-1dof", "--fit", str(log), "--test", str(p),
                        "--out", str(out)], capsys)
-        assert rc == 4                 # cosim.exitcodes.CANNOT_TELL: the data do not say
+        assert rc == 4                 # cosim.cli.exitcodes.CANNOT_TELL: the data do not say
         d = json.loads((out / "diagnosis.json").read_text())
         assert "motion" in d["cannot_diagnose"] and d["selected"] == [] and d["recalibrated"] is None
         assert "cannot diagnose" in io.out

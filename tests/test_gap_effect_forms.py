@@ -16,7 +16,7 @@ from cosim.gap.devices.ballscrew import BallscrewDevice
 from cosim.gap.effects import EFFECTS, effects_for
 from cosim.gap.effects.base import NFINE, lag, nut_backlash
 from cosim.gap.truth import write_truth_log
-from cosim.trial_log import read_trial_log, write_trial_log
+from cosim.logs.trial_log import read_trial_log, write_trial_log
 
 CONTRACT = ["stribeck_friction", "asymmetric_friction", "position_dependent_friction", "cogging_torque",
             "backlash", "transmission_compliance", "actuator_delay", "current_loop_lag", "current_saturation",

@@ -23,7 +23,7 @@ from scipy.integrate import solve_ivp
 from cosim.fmubuild.importers import run_fmpy
 from cosim.gap import effects as E
 from cosim.gap import replay as R
-from cosim.trial_log import TrialLogError, read_trial_log, write_trial_log
+from cosim.logs.trial_log import TrialLogError, read_trial_log, write_trial_log
 
 REPO = Path(__file__).resolve().parent.parent
 H = 1e-3

@@ -24,7 +24,7 @@ import pytest
 from cosim.gap.diagnose import run_diagnosis
 from cosim.gap.device import get_device
 from cosim.paths import independent_dir
-from cosim.trial_log import read_trial_log
+from cosim.logs.trial_log import read_trial_log
 
 GAP_DEV = independent_dir() / "gap-dev"
 pytestmark = pytest.mark.skipif(not (GAP_DEV / "labels.json").is_file(),

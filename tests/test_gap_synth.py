@@ -9,7 +9,7 @@ import pytest
 
 from cosim.gap.cases import CaseSpec, make_case
 from cosim.gap.truth import CONST, EFFECT_SAMPLERS, NOMINAL, simulate_truth, write_truth_log
-from cosim.trial_log import read_trial_log
+from cosim.logs.trial_log import read_trial_log
 
 G0 = 9.80665
 

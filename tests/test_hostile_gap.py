@@ -117,7 +117,7 @@ def test_degenerate_logs_exit_4_or_2_with_a_reason_never_a_traceback(tmp_path, c
 def test_recalibration_far_from_nominal_or_not_positive_is_refused():
     from cosim.gap.device import get_device
     from cosim.gap.plausibility import FACTOR, Implausible, check_recalibrated
-    from cosim.trial_log import read_trial_log
+    from cosim.logs.trial_log import read_trial_log
     dev = get_device("ballscrew-1dof")
     fit = [read_trial_log(CASE / "fit" / "identification-1.csv")]
     rec = dev.recalibrate(fit)

@@ -84,6 +84,7 @@ def test_wheel_installs_builds_fmus_in_user_cache_and_runs_a_scenario(tmp_path):
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
     shutil.copytree(REPO / "cosim", src / "cosim", ignore=ignore)
     shutil.copytree(REPO / "modelica", src / "modelica", ignore=ignore)
+    shutil.copytree(REPO / "scenarios", src / "scenarios", ignore=ignore)
     whl = _build_wheel(src, tmp_path / "dist")
 
     venv = tmp_path / "venv"
@@ -128,8 +129,25 @@ def test_wheel_installs_builds_fmus_in_user_cache_and_runs_a_scenario(tmp_path):
     assert not list(site.rglob("*.fmu")) and not list(work.rglob("*.fmu"))
     assert {p: p.stat().st_mtime for p in (REPO / "fmus").glob("*.fmu")} == before
 
-    # a short identification scenario (one seed, 2 s) from the working folder
-    sc = yaml.safe_load((REPO / "scenarios" / "identification.yaml").read_text())
+    import cosim
+    r = _run([venv / "bin" / "cosim", "--version"], work, env)
+    assert f"{cosim.__version__} (installed package)" in r.stdout, r.stdout
+    assert f"cache:    {cache / 'rehab-cosim'}" in r.stdout, r.stdout
+
+    # the thesis scenarios ship with the wheel: listed and copied from the package data
+    r = _run([venv / "bin" / "cosim", "scenarios", "list"], work, env)
+    shipped = sorted(str(p.relative_to(REPO / "scenarios"))
+                     for p in (REPO / "scenarios").rglob("*.yaml"))
+    assert all(name in r.stdout for name in shipped), r.stdout
+    assert str(site / "cosim" / "_scenarios") in r.stdout, r.stdout
+    _run([venv / "bin" / "cosim", "scenarios", "copy", "mine"], work, env)
+    assert sorted(str(p.relative_to(work / "mine")) for p in (work / "mine").rglob("*.yaml")) \
+        == shipped
+    assert (work / "mine" / "identification.yaml").read_bytes() == \
+        (REPO / "scenarios" / "identification.yaml").read_bytes()
+
+    # a short identification scenario (one seed, 2 s) from the copied file
+    sc = yaml.safe_load((work / "mine" / "identification.yaml").read_text())
     sc.update(duration=2.0, seeds=[0])
     (work / "ident_short.yaml").write_text(yaml.safe_dump(sc, sort_keys=False))
     r = subprocess.run([venv / "bin" / "cosim", "run", "ident_short.yaml", "--out", "out",

@@ -35,7 +35,7 @@ from cosim.algorithms.bilateral import BilateralController, BilateralParams
 from cosim.algorithms.ckernel import CKernel, KernelLibrary, kernel_sources
 from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams
 from cosim.algorithms.zero_force import ZeroForceController, ZeroForceParams
-from cosim.synth import simulate_ballscrew
+from cosim.logs.synth import simulate_ballscrew
 
 KERNELS = ("aakf", "dob", "rfob", "zero_force", "encoder_diff", "bilateral",
            "adaptive_compliance")

@@ -543,7 +543,7 @@ def test_swapping_the_plant_is_one_line_and_parameters_go_by_name(fmus, containe
 
 
 def test_replace_fmu_keeps_wiring_and_checks_the_contract(fmus, container3):
-    from cosim.demo import free_motion_system
+    from cosim.trials.demo import free_motion_system
     sys_, record = free_motion_system(fmus["BallScrewUnit"].parent, duration_s=0.2)
     sys_.replace_fmu("plant", container3)                  # same contract, same wiring
     res = Master(sys_, ["plant.x", "human.f_h", "aakf.v_m_s"]).run(0.2)
@@ -603,7 +603,7 @@ def test_unknown_names_give_clear_errors_with_suggestions(fmus):
 
 # =========================================================================== 4. recorder
 def test_recorder_time_first_attributes_elements_and_parquet_round_trip(fmus, tmp_path):
-    from cosim.demo import free_motion_system
+    from cosim.trials.demo import free_motion_system
     sys_, _ = free_motion_system(fmus["BallScrewUnit"].parent, duration_s=0.3)
     rec = ["plant.w", "aakf.omega_rad_s", "aakf.innovation[1]", "aakf.x_post[1]",
            "aakf.P[0,0]", "aakf.P[1, 1]", "aakf.gain[-1,1]", "aakf.reset_lo", "encdiff.omega_rad_s"]
@@ -650,7 +650,7 @@ def test_recorder_time_first_attributes_elements_and_parquet_round_trip(fmus, tm
 
 
 def test_runs_repeat_identically_and_timing_is_reported(fmus):
-    from cosim.demo import free_motion_system
+    from cosim.trials.demo import free_motion_system
     sys_, rec = free_motion_system(fmus["BallScrewUnit"].parent, duration_s=0.2)
     m = Master(sys_, rec)
     r1 = m.run(0.2)

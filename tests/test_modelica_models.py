@@ -449,7 +449,7 @@ H1 = R.HUMAN1D_PARAMS
 def test_human1d_static_pull_and_grasp():
     """Hand settles where the arm pull equals the grasp force: f_h = K kg/(K + kg) e."""
     for grasp in ("soft", "hard"):
-        from cosim.profiles import human_parameters
+        from cosim.devices.human_arm import human_parameters
         p = human_parameters("healthy", grasp, "HumanArm1D")
         p = {k: v for k, v in p.items() if k in H1}
         p = dict(H1, **p)
@@ -500,7 +500,7 @@ def test_human1d_impairment_lapse_tremor():
 
 
 def test_human2d_localised_impairment():
-    from cosim.profiles import human_parameters
+    from cosim.devices.human_arm import human_parameters
     p = dict(R.HUMAN2D_PARAMS, **human_parameters("stroke_localised", "hard", "HumanArm2D"))
     u = {k: 0.0 for k in R.HUMAN2D_INPUTS}
     c = R.human2d_outputs(0, [p["imp_cx"], p["imp_cy"], 0, 0], u, p)
@@ -519,7 +519,7 @@ def test_human2d_localised_impairment():
 
 
 def test_profiles_use_model_parameter_names():
-    from cosim.profiles import GRASPS, HUMAN_PROFILES, human_parameters
+    from cosim.devices.human_arm import GRASPS, HUMAN_PROFILES, human_parameters
     assert set(HUMAN_PROFILES) == {"healthy", "stroke_localised", "low_attention",
                                    "parkinsonism_tremor"}
     assert set(GRASPS) == {"soft", "hard"}

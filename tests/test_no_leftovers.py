@@ -117,7 +117,7 @@ def test_failing_loads_and_runs_leave_nothing(fmus, tmpdir_):
 def test_replay_leaves_nothing(tmpdir_, tmp_path, fmus):
     from cosim.gap import replay as R
     from cosim.gap.truth import write_truth_log
-    from cosim.trial_log import read_trial_log
+    from cosim.logs.trial_log import read_trial_log
     p, _ = write_truth_log(tmp_path / "log", "identification", 1.0, seed=1)
     R.close_all()
     gc.collect()

@@ -1,5 +1,5 @@
-"""Tests of the offline commands (cosim.offline: estimate / identify) on synthetic
-ballscrew-1dof trial logs written by cosim.synth.
+"""Tests of the offline commands (cosim.offline.estimation: estimate / identify) on synthetic
+ballscrew-1dof trial logs written by cosim.logs.synth.
 
 Figures quoted next to the thresholds were measured when the tests were written;
 every threshold fails for an estimator that does not work as intended.
@@ -15,10 +15,10 @@ import pandas as pd
 import pytest
 
 from cosim.algorithms.aakf import ADXL335_NOISE_STD_M_S2, AakfParams
-from cosim.offline import (ESTIMATE_COLUMNS, add_commands, estimate, identify,
-                           settling_time)
-from cosim.synth import simulate_ballscrew, simulate_ballscrew_log
-from cosim.trial_log import TrialLogError, read_trial_log, write_trial_log
+from cosim.cli.offline import add_commands
+from cosim.offline.estimation import ESTIMATE_COLUMNS, estimate, identify, settling_time
+from cosim.logs.synth import simulate_ballscrew, simulate_ballscrew_log
+from cosim.logs.trial_log import TrialLogError, read_trial_log, write_trial_log
 
 TRUE = {"J": 1.7e-5, "b": 1.6e-5, "fc": 3e-3}
 DELTA = 2 * math.pi / 21600
@@ -328,12 +328,12 @@ def test_identify_over_held_out_seeds(tmp_path):
 
 @pytest.mark.parametrize("scenario", ["free_motion", "identification"])
 def test_default_aakf_below_0p4_of_differencing_and_the_reset_does_not_hurt(scenario):
-    """The project's own simulator (cosim.synth, 10 s, seed 2): the default filter's
+    """The project's own simulator (cosim.logs.synth, 10 s, seed 2): the default filter's
     speed error is at most 0.4 of encoder differencing's (measured 0.124 free-motion,
     0.219 identification), and the reset (on, at its default output stage) never makes
     it larger (measured 0.1244 -> 0.1244, 0.2193 -> 0.2188; fires on 0.5 / 0.4 % of
     the samples)."""
-    from cosim.offline import _run_aakf
+    from cosim.offline.estimation import _run_aakf
     d = simulate_ballscrew(scenario, duration_s=10.0, seed=2)["data"]
     enc, acc, w = (np.asarray(d[k], dtype=float) for k in ("theta_enc", "acc_meas", "w_true"))
     w_enc = np.r_[0.0, np.diff(enc) / 1e-3]

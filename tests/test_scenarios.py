@@ -112,7 +112,7 @@ def test_unknown_role_and_signal(tmp_path):
 def test_human_profile_takes_the_arm_model_from_the_contract(tmp_path):
     """The contract (human_1d / human_2d), not the FMU's name, says which arm model's
     parameters a human_profile gives; without one it is an error at that line."""
-    from cosim.profiles import human_parameters
+    from cosim.devices.human_arm import human_parameters
     from cosim.scenarios import RunSpec, BuildContext
     role = "    human: {fmu: HumanArm1D, contract: human_1d, human_profile: healthy}\n"
     text = BASE.replace("  connections:\n", role + "  connections:\n")
@@ -209,7 +209,7 @@ def test_sweep_monte_carlo_cases_seeds_expansion(tmp_path):
 
 
 def test_run_verdict_pass_and_fail(tmp_path):
-    from cosim.scenario_cli import add_commands  # noqa: F401  (the CLI module imports)
+    from cosim.cli.run import add_commands  # noqa: F401  (the CLI module imports)
     from cosim.cli import main
     p = write(tmp_path, BASE)
     out = tmp_path / "out"
@@ -325,10 +325,10 @@ def test_procedure_declares_the_modules_it_uses():
     with pytest.raises(reg.RegistryError, match="uses must be a list"):
         reg.procedure("test-uses", uses="cosim.trials.patients")(lambda run, build, ctx: None)
     reaching = modules_used(load(REPO / "scenarios" / "reaching.yaml"))
-    assert {"cosim.trials.reaching", "cosim.trials.patients", "cosim.profiles"} <= reaching
+    assert {"cosim.trials.reaching", "cosim.trials.patients", "cosim.devices.human_arm"} <= reaching
     circular = modules_used(load(REPO / "scenarios" / "circular.yaml"))
     assert "cosim.trials.reaching" in circular and "cosim.trials.patients" not in circular
-    assert "cosim.profiles" not in modules_used(load(REPO / "scenarios" /
+    assert "cosim.devices.human_arm" not in modules_used(load(REPO / "scenarios" /
                                                      "identification.yaml"))
 
 

@@ -82,7 +82,7 @@ def test_circular_stability_check_uses_eq90_91():
     """The (k, tau) = (1000, 5 s) pair of Sec. 3.5 is flagged by eq. 90-91 as printed
     (tau_max = 1/(rbf + 2 r'/x + 2 K_h r'/(x a_min)) is milliseconds), consistently with
     the formula evaluated here."""
-    from cosim.profiles import human_parameters
+    from cosim.devices.human_arm import human_parameters
     from cosim.trials.reaching import stability_check
     p = compliance_params(1000.0, 5.0, 10.0)
     hp = human_parameters("healthy", "hard", "HumanArm2D")

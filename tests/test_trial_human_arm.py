@@ -34,7 +34,7 @@ def grasp_runs(fmus, tmp_path_factory):
 def test_arm_grasp_fit_returns_the_fmu_parameters(grasp_runs):
     """12 s of record: the arm + grasp fit returns M, b, K within 5 % and the grasp
     within 5 % of the FMU's values on both axes; the truth is the FMU's (hard grasp
-    2500 N/m, soft 400 N/m from cosim.profiles)."""
+    2500 N/m, soft 400 N/m from cosim.devices.human_arm)."""
     for case, info in grasp_runs.items():
         assert info["status"] == "ok", info.get("error")
         v = info["values"]

@@ -9,14 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim.trial_log import (
+from cosim.logs.trial_log import (
     DEVICES,
     TrialLogError,
     read_trial_log,
     require_columns,
     write_trial_log,
 )
-from cosim.trial_log import _check_time  # the time rules alone, without writing 360k rows
+from cosim.logs.trial_log import _check_time  # the time rules alone, without writing 360k rows
 
 TS = 1e-3
 SIDE = {"format": "trial-log/1", "device": "ballscrew-1dof", "sample_time": TS,

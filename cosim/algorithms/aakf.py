@@ -131,6 +131,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from .ckernel import CKernel
+from ..devices.ballscrew import ENCODER_COUNTS_PER_REV
 
 __all__ = [
     "AakfParams",
@@ -183,7 +184,7 @@ class AakfParams:
     #: ball-screw lead [m/rev]; x_load = lead/(2 pi) * theta_motor
     lead_m: float = 0.01
     #: encoder counts per motor revolution (Table 1); Delta = 2 pi / counts [rad]
-    encoder_counts_per_rev: int = 21600
+    encoder_counts_per_rev: int = ENCODER_COUNTS_PER_REV
     #: "round" (thesis eq. 12-13: theta - Delta/2 <= theta_enc <= theta + Delta/2) or
     #: "floor" (theta_enc <= theta < theta_enc + Delta; the filter then uses
     #: theta_enc + Delta/2 as the unbiased measurement and shifts the eq. 29 interval)

@@ -95,6 +95,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 from .ckernel import CKernel
+from ..devices.ballscrew import J_KG_M2, KT_NM_PER_A
 
 
 def _lpf_pole(g_rad_s: float, Ts_s: float) -> float:
@@ -113,15 +114,15 @@ class DOBParams:
     ----------
     Ts_s: sampling time [s] (Table 1: 1 ms).
     g_dob_rad_s: DOB low-pass bandwidth g_DOB [rad/s] (bilateral tests: 1500).
-    Jn_kg_m2: nominal inertia J_n [kg m^2] (Table 1: 1.7e-5).
-    Ktn_Nm_per_A: nominal torque constant Kt_n [N m/A] (Table 1: 0.0603).
+    Jn_kg_m2: nominal inertia J_n [kg m^2] (Table 1, ``devices.ballscrew``).
+    Ktn_Nm_per_A: nominal torque constant Kt_n [N m/A] (Table 1, ``devices.ballscrew``).
     i_cmd_is_total_previous: timing of ``i_cmd``, see the module docstring.
     """
 
     Ts_s: float = 1e-3
     g_dob_rad_s: float = 1500.0
-    Jn_kg_m2: float = 1.7e-5
-    Ktn_Nm_per_A: float = 0.0603
+    Jn_kg_m2: float = J_KG_M2
+    Ktn_Nm_per_A: float = KT_NM_PER_A
     i_cmd_is_total_previous: bool = False
 
 
@@ -234,15 +235,15 @@ class RFOBParams:
     fc_Nm: identified Coulomb friction fc_hat [N m] (> 0: friction opposes motion).
     tau_load_Nm: known load torque tau_l [N m] (load convention; 0 for a horizontal axis).
     w_eps_rad_s: half-width of the linear zone of the smoothed Coulomb sign [rad/s]
-        (default 0.5 rad/s, about 1.7 encoder speed quanta 2 pi/21600/Ts = 0.29 rad/s).
+        (default 0.5 rad/s, about 1.7 encoder speed quanta 2 pi/counts/Ts = 0.29 rad/s).
     lead_m: screw lead [m/rev]; f = tau 2 pi/lead (Table 1: 10 mm).
     i_cmd_is_previous: timing of ``i_cmd``, see the module docstring.
     """
 
     Ts_s: float = 1e-3
     g_rfob_rad_s: float = 1500.0
-    J_kg_m2: float = 1.7e-5
-    Kt_Nm_per_A: float = 0.0603
+    J_kg_m2: float = J_KG_M2
+    Kt_Nm_per_A: float = KT_NM_PER_A
     b_Nms_per_rad: float = 1.6e-5
     fc_Nm: float = 3e-3
     tau_load_Nm: float = 0.0

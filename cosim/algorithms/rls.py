@@ -101,6 +101,7 @@ from typing import Mapping
 
 import numpy as np
 from scipy import signal
+from ..devices.ballscrew import KT_NM_PER_A
 
 
 def speed_timing_for(speed: str) -> str:
@@ -141,7 +142,7 @@ class RLSParams:
     """
 
     Ts_s: float = 1e-3
-    Kt_Nm_per_A: float = 0.0603
+    Kt_Nm_per_A: float = KT_NM_PER_A
     forgetting_factor: float = 0.9999
     delta: float = 1e4
     theta0: tuple[float, float, float] = (0.0, 0.0, 0.0)

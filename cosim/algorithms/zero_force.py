@@ -52,6 +52,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 from .ckernel import CKernel
+from ..devices.ballscrew import J_KG_M2, KT_NM_PER_A
 
 
 # --------------------------------------------------------------------------- drive
@@ -63,12 +64,12 @@ class BallscrewDrive:
     ----------
     Kt_Nm_per_A: motor torque constant [N m/A] (Table 1: 60.3 mN m/A).
     lead_m: screw lead [m per motor revolution] (Table 1: 10 mm).
-    J_kgm2: nominal motor + screw inertia J_n [kg m^2] (Table 1: 1.7e-5).
+    J_kgm2: nominal motor + screw inertia J_n [kg m^2] (Table 1, ``devices.ballscrew``).
     """
 
-    Kt_Nm_per_A: float = 0.0603
+    Kt_Nm_per_A: float = KT_NM_PER_A
     lead_m: float = 0.01
-    J_kgm2: float = 1.7e-5
+    J_kgm2: float = J_KG_M2
 
     @property
     def gear_m_per_rad(self) -> float:

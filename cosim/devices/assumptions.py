@@ -27,11 +27,14 @@ SOURCE: what chose it.
   attributes and dataclass field defaults after ``.``);
 * ``scenarios/<file>.yaml:<dotted.path>``: a value set in a scenario file.
 
-This module is data only and imports nothing from the package (lowest floor).
+This module is data only and imports nothing from the package beyond the devices'
+Table values (lowest floor).
 """
 from __future__ import annotations
 
 import dataclasses
+
+from .ballscrew import ENCODER_COUNTS_PER_REV, J_KG_M2
 
 BASES = ("assumed", "derived", "calibrated", "datasheet")
 
@@ -105,11 +108,12 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
     # ------------------------------------------------------------------ ball screw
     _A("ball-screw friction model", "LuGre bristle stiffness", 200.0, "N.m/rad",
        (f"{_BS}:sigma0",), "derived",
-       "bristle deflection at breakaway fs/sigma0 = 1.5e-5 rad = 0.05 count of the 21600 "
-       "pulse/rev encoder (Table 1); the thesis gives no presliding data"),
+       f"bristle deflection at breakaway fs/sigma0 = 1.5e-5 rad = 0.05 count of the "
+       f"{ENCODER_COUNTS_PER_REV} pulse/rev encoder (Table 1); the thesis gives no presliding "
+       f"data"),
     _A("ball-screw friction model", "LuGre bristle damping", 0.117, "N.m.s/rad",
        (f"{_BS}:sigma1",), "derived",
-       "2 sqrt(sigma0 J) with Table 1's J = 1.7e-5 kg m^2: critical damping of the "
+       f"2 sqrt(sigma0 J) with Table 1's J = {J_KG_M2:g} kg m^2: critical damping of the "
        "presliding mode (546 Hz)"),
     _A("ball-screw friction model", "bristle damping fade speed", 0.1, "rad/s",
        (f"{_BS}:wd",), "derived", "passivity of the LuGre model needs wd <= 0.24 rad/s "
@@ -162,29 +166,29 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
        "assumed: 2 cm from home, inside the handle's few-cm travel"),
     # ------------------------------------------------------------------ human arm
     _A("human arm (eq. 75)", "effective hand/arm mass M_h", 1.0, "kg",
-       (f"{_H2}:M_h", f"{_H1}:M_h", "cosim.profiles:_BASE[M_h]"), "assumed", _LIT),
+       (f"{_H2}:M_h", f"{_H1}:M_h", "cosim.devices.human_arm:_BASE[M_h]"), "assumed", _LIT),
     _A("human arm (eq. 75)", "arm stiffness K_h (healthy)", 200.0, "N/m",
-       (f"{_H2}:K_hx", f"{_H2}:K_hy", f"{_H1}:K_h", "cosim.profiles:_BASE[K_hx]",
-        "cosim.profiles:_BASE[K_hy]"), "assumed",
+       (f"{_H2}:K_hx", f"{_H2}:K_hy", f"{_H1}:K_h", "cosim.devices.human_arm:_BASE[K_hx]",
+        "cosim.devices.human_arm:_BASE[K_hy]"), "assumed",
        _LIT + "; with M_h the tracking mode is 2.3 Hz"),
     _A("human arm (eq. 75)", "arm viscosity b_h (healthy)", 20.0, "N.s/m",
-       (f"{_H2}:b_hx", f"{_H2}:b_hy", f"{_H1}:b_h", "cosim.profiles:_BASE[b_hx]",
-        "cosim.profiles:_BASE[b_hy]"), "assumed", _LIT + "; damping ratio 0.7 with M_h, K_h"),
+       (f"{_H2}:b_hx", f"{_H2}:b_hy", f"{_H1}:b_h", "cosim.devices.human_arm:_BASE[b_hx]",
+        "cosim.devices.human_arm:_BASE[b_hy]"), "assumed", _LIT + "; damping ratio 0.7 with M_h, K_h"),
     _A("human arm (eq. 75)", "stiffness change across the workspace (y)", 0.5, "1/m",
-       ("cosim.profiles:_BASE[K_slope_y]",), "assumed",
+       ("cosim.devices.human_arm:_BASE[K_slope_y]",), "assumed",
        "assumed: +-10 % across 0.4 m; Fig. 43-44 show that it changes, not by how much"),
     _A("grasp (Fig. 41-42)", "hard grasp stiffness", 2500.0, "N/m",
-       (f"{_H2}:k_grasp", f"{_H1}:k_grasp", "cosim.profiles:GRASPS[hard][k_grasp]"), "assumed",
+       (f"{_H2}:k_grasp", f"{_H1}:k_grasp", "cosim.devices.human_arm:GRASPS[hard][k_grasp]"), "assumed",
        "assumed: grasp mode 8 Hz with M_h, inside the 20 Hz identification band of Sec. "
        "3.3.1.1; Fig. 42 shows the hard grasp stiffer, values not readable"),
     _A("grasp (Fig. 41-42)", "hard grasp damping", 25.0, "N.s/m",
-       (f"{_H2}:b_grasp", f"{_H1}:b_grasp", "cosim.profiles:GRASPS[hard][b_grasp]"), "assumed",
+       (f"{_H2}:b_grasp", f"{_H1}:b_grasp", "cosim.devices.human_arm:GRASPS[hard][b_grasp]"), "assumed",
        "assumed: no thesis value"),
     _A("grasp (Fig. 41-42)", "soft grasp stiffness", 400.0, "N/m",
-       ("cosim.profiles:GRASPS[soft][k_grasp]",), "assumed",
+       ("cosim.devices.human_arm:GRASPS[soft][k_grasp]",), "assumed",
        "assumed: grasp mode 3.2 Hz; no thesis value"),
     _A("grasp (Fig. 41-42)", "soft grasp damping", 4.0, "N.s/m",
-       ("cosim.profiles:GRASPS[soft][b_grasp]",), "assumed", "assumed: no thesis value"),
+       ("cosim.devices.human_arm:GRASPS[soft][b_grasp]",), "assumed", "assumed: no thesis value"),
     _A("arm identification (Sec. 3.3.1.1)", "shaker motion rms per axis", 0.002, "m",
        ("scenarios/human_arm_identification.yaml:stimuli.x.params.rms_m",
         "scenarios/human_arm_identification.yaml:stimuli.y.params.rms_m"), "assumed",
@@ -246,7 +250,7 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
        (f"{_PAT}[S4].overrides[lapse_duration]",), "assumed",
        "assumed: 5 s every 30 s down to 20 %; no thesis table for S4"),
     _A("patient S4 (Parkinsonism, Table 5)", "tremor force amplitude", 1.5, "N",
-       ("cosim.profiles:HUMAN_PROFILES[parkinsonism_tremor][A_tremor]",), "assumed",
+       ("cosim.devices.human_arm:HUMAN_PROFILES[parkinsonism_tremor][A_tremor]",), "assumed",
        "assumed: 5 Hz rest tremor (4-6 Hz); no thesis value"),
     _A("patient progression (Fig. 51)", "S1 weekly recovery of the impairment at a saturating dose",
        0.12, "1/session", (f"{_PAT}[S1].r_week",), "assumed",

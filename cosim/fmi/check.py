@@ -200,15 +200,37 @@ _WARNED: set = set()
 
 
 def warn_once(path, role: str, warnings: list[str]) -> list[str]:
-    """Print an FMU's warnings to stderr once per file and process; returns them."""
+    """Print an FMU's warnings to stderr once per file and process, and once per ``cosim``
+    command across the processes it starts (``$COSIM_WARNED_DIR``: a marker file per
+    FMU); returns them."""
     import sys
     key = str(Path(path).resolve())
     if warnings and key not in _WARNED:
         _WARNED.add(key)
+        if not _first_in_command(key):
+            return warnings
         for w in warnings:
             print(f"[WARNING] role {role}: {Path(path).name}: {w} (it runs; `cosim fmus "
                   f"check --strict` refuses it)", file=sys.stderr)
     return warnings
+
+
+def _first_in_command(key: str) -> bool:
+    """False when another process of the same command warned about this FMU already."""
+    import hashlib
+    import os
+    folder = os.environ.get("COSIM_WARNED_DIR")
+    if not folder:
+        return True
+    marker = Path(folder) / hashlib.sha256(key.encode()).hexdigest()[:32]
+    try:
+        marker.parent.mkdir(exist_ok=True)
+        os.close(os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    except OSError:                 # the folder is gone: warn rather than stay silent
+        return True
+    return True
 
 
 def _instantiate(md, unzipdir: Path, kind: str) -> None:

@@ -61,7 +61,7 @@ from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from ..trial_log import TrialLog
+from ..logs.trial_log import TrialLog
 
 __all__ = [
     "GapInputError",

@@ -2,7 +2,7 @@
 
 :func:`diagnose` runs, for any :class:`cosim.gap.device.GapDevice`:
 
-1. **input checks**: every log is read and validated (``cosim.trial_log``), all logs
+1. **input checks**: every log is read and validated (``cosim.logs.trial_log``), all logs
    must be of the requested device, then the device's own checks; too little
    information gives ``"cannot_diagnose": why`` (never a made-up answer);
 2. **recalibration** of the nominal parameters on the fit logs;
@@ -46,8 +46,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..fileio import atomic_write_text, jsonable
-from ..trial_log import TrialLog, TrialLogError, read_trial_log
+from ..logs.fileio import atomic_write_text, jsonable
+from ..logs.trial_log import TrialLog, TrialLogError, read_trial_log
 from . import plausibility
 from .device import CannotDiagnose, GapDevice, GapInputError, get_device, slice_log, split_params
 

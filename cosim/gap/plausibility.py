@@ -15,7 +15,7 @@ do not say", :class:`Implausible` naming the file, the column and the likely uni
 * the drive command (``i_cmd`` / ``f_cmd``) not zero or constant throughout, and
   within the driver's range (``i_cmd``: :data:`I_DRIVER_MAX_A`);
 * the encoder (``theta_enc``) moves, steps by whole multiples of its quantum
-  (``sensors.encoder.quantum_rad`` of the sidecar, else 2 pi / 21600 rad, thesis
+  (``sensors.encoder.quantum_rad`` of the sidecar, else the thesis's encoder quantum,
   Sec. 2.4) and stays within :data:`TRAVEL_MAX_M` of nut travel;
 
 :func:`check_recalibrated` (after the recalibration, before the effects): the
@@ -32,6 +32,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .device import GapInputError
+from ..devices.ballscrew import ENCODER_RESOLUTION_RAD
 
 __all__ = ["Implausible", "check_logs", "check_recalibrated", "FACTOR", "I_DRIVER_MAX_A"]
 
@@ -48,8 +49,8 @@ TRAVEL_MAX_M = 1.0
 HUGE = 1e6
 #: shortest log the diagnosis uses [s] (filter edges of 0.1 s at both ends, held-out halves)
 MIN_LOG_S = 1.0
-#: the quantum of the thesis's encoder, 21600 pulses/rev (Sec. 2.4) [rad]
-ENCODER_QUANTUM_RAD = 2 * math.pi / 21600
+#: the quantum of the thesis's encoder (Sec. 2.4) [rad]
+ENCODER_QUANTUM_RAD = ENCODER_RESOLUTION_RAD
 
 #: what a column may hold instead of the unit the sidecar says: name -> factor
 _ANGLE_UNITS = {"degrees": 180 / math.pi, "milliradians": 1000.0, "revolutions": 1 / (2 * math.pi),
@@ -198,7 +199,7 @@ def write_refusal(out_dir, device: str, exc: Implausible) -> None:
     import json
     from pathlib import Path
 
-    from ..fileio import atomic_write_text
+    from ..logs.fileio import atomic_write_text
     try:
         atomic_write_text(Path(out_dir) / "diagnosis.json", json.dumps({
             "device": device, "cannot_diagnose": f"implausible input: {exc}",

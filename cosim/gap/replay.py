@@ -70,7 +70,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..trial_log import TrialLog, TrialLogError, require_columns
+from ..logs.trial_log import TrialLog, TrialLogError, require_columns
 
 __all__ = ["NOMINAL_MODEL", "NOMINAL_PARAMS",
            "OUTPUTS", "effect_fmu", "replay", "replay_many", "Replayer", "close_all"]

@@ -23,7 +23,7 @@ Truth model (why it is "higher fidelity" than the diagnosed one)
   where the screw left it).
 * Current driver: ideal by default; delay (ring buffer of sub-steps), first-order
   lag, clipping, 50 Hz mains ripple (out of catalogue) when drawn.
-* Sensors: 21600-count encoder (rounding), ADXL335-like accelerometer (150 ug/sqrt(Hz)
+* Sensors: Table 1's encoder (rounding), ADXL335-like accelerometer (150 ug/sqrt(Hz)
   white noise through a 1600 Hz pole, bias = calibrated nominal + calibration error
   + random walk (+ thermal drift when drawn), scale error when drawn, specific force
   so a tilt shows ``g sin(alpha)``, 12-bit ADC quantisation 0.0239 m/s^2), load cell
@@ -49,8 +49,9 @@ from typing import Any, Callable
 import numpy as np
 
 from ..algorithms.rls import band_limited_white_noise
-from ..synth import _min_jerk_reference, _ref_at
-from ..trial_log import write_trial_log
+from ..devices.ballscrew import ENCODER_COUNTS_PER_REV, J_KG_M2, KT_NM_PER_A
+from ..logs.synth import min_jerk_reference, reference_at
+from ..logs.trial_log import write_trial_log
 from .effects import EFFECTS
 
 __all__ = ["NOMINAL", "EFFECT_SAMPLERS", "OUT_OF_CATALOGUE", "SCENARIOS",
@@ -60,12 +61,12 @@ G0 = 9.80665
 SCENARIOS = ("identification", "multisine", "push")
 
 #: the model of record's parameters (sidecar ``nominal``), Table 1 + sensor calibration
-NOMINAL: dict[str, float] = {"J": 1.7e-5, "b": 1.6e-5, "fc": 3e-3, "Kt": 0.0603, "lead": 0.01,
+NOMINAL: dict[str, float] = {"J": J_KG_M2, "b": 1.6e-5, "fc": 3e-3, "Kt": KT_NM_PER_A, "lead": 0.01,
                              "acc_bias": 0.3, "m_n": 0.2}
 
 #: fixed truth constants (not drawn)
 CONST: dict[str, float] = {
-    "Ts": 1e-3, "n_sub": 20, "counts": 21600, "w_stick": 1e-3,
+    "Ts": 1e-3, "n_sub": 20, "counts": ENCODER_COUNTS_PER_REV, "w_stick": 1e-3,
     "acc_density_g": 150e-6, "acc_bw_hz": 1600.0, "acc_lsb": 3.3 / 4096 / 0.33 * G0,
     "acc_cal_err": 0.005, "bias_rw": 1e-3, "lc_noise": 0.05, "lc_lsb": 0.01,
     "k_contact": 2e5, "zeta_contact": 0.3,
@@ -197,7 +198,7 @@ def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, s
     i_ext = _excitation(scenario, n, Ts, rng)
     knots = None
     if scenario == "push":
-        knots = _min_jerk_reference(n, Ts, rng, 0.3, 0.08)
+        knots = min_jerk_reference(n, Ts, rng, 0.3, 0.08)
     Kh, Bh = 600.0, 60.0
     Kf_p = 3.0
     Kf_nom = nom["Kt"] / S
@@ -239,7 +240,7 @@ def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, s
         x_handle = xn if two_body else S * th
         v_handle = vn if two_body else S * w
         if knots is not None:
-            xr, vr, idx = _ref_at(t_k, knots, idx)
+            xr, vr, idx = reference_at(t_k, knots, idx)
             f_k = Kh * (x_home + xr - x_handle) + Bh * (vr - v_handle)
         else:
             f_k = 0.0
@@ -267,7 +268,7 @@ def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, s
             if knots is not None and j:
                 x_handle = xn if two_body else S * th
                 v_handle = vn if two_body else S * w
-                xr, vr, idx = _ref_at(tj, knots, idx)
+                xr, vr, idx = reference_at(tj, knots, idx)
                 f = Kh * (x_home + xr - x_handle) + Bh * (vr - v_handle)
             else:
                 f = f_k

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from ..devices.ballscrew import ENCODER_COUNTS_PER_REV
 from .fmu import FMUSlave, suggest
 
 
@@ -40,7 +41,7 @@ _UNIT = {"i": "motor current command (the current driver is ideal)",
          "x": "nut (handle) position, x = lead/(2 pi) theta",
          "v": "nut (handle) speed", "a": "nut (handle) acceleration",
          "theta_enc": "encoder reading: the motor angle quantised to the encoder's "
-                      "resolution (eq. 12-13; Table 1: 21600 pulses/rev); an FMU without "
+                      f"resolution (eq. 12-13; Table 1: {ENCODER_COUNTS_PER_REV} pulses/rev); an FMU without "
                       "an encoder model may bind it to its motor angle"}
 _RIG = {"x_enc": "handle position from the encoder, lead/(2 pi) theta_enc",
         "x_enc_p": "the partner unit's handle position from its encoder",

@@ -90,7 +90,7 @@ _STRUCT_FIELDS = ("names", "units", "scenario", "run", "phase", "status", "error
 
 def export(path, fmt: str, out_dir) -> list[Path]:
     """Write the export of ``path`` into ``out_dir``; returns the files written."""
-    from cosim.fileio import atomic_write_text
+    from cosim.logs.fileio import atomic_write_text
     from cosim.scenarios.store import safe_name
     if fmt not in ("csv", "mat"):
         raise ExportError(f"--format {fmt!r}: expected csv or mat")

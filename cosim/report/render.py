@@ -9,7 +9,7 @@ from pathlib import Path
 
 def render_scenario(scenario_file, out_dir, back_link: str | None = None) -> Path:
     """DIR/report.html of one scenario from DIR/verdict.json and DIR/runs/."""
-    from cosim.fileio import atomic_write_text
+    from cosim.logs.fileio import atomic_write_text
     from cosim.scenarios.schema import load
     from cosim.scenarios.store import read_verdict
     from .html import esc, page, scenario_page
@@ -29,7 +29,7 @@ def render_scenario(scenario_file, out_dir, back_link: str | None = None) -> Pat
 
 def render_suite(suite_dir) -> list[Path]:
     """Every scenario page and the overview of a ``cosim suite`` folder."""
-    from cosim.fileio import atomic_write_text
+    from cosim.logs.fileio import atomic_write_text
     from cosim.scenarios.store import safe_name
     from .html import suite_page
     suite_dir = Path(suite_dir)

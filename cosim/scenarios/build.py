@@ -165,7 +165,7 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
     set)."""
     from cosim.master.fmu import FMUError
     from cosim.master.system import System, SystemError_
-    from cosim.profiles import human_parameters
+    from cosim.devices.human_arm import human_parameters
     system = System(step_size=float(d.get("step", 1e-3)))
     swaps = dict(fmu_swaps or {})
     # coupled groups (roles solved together, Model Exchange): the roles of this build
@@ -326,7 +326,7 @@ def modules_used(sc: Scenario) -> set[str]:
     """The Python modules whose values the scenario's runs use: the modules of the
     registered blocks it names (procedure; controllers and stimuli of the file, its
     cases and its negative controls' overrides; metrics) and the modules each of them
-    declares it uses (``@procedure(name, uses=...)``), and :mod:`cosim.profiles` for a
+    declares it uses (``@procedure(name, uses=...)``), and :mod:`cosim.devices.human_arm` for a
     role with a ``human_profile``. The report lists the assumed values these hold."""
     d = sc.data
     parts = [d] + [c for c in (d.get("cases") or {}).values() if c]
@@ -344,7 +344,7 @@ def modules_used(sc: Scenario) -> set[str]:
                       if isinstance(spec, dict) and spec.get("type")]
         for spec in ((part.get("system") or {}).get("fmus") or {}).values():
             if isinstance(spec, dict) and "human_profile" in spec:
-                out.add("cosim.profiles")
+                out.add("cosim.devices.human_arm")
     for kind, name in named:
         e = reg.get(kind, name)
         if e is not None:

@@ -22,7 +22,7 @@ import time
 import traceback
 from pathlib import Path
 
-from ..fileio import jsonable
+from ..logs.fileio import jsonable
 from . import registry as reg
 from .build import check_build, make_builder
 from .expand import deep_merge, expand

@@ -136,7 +136,7 @@ CASE_KEYS = {"description", "system", "controllers", "stimuli", "duration", "rec
 #: a fault (``faults: {name: {signal, kind, start_s, stop_s, <the kind's parameters>}}``,
 #: :mod:`cosim.master.faults`)
 FAULT = {"signal": (str, True), "kind": (str, True)}
-#: the human-arm model (``cosim.profiles.human_parameters``) whose parameter set a role
+#: the human-arm model (``cosim.devices.human_arm.human_parameters``) whose parameter set a role
 #: with ``human_profile`` takes, by the role's contract (``cosim.master.roles``)
 HUMAN_ARM_MODELS = {"human_1d": "HumanArm1D", "human_2d": "HumanArm2D"}
 RULES = ("<=", ">=", "<", ">", "within", "outside")
@@ -616,7 +616,7 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
         if spec.get("kind", "auto") not in ("auto", "cs", "me"):
             c.err(P("system", "fmus", role, "kind"), "kind must be auto, cs or me")
         if "human_profile" in spec:
-            from cosim.profiles import GRASPS, HUMAN_PROFILES
+            from cosim.devices.human_arm import GRASPS, HUMAN_PROFILES
             if spec.get("contract") not in HUMAN_ARM_MODELS:
                 c.err(P("system", "fmus", role, "human_profile"),
                       f"role {role!r}: human_profile needs the role's contract, one of "

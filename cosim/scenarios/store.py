@@ -19,7 +19,7 @@ import re
 import sys
 from pathlib import Path
 
-from ..fileio import atomic_write_text, jsonable
+from ..logs.fileio import atomic_write_text, jsonable
 from . import registry as reg
 from .build import fmu_file, swap_binding
 from .expand import deep_merge, expand

@@ -23,16 +23,17 @@ carries the wall time of every phase, per scenario and of the workers (``timing`
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
+import signal
 import sys
 import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from ..exitcodes import children_ignore_sigint
-from ..fileio import atomic_write_text as atomic_write
+from ..logs.fileio import atomic_write_text as atomic_write
 from . import registry as reg
 from .build import check_build
 from .expand import deep_merge
@@ -44,6 +45,27 @@ from .ship import execute_shipped, run_fmus, scatter_fmus
 from .store import (OutDirLock, OutDirLocked, _fmu_sha, clean_run_tmp, run_done,
                     run_fmu_paths, run_key, safe_name, store_run_files, versions)
 from .verdict import all_runs, summary_row
+
+
+@contextlib.contextmanager
+def children_ignore_sigint():
+    """Processes started inside this block (Dask's local workers) ignore SIGINT.
+
+    Ctrl-C in a terminal goes to the whole process group; the coordinating process
+    handles it (keeps what finished, says so, exits 3) and closes its workers, which
+    would otherwise each print a KeyboardInterrupt traceback. SIG_IGN survives exec
+    and Python then installs no SIGINT handler. This process ignores SIGINT for the
+    duration of the block (a cluster start-up, seconds); outside the main thread it
+    does nothing."""
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 class SuiteError(RuntimeError):

@@ -298,7 +298,7 @@ def run_circular(task: CircleTask = CircleTask(), params: AdaptiveCompliancePara
                  snapshot_s: float = 0.25) -> dict:
     """Run the circular test once; returns metrics, snapshots and the recording."""
     from ..master import Master
-    from ..profiles import human_parameters
+    from ..devices.human_arm import human_parameters
     params = params or compliance_params(1000.0, 5.0, 10.0)      # Sec. 3.5
     hp = dict(human_params or human_parameters("healthy", "hard", "HumanArm2D"))
     ctrl = AssistController(params, snapshot_every=int(round(snapshot_s / params.Ts_s)))

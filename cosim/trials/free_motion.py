@@ -1,6 +1,6 @@
 """Free-motion trial (thesis Sec. 2.5.1): a person moves the uncontrolled unit.
 
-The wiring is that of :mod:`cosim.demo` (declared in ``scenarios/free_motion.yaml``):
+The wiring is that of :mod:`cosim.trials.demo` (declared in ``scenarios/free_motion.yaml``):
 HumanArm1D drives the BallScrewUnit's handle, the Accelerometer on the nut and the
 encoder feed the aaKF and plain encoder differencing. Registered here: the metrics
 of the trial's claims (speed error ratio aaKF/encoder, Fig. 24; bias convergence,

@@ -6,7 +6,7 @@ and affected side (Table 5), two sessions' error tables (Tables 7-8) and the pre
 MAE trends of Fig. 51 (a plot whose values are not in the text). Everything below --
 where the impairment is, how large, how attention lapses look, how fast a patient
 recovers -- is a documented assumption built on the HumanArm2D profiles of
-:mod:`cosim.profiles`, chosen so that the simulated errors are of the order of
+:mod:`cosim.devices.human_arm`, chosen so that the simulated errors are of the order of
 Tables 7-8 (a few mm for the stroke subject, tens of mm without assistance for the
 low-attention subject).
 
@@ -84,7 +84,7 @@ import dataclasses
 import math
 from typing import Mapping
 
-from ..profiles import human_parameters as _profile_parameters
+from ..devices.human_arm import human_parameters as _profile_parameters
 
 
 #: Table 6's number of assisted trainings per session (the weekly response's divisor)
@@ -96,7 +96,7 @@ class Subject:
     """One subject of Table 5 with the patient model and its progression (a model).
 
     number, gender, age, disorder, affected_side: Table 5.
-    profile, grasp: the cosim.profiles human-arm profile and grasp it is built on.
+    profile, grasp: the cosim.devices.human_arm human-arm profile and grasp it is built on.
     overrides: HumanArm2D parameters changed from the profile (week 0, pre).
     impaired: which parameter recovers ("imp_depth" or "lapse_duration").
     r_week: fractional recovery of ``impaired`` per session at a saturating dose [-].

@@ -55,7 +55,7 @@ Parameters (``parameters.startup_identification`` of the scenario)::
     excitation: {rms: 0.15, cutoff_hz: 50.0}   # band_limited_noise params, per unit stream
     hold_N_per_m: 0.0             # weak P hold on the encoder position (equivalent handle
                                   # stiffness [N/m]); 0: none
-    Kt_nominal_Nm_per_A: 0.0603   # Table 1; also the RLS's torque constant
+    Kt_nominal_Nm_per_A: (Table 1: devices.ballscrew.KT_NM_PER_A); also the RLS's Kt
     lead_m: 0.01                  # Table 1 (for the hold)
     aakf: {}                      # aaKF params of the identification phase
     rls: {}                       # RLSParams overrides (default: integral regression,
@@ -82,12 +82,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cosim.devices.ballscrew import KT_NM_PER_A
 from cosim.scenarios.registry import ProcedureResult, controller, procedure
 from cosim.trials.identification import fmu_values
 
 PARAMS = ("J", "b", "fc")
 DEFAULTS = {"duration_s": 10.0, "excitation": {"rms": 0.15, "cutoff_hz": 50.0},
-            "hold_N_per_m": 0.0, "Kt_nominal_Nm_per_A": 0.0603, "lead_m": 0.01,
+            "hold_N_per_m": 0.0, "Kt_nominal_Nm_per_A": KT_NM_PER_A, "lead_m": 0.01,
             "aakf": {}, "rls": {}, "source": "identified", "observer_scale": {}}
 UNIT_DEFAULTS = {"current": "i", "encoder": "theta_enc", "acceleration": "a",
                  "fmu_parameters": {}, "true_parameters": {"J": "J", "b": "b", "fc": "fc",

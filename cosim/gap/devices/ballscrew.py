@@ -63,7 +63,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 from scipy import signal
 
-from ...trial_log import TrialLog
+from ...logs.trial_log import TrialLog
 from ..device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, split_params
 from ..effects import EFFECTS as CATALOGUE
 from ..effects import effects_for

@@ -12,14 +12,15 @@ from typing import Callable
 import numpy as np
 from scipy import signal
 
-from ...trial_log import TrialLog
+from ...logs.trial_log import TrialLog
+from ...devices.ballscrew import J_KG_M2, KT_NM_PER_A
 from ..effects.base import shift
 
 __all__ = ["DEVICE", "DEFAULTS", "Prep", "prepare", "log_noise", "nominal_of", "lowpass"]
 
 G0 = 9.80665
 DEVICE = "ballscrew-1dof"
-DEFAULTS = {"J": 1.7e-5, "b": 1.6e-5, "fc": 3e-3, "Kt": 0.0603, "lead": 0.01, "acc_bias": 0.0, "m_n": 0.2}
+DEFAULTS = {"J": J_KG_M2, "b": 1.6e-5, "fc": 3e-3, "Kt": KT_NM_PER_A, "lead": 0.01, "acc_bias": 0.0, "m_n": 0.2}
 W_REST = 0.05          # rad/s: below this the motor counts as at rest
 DILATE_S = 0.015       # s
 EDGE_S = 0.1           # s cut at both ends (filter transients)

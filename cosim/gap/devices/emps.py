@@ -2,7 +2,7 @@
 
 Nominal model (publication eq. 1): ``f = M qdd + Fv qd + Fc sign(qd) + offset``.
 
-* Recalibration: the publication's IDIM-LS (:func:`cosim.emps.idim_ls`, Butterworth
+* Recalibration: the publication's IDIM-LS (:func:`cosim.offline.emps.idim_ls`, Butterworth
   100 Hz zero-phase, central differences, decimation by 10 at 40 Hz, least squares)
   on the fit logs -> ``M``, ``Fv``, ``Fc``, ``offset``.
 * Comparison signals (closed loop: the position error says nothing, so none are
@@ -30,8 +30,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ...emps import (
-    EMPS_DEVICE,
+from ...logs.emps import EMPS_DEVICE
+from ...offline.emps import (
     IDIM_DECIMATE,
     closed_loop_errors,
     closed_loop_replay,
@@ -40,7 +40,7 @@ from ...emps import (
     idim_kinematics,
     idim_lowpass,
 )
-from ...trial_log import TrialLog
+from ...logs.trial_log import TrialLog
 from ..device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, nrmse, split_params
 from ..effects import EFFECTS, EMPS, EmpsForm, effects_for
 

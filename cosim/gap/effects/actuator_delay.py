@@ -1,7 +1,7 @@
 """Pure time delay between the current command and the torque."""
 import numpy as np
 
-from ...emps import zoh_align
+from ...offline.emps import zoh_align
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, shift, uniform
 
 

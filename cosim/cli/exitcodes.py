@@ -1,12 +1,8 @@
 """The exit codes of every ``cosim`` command (one table; docs/exit-codes.md lists it).
 
-A leaf module (standard library only) so that every layer's command handlers can
-return these names. ``cosim --help`` prints :data:`TABLE` as its epilog.
+A leaf module (standard library only) that every command module imports. ``cosim --help`` prints :data:`TABLE` as its epilog.
 """
 from __future__ import annotations
-
-import contextlib
-import signal
 
 #: success: the command did what was asked; every requirement / check passes
 OK = 0
@@ -38,22 +34,6 @@ exit codes (all commands):
      estimate or diagnose (cannot_identify / cannot_diagnose)"""
 
 
-@contextlib.contextmanager
-def children_ignore_sigint():
-    """Processes started inside this block (Dask's local workers) ignore SIGINT.
-
-    Ctrl-C in a terminal goes to the whole process group; the coordinating process
-    handles it (keeps what finished, says so, exits 3) and closes its workers, which
-    would otherwise each print a KeyboardInterrupt traceback. SIG_IGN survives exec
-    and Python then installs no SIGINT handler. This process ignores SIGINT for the
-    duration of the block (a cluster start-up, seconds); outside the main thread it
-    does nothing."""
-    try:
-        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except ValueError:
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, old)
+class CliError(Exception):
+    """Bad input a command handler found itself: ``cosim`` prints ``cosim: error: <msg>``
+    and exits :data:`BAD_INPUT`."""

@@ -7,11 +7,11 @@ from . import exitcodes as ec
 def _cmd_export(a) -> int:
     import sys
 
-    from .fmubuild.build import build_all
-    from .paths import fmus_dir, modelica_package
-    from .scenarios.schema import ScenarioError
-    from .scenarios.ssp import SSPError
-    from .scenarios.ssp_export import export_ssp
+    from ..fmubuild.build import build_all
+    from ..paths import fmus_dir, modelica_package
+    from ..scenarios.schema import ScenarioError
+    from ..scenarios.ssp import SSPError
+    from ..scenarios.ssp_export import export_ssp
     if not a.fmus and not a.no_build:
         build_all(modelica_package(), fmus_dir(), log=lambda *_: None)
     try:
@@ -39,4 +39,4 @@ def add_commands(sub) -> None:
                    help="declare the controllers' ports as system connectors without "
                         "connecting them (for libcosim 0.0.6, which refuses connections "
                         "to the system itself)")
-    e.set_defaults(func=_cmd_export)
+    e.set_defaults(func=_cmd_export, heartbeat=True)

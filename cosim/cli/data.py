@@ -3,7 +3,7 @@
     cosim data import-emps --out DIR [--src DIR]
 
 writes ``DIR/DATA_EMPS.{csv,json}`` and ``DIR/DATA_EMPS_PULSES.{csv,json}``
-(device ``emps-1dof``, see ``spec/trial-log.md``) with :func:`cosim.emps.import_emps`.
+(device ``emps-1dof``, see ``spec/trial-log.md``) with :func:`cosim.logs.emps.import_emps`.
 The default source is ``$COSIM_EMPS_DIR`` if set, else ``<repo>/../shared/data/real/emps/``
 (the shared folder beside the clone). Both files are loaded and checked before
 anything is written, so a missing or corrupt source leaves ``DIR`` untouched.
@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from .exitcodes import BAD_INPUT, OK
-from .paths import emps_dir
+from ..paths import emps_dir
 
 
 def default_emps_dir() -> Path:
@@ -25,9 +25,9 @@ def default_emps_dir() -> Path:
 
 
 def _cmd_import_emps(a: argparse.Namespace) -> int:
-    from .emps import EmpsImportError, import_emps
-    from .fileio import OutputPathError, check_out_file
-    from .trial_log import TrialLogError, read_trial_log
+    from ..logs.emps import EmpsImportError, import_emps
+    from ..logs.fileio import OutputPathError, check_out_file
+    from ..logs.trial_log import TrialLogError, read_trial_log
 
     src = Path(a.src) if a.src else default_emps_dir()
     if not src.is_dir():

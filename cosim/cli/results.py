@@ -3,7 +3,7 @@
     cosim results export RUN_OR_SUITE_DIR --format csv|mat [--out DIR]
     cosim report DIR [--scenario FILE] [--pdf [FILE]] [--no-render]
 
-Exit codes (:mod:`cosim.exitcodes`): 0 written; 2 a folder without stored runs, a bad
+Exit codes (:mod:`cosim.cli.exitcodes`): 0 written; 2 a folder without stored runs, a bad
 format or output path, no Chromium for ``--pdf``.
 """
 from __future__ import annotations
@@ -11,11 +11,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from cosim import exitcodes as ec
+from cosim.cli import exitcodes as ec
 
 
 def _cmd_export(a) -> int:
-    from cosim.fileio import OutputPathError, ensure_out_dir
+    from cosim.logs.fileio import OutputPathError, ensure_out_dir
     from cosim.report.export import ExportError, export
     out = Path(a.out) if a.out else Path(a.dir) / f"export-{a.format}"
     try:

@@ -3,15 +3,15 @@
 A fine-step truth simulation in numpy/pure Python stands in for the physical
 device, and its sensors are sampled the way the controller would have read them;
 the result is written as a trial log (``<stem>.csv`` + ``<stem>.json``, see
-``spec/trial-log.md``) with :func:`cosim.trial_log.write_trial_log`. Used by the
-tests of :mod:`cosim.offline`, and usable to try the offline commands.
+``spec/trial-log.md``) with :func:`cosim.logs.trial_log.write_trial_log`. Used by the
+tests of :mod:`cosim.offline.estimation`, and usable to try the offline commands.
 
 Truth model (motor side, thesis Sec. 2.3, Table 1)::
 
     J w' = Kt i + (lead/2 pi) f_ext - b w - friction,   theta' = w
 
-* J = 1.7e-5 kg m^2, b = 1.6e-5 N m s/rad, fc = 3e-3 N m, Kt = 0.0603 N m/A,
-  lead = 10 mm (x = lead/(2 pi) theta).
+* J, b, fc, Kt, lead and the encoder of Table 1 (:mod:`cosim.devices.ballscrew`;
+  x = lead/(2 pi) theta).
 * Friction: Karnopp stick/slip. While sliding it is ``fc sign(w)``; a zero crossing
   of w inside a sub-step stops the axis at w = 0, and the axis stays stuck while
   the applied torque satisfies ``|tau| <= fs`` (break-away torque ``fs``, default
@@ -20,7 +20,7 @@ Truth model (motor side, thesis Sec. 2.3, Table 1)::
   constant tau and friction sign; the angle advances by the trapezoid of w.
 * Current driver: ``i_cmd`` of row k is held over [t_k, t_k + Ts) (ZOH), as the
   trial-log contract says; the driver is ideal (current = command).
-* Encoder: rounding quantiser, Delta = 2 pi/21600 rad, absolute (0 at the homed
+* Encoder: rounding quantiser, Delta = 2 pi/counts rad, absolute (0 at the homed
   position, ``theta0_rad`` is where the trial starts).
 * Accelerometer (ADXL335, Table 2, thesis eq. 14-16): the nut acceleration
   ``(lead/2 pi) w'`` (the mean over each sub-step, exact for the integrator) plus
@@ -62,28 +62,30 @@ from typing import Any
 
 import numpy as np
 
-from .algorithms.rls import band_limited_white_noise
+from ..algorithms.rls import band_limited_white_noise
+from ..devices import adxl335, ballscrew
 from .trial_log import write_trial_log
 
-__all__ = ["TRUTH_DEFAULTS", "simulate_ballscrew", "simulate_ballscrew_log", "SCENARIOS"]
+__all__ = ["TRUTH_DEFAULTS", "simulate_ballscrew", "simulate_ballscrew_log", "SCENARIOS",
+           "min_jerk_reference", "reference_at"]
 
-G0_M_S2 = 9.80665
+G0_M_S2 = adxl335.G0_M_S2
 SCENARIOS = ("identification", "free_motion")
 DEFAULT_DURATION_S = {"identification": 10.0, "free_motion": 20.0}
 
 #: truth parameters of the simulated device and sensors (Table 1 and 2)
 TRUTH_DEFAULTS: dict[str, float] = {
-    "J": 1.7e-5,                 # kg m^2 (Jm + Jbs)
-    "b": 1.6e-5,                 # N m s/rad
-    "fc": 3e-3,                  # N m, Coulomb (sliding) friction
-    "fs": 3e-3,                  # N m, break-away (stiction) torque, >= fc
-    "Kt": 0.0603,                # N m/A
-    "lead": 0.01,                # m/rev
-    "encoder_counts_per_rev": 21600,
-    "Ts": 1e-3,                  # s
+    "J": ballscrew.J_KG_M2,      # kg m^2 (Jm + Jbs)
+    "b": ballscrew.B_NM_S_PER_RAD,  # N m s/rad
+    "fc": ballscrew.FC_NM,       # N m, Coulomb (sliding) friction
+    "fs": ballscrew.FC_NM,       # N m, break-away (stiction) torque, >= fc
+    "Kt": ballscrew.KT_NM_PER_A,  # N m/A
+    "lead": ballscrew.LEAD_M,    # m/rev
+    "encoder_counts_per_rev": ballscrew.ENCODER_COUNTS_PER_REV,
+    "Ts": ballscrew.TS_S,        # s
     "n_sub": 10,                 # sub-steps per sample
-    "acc_noise_density_g": 150e-6,   # g/sqrt(Hz)
-    "acc_bandwidth_hz": 1600.0,      # Hz, single pole
+    "acc_noise_density_g": adxl335.NOISE_DENSITY_G_PER_SQRT_HZ,   # g/sqrt(Hz)
+    "acc_bandwidth_hz": adxl335.BANDWIDTH_HZ,      # Hz, single pole
     "bias0": 0.3,                # m/s^2, accelerometer bias at t = 0
     "bias_rw": 1e-3,             # (m/s^2)/sqrt(s), bias random walk intensity
     "theta0_rad": 0.0,           # rad, motor angle at t = 0 (homed zero = 0)
@@ -98,11 +100,11 @@ TRUTH_DEFAULTS: dict[str, float] = {
 }
 
 
-def _min_jerk_reference(n: int, Ts: float, rng: np.random.Generator, t_start: float,
-                        reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def min_jerk_reference(n: int, Ts: float, rng: np.random.Generator, t_start: float,
+                       reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimum-jerk reaches, with pauses; returns knots (t0, T, x0, x1) as arrays.
 
-    The reference is evaluated at arbitrary times by :func:`_ref_at`, so that the
+    The reference is evaluated at arbitrary times by :func:`reference_at`, so that the
     human force can be recomputed at every sub-step.
     """
     duration = n * Ts
@@ -119,7 +121,7 @@ def _min_jerk_reference(n: int, Ts: float, rng: np.random.Generator, t_start: fl
     return np.array(t0s), np.array(Ts_), np.array([x0s, x1s])
 
 
-def _ref_at(t: float, knots, idx: int) -> tuple[float, float, int]:
+def reference_at(t: float, knots, idx: int) -> tuple[float, float, int]:
     """(x_ref, v_ref) at time t, advancing the knot index ``idx`` monotonically."""
     t0s, Ts_, xs = knots
     m = t0s.size
@@ -175,7 +177,7 @@ def simulate_ballscrew(scenario: str = "identification", duration_s: float | Non
         knots = None
     else:
         i_cmd = np.zeros(n)
-        knots = _min_jerk_reference(n, Ts, rng, float(p["t_rest_s"]), float(p["reach_m"]))
+        knots = min_jerk_reference(n, Ts, rng, float(p["t_rest_s"]), float(p["reach_m"]))
     Kh, Bh = float(p["human_K"]), float(p["human_B"])
 
     # ---- accelerometer: single pole at the sub-step rate, noise scaled to the
@@ -205,7 +207,7 @@ def simulate_ballscrew(scenario: str = "identification", duration_s: float | Non
     for k in range(n):
         t_k = k * Ts
         if knots is not None:
-            xr, vr, idx = _ref_at(t_k, knots, idx)
+            xr, vr, idx = reference_at(t_k, knots, idx)
             f_k = Kh * (x0 + xr - S * th) + Bh * (vr - S * w)
         else:
             f_k = 0.0
@@ -216,7 +218,7 @@ def simulate_ballscrew(scenario: str = "identification", duration_s: float | Non
                 if j == 0:
                     f = f_k
                 else:
-                    xr, vr, idx = _ref_at(t_k + j * dt, knots, idx)
+                    xr, vr, idx = reference_at(t_k + j * dt, knots, idx)
                     f = Kh * (x0 + xr - S * th) + Bh * (vr - S * w)
                 tau = tau_m + S * f
             else:
@@ -282,5 +284,5 @@ def simulate_ballscrew_log(out_stem: str | Path, scenario: str = "identification
     }[scenario]
     return write_trial_log(out_stem, "ballscrew-1dof", sim["data"], sim["signals"], sim["Ts"],
                            nominal=nominal, scenario=scenario, description=desc,
-                           generator="cosim.synth.simulate_ballscrew_log", seed=int(seed),
+                           generator="cosim.logs.synth.simulate_ballscrew_log", seed=int(seed),
                            truth=tr)

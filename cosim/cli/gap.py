@@ -4,16 +4,16 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from ..exitcodes import BAD_INPUT, CANNOT_TELL, OK
-from .device import GapInputError, known_devices
+from .exitcodes import BAD_INPUT, CANNOT_TELL, OK
 
 __all__ = ["add_commands"]
 
 
 def _cmd_diagnose(a: Any) -> int:
-    from ..fileio import OutputPathError, check_out_dir
-    from .diagnose import diagnose
-    from .plausibility import Implausible, write_refusal
+    from ..gap.device import GapInputError
+    from ..gap.diagnose import diagnose
+    from ..gap.plausibility import Implausible, write_refusal
+    from ..logs.fileio import OutputPathError, check_out_dir
     try:
         check_out_dir(a.out)        # created by diagnose once the inputs are read
         res = diagnose(a.device, a.fit, a.test, a.out, report=not a.no_report, margin=a.margin)
@@ -45,11 +45,13 @@ def add_commands(subparsers: Any) -> None:
                     "the catalogue effects, select those that lower the gap on held-out data, and "
                     "measure the gap on --test logs before/after. Writes DIR/diagnosis.json and "
                     "DIR/report.html.")
-    d.add_argument("--device", required=True, help=f"device name ({', '.join(known_devices())})")
+    d.add_argument("--device", required=True,
+                   help="the trial logs' device, e.g. ballscrew-1dof (an unknown name is "
+                        "refused with the list of known ones)")
     d.add_argument("--fit", nargs="+", required=True, metavar="LOG", help="trial logs to fit on (.csv or stem)")
     d.add_argument("--test", nargs="+", required=True, metavar="LOG", help="held-out trial logs")
     d.add_argument("--out", required=True, metavar="DIR", help="output directory")
     d.add_argument("--margin", type=float, default=0.10,
                    help="minimum held-out reduction of the gap energy to select an effect (default 0.10)")
     d.add_argument("--no-report", action="store_true", help="skip report.html")
-    d.set_defaults(func=_cmd_diagnose)
+    d.set_defaults(func=_cmd_diagnose, heartbeat=True)

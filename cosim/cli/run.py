@@ -13,7 +13,7 @@ docs/bring-your-own-fmu.md).
 Each runs the scenarios (:mod:`cosim.scenarios`: runs, verdict.json, summary.json,
 junit.xml) and then draws the pages from what was stored (:mod:`cosim.report`).
 
-Exit codes (:mod:`cosim.exitcodes`): 0 all requirements pass, 1 a requirement fails,
+Exit codes (:mod:`cosim.cli.exitcodes`): 0 all requirements pass, 1 a requirement fails,
 2 bad input (scenario file, --fmu, scheduler, --out), 3 a run errored or crashed, or
 the command was interrupted (SIGINT/SIGTERM: the finished runs are kept, the
 half-written ones removed, and the message says where; the same command resumes).
@@ -24,7 +24,7 @@ import signal
 import sys
 from pathlib import Path
 
-from cosim import exitcodes as ec
+from cosim.cli import exitcodes as ec
 
 
 def _err(msg: str) -> int:
@@ -33,7 +33,7 @@ def _err(msg: str) -> int:
 
 
 def _out_dir(a) -> Path | int:
-    from cosim.fileio import OutputPathError, ensure_out_dir
+    from cosim.logs.fileio import OutputPathError, ensure_out_dir
     try:
         return ensure_out_dir(a.out)
     except OutputPathError as exc:
@@ -70,11 +70,11 @@ def _ensure_fmus(a) -> int | None:
     second and a fresh clone needs no separate build step."""
     if a.fmus is not None or a.no_build:
         return None
-    from cosim.cli import DEFAULT_FMUS, DEFAULT_MODELICA
+    from cosim import paths
     from cosim.fmubuild.build import BuildError, build_all
     from cosim.fmubuild.modelica import ModelicaError
     try:
-        build_all(DEFAULT_MODELICA, DEFAULT_FMUS, log=lambda *_: None)
+        build_all(paths.modelica_package(), paths.fmus_dir(), log=lambda *_: None)
     except (BuildError, ModelicaError) as exc:
         return _err(f"building the package's FMUs: {exc}")
     return None
@@ -101,10 +101,13 @@ def _guarded(a, cmd: str, work):
     exit 3. Returns (exit code or None, work's result)."""
     from cosim.master.fmu import FMUError
     from cosim.master.system import SystemError_
+    from cosim.scenarios.isolate import ISOLATION
     from cosim.scenarios.registry import RegistryError
     from cosim.scenarios.schema import ScenarioError
     from cosim.scenarios.store import finished_runs
     from cosim.scenarios.suite import SuiteError
+    if a.isolation not in ISOLATION:
+        return _err(f"--isolation {a.isolation!r}: expected one of {', '.join(ISOLATION)}"), None
     if isinstance(out := _out_dir(a), int):
         return out, None
     if (rc := _ensure_fmus(a)) is not None:
@@ -118,14 +121,34 @@ def _guarded(a, cmd: str, work):
         return _interrupted(cmd, out, before), None
 
 
+def _level(a) -> int:
+    """-1 quiet, 0 normal, 1 verbose (:mod:`cosim.cli.progress`; 0 when called directly)."""
+    return getattr(a, "level", 0)
+
+
+def _runs_done(a):
+    """The progress callback of run_scenario: the status of ``cosim run``'s progress line."""
+    prog = getattr(a, "progress", None)
+    if prog is None:
+        return None
+    return lambda i, n: prog.update(f"{i}/{n} runs done")
+
+
 def _cmd_run(a) -> int:
     from cosim.report.render import render_scenario
     from cosim.scenarios.runner import run_scenario
 
     def work(out, swaps):
-        v = run_scenario(a.scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
-                         isolation=a.isolation, timeout_s=a.timeout, operator=a.operator)
-        render_scenario(a.scenario, out)
+        scenario = a.scenario
+        if a.case is not None or a.seed is not None or a.set:
+            from cosim.scenarios.select import narrow, write_narrowed
+            doc, notes = narrow(a.scenario, a.case, a.seed, a.set)
+            scenario = write_narrowed(a.scenario, out, doc, notes)
+            print(f"cosim run: {'; '.join(notes)} -> {scenario}", file=sys.stderr)
+        v = run_scenario(scenario, out, swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
+                         isolation=a.isolation, timeout_s=a.timeout, operator=a.operator,
+                         progress=_runs_done(a))
+        render_scenario(scenario, out)
         return v
     rc, v = _guarded(a, "cosim run", work)
     if rc is not None:
@@ -149,7 +172,7 @@ def _cmd_suite(a) -> int:
     def work(out, swaps):
         s = run_suite(a.paths, out, scheduler=a.scheduler, workers=a.workers,
                       fmu_swaps=swaps, fmu_dir=a.fmus, use_cache=not a.no_cache,
-                      progress=not a.no_progress, serial=a.serial,
+                      progress=not a.no_progress and _level(a) >= 0, serial=a.serial,
                       ship=False if a.shared_fs else None,
                       isolation=a.isolation, timeout_s=a.timeout, operator=a.operator)
         render_suite(out)
@@ -171,6 +194,13 @@ def add_commands(sub) -> None:
     r = sub.add_parser("run", help="run one scenario file: results, verdict.json, report.html")
     r.add_argument("scenario", help="scenario file (YAML, docs/scenario-format.md)")
     r.add_argument("--out", required=True, help="output folder")
+    r.add_argument("--case", default=None, metavar="NAME",
+                   help="run only this case (requirements of other cases are left out)")
+    r.add_argument("--seed", type=int, default=None, metavar="N", help="run only this seed")
+    r.add_argument("--set", action="append", default=[], metavar="ROLE.PARAM=VALUE",
+                   help="set an FMU role's parameter (or a controller's), e.g. plant.J=2e-5; "
+                        "repeatable. With --case/--seed/--set the scenario as run is written "
+                        "to OUT/<name>.as-run.yaml and its results and report name it")
     r.add_argument("--fmu", action="append", metavar="ROLE=PATH",
                    help="use this FMU for ROLE (checked against the role's contract)")
     _binding_options(r)
@@ -180,7 +210,7 @@ def add_commands(sub) -> None:
                    help="do not (re)build the package's FMUs from Modelica first")
     _isolation_args(r)
     _operator_arg(r)
-    r.set_defaults(func=_cmd_run)
+    r.set_defaults(func=_cmd_run, heartbeat=True)
     s = sub.add_parser("suite", help="run scenario files/folders on Dask: summary.json, "
                        "junit.xml, report.html")
     s.add_argument("paths", nargs="+", help="scenario files or folders of *.yaml")
@@ -198,14 +228,15 @@ def add_commands(sub) -> None:
     _binding_options(s)
     s.add_argument("--fmus", default=None, help="folder of the default FMUs (default: fmus/)")
     s.add_argument("--no-cache", action="store_true", help="rerun finished runs")
-    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar on stderr "
+                   "(the periodic progress line instead)")
     s.add_argument("--no-build", action="store_true",
                    help="do not (re)build the package's FMUs from Modelica first")
     s.add_argument("--serial", action="store_true",
                    help="run every run in this process, one after the other (no Dask)")
     _isolation_args(s)
     _operator_arg(s)
-    s.set_defaults(func=_cmd_suite)
+    s.set_defaults(func=_cmd_suite, heartbeat=None)     # its own progress bar, see main()
 
 
 def _binding_options(p) -> None:
@@ -225,18 +256,21 @@ def _operator_arg(p) -> None:
 
 
 def _isolation_args(p) -> None:
-    from cosim.scenarios.isolate import DEFAULT_TIMEOUT_S, ISOLATION
-    p.add_argument("--isolation", choices=ISOLATION, default="auto",
+    # the modes and the default timeout are those of cosim.scenarios.isolate (ISOLATION,
+    # DEFAULT_TIMEOUT_S), checked in _guarded: importing it here would make every
+    # ``cosim --help`` pay for the scenario package (tests/test_cli_layout.py holds the
+    # text and the module's values together)
+    p.add_argument("--isolation", default="auto", metavar="{auto,process,none}",
                    help="run each run in a supervised child process, so that an FMU that "
                         "crashes or hangs ends only its run, with a record (signal, role, "
                         "FMU, last time, the rows before it): auto (default) = when one of "
                         "the run's FMUs is not the project's own; process = always; none = "
                         "never")
     p.add_argument("--timeout", type=_seconds, default=None, metavar="SECONDS",
-                   help=f"wall-clock limit per run for scenarios without timeout_s "
-                        f"(default {DEFAULT_TIMEOUT_S:g} s; 0 = none); a run past it ends "
-                        f"as 'error: timeout' and the others go on. Enforced on a hung FMU "
-                        f"call only for runs in a child process")
+                   help="wall-clock limit per run for scenarios without timeout_s "
+                        "(default 1800 s; 0 = none); a run past it ends "
+                        "as 'error: timeout' and the others go on. Enforced on a hung FMU "
+                        "call only for runs in a child process")
 
 
 def _seconds(text: str) -> float:

@@ -15,13 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .fmubuild.build import build_all
+from ..fmubuild.build import build_all
 
 
 def free_motion_system(fmus: Path, duration_s: float = 6.0, seed: int = 1):
-    from .algorithms.aakf import AaKF, AakfParams, EncoderDifferentiator
-    from .master.system import System
-    from .profiles import human_parameters
+    from ..algorithms.aakf import AaKF, AakfParams, EncoderDifferentiator
+    from ..master.system import System
+    from ..devices.human_arm import human_parameters
 
     sys_ = System(step_size=1e-3)
     sys_.add_fmu("plant", fmus / "BallScrewUnit.fmu", contract="ballscrew")
@@ -48,7 +48,7 @@ def free_motion_system(fmus: Path, duration_s: float = 6.0, seed: int = 1):
 
 
 def run_demo(out: Path, modelica: Path, fmus: Path, duration_s: float = 6.0) -> dict:
-    from .master.system import Master
+    from ..master.system import Master
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     build_all(modelica, fmus)
