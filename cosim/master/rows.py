@@ -28,9 +28,11 @@ ROWS, ROLE, CALL = 0, 1, 2
 STATUS_FIELDS = 4
 HEADER_BYTES = 8 * STATUS_FIELDS
 #: what the loop is doing with FMU ``status[ROLE]`` (``status[CALL]``)
-NO_CALL, GET, SET, STEP, START, END = 0, 1, 2, 3, 4, 5
+NO_CALL, GET, SET, STEP, INSTANTIATE, INITIALISE, TERMINATE = 0, 1, 2, 3, 4, 5, 6
 CALL_TEXT = {NO_CALL: None, GET: "getting outputs", SET: "setting inputs", STEP: "doStep",
-             START: "instantiating or initialising the FMU", END: "terminating the FMU"}
+             INSTANTIATE: "calling instantiate() outside the tick loop",
+             INITIALISE: "calling exit_initialization() outside the tick loop",
+             TERMINATE: "calling terminate() outside the tick loop"}
 
 #: the phase of the procedure that the next runs belong to (:class:`~cosim.scenarios.
 #: registry.BuildContext` ``phase``; the scenario runner sets it)

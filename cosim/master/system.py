@@ -112,7 +112,8 @@ from .fmu import INT_RANGE, STATUS, FMUError, FMUSlave, suggest
 from .loop import ControllerError, Terminated, convert as _convert, finite as _finite
 from .loop import call_groups as _groups, fast_dest as _fast_dest
 from .roles import CONTRACTS, RoleContract, check_contract
-from .rows import CALL, END, NO_CALL, PHASE, ROLE, START, RowBuffer
+from .rows import (CALL, INITIALISE, INSTANTIATE, NO_CALL, PHASE, ROLE, TERMINATE,
+                   RowBuffer)
 from .units import unit_conversion
 
 
@@ -976,12 +977,13 @@ class Master:
         status = rows.status
         try:
             for j, (role, slave) in enumerate(slaves):
-                status[ROLE], status[CALL] = j, START
+                status[ROLE], status[CALL] = j, INSTANTIATE
                 slave.instantiate(sys_.params.get(role), start_time=T0,
                                   stop_time=T0 + n_ticks * Ts)
+            status[ROLE], status[CALL] = -1, NO_CALL
             wbufs = self._inputs_in_initialization(slaves, plan, T0)
             for j, (role, slave) in enumerate(slaves):
-                status[ROLE], status[CALL] = j, START
+                status[ROLE], status[CALL] = j, INITIALISE
                 slave.exit_initialization()
             status[ROLE], status[CALL] = -1, NO_CALL
             self.groups = _coupled.start(sys_, T0, SystemError_)
@@ -1033,7 +1035,7 @@ class Master:
         finally:
             wall = _time.perf_counter() - t_start
             for j, (_, s) in enumerate(slaves):
-                status[ROLE], status[CALL] = j, END
+                status[ROLE], status[CALL] = j, TERMINATE
                 s.terminate()
             status[ROLE], status[CALL] = -1, NO_CALL
         tim = None
