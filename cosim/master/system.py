@@ -979,7 +979,8 @@ class Master:
             for j, (role, slave) in enumerate(slaves):
                 status[ROLE], status[CALL] = j, INSTANTIATE
                 slave.instantiate(sys_.params.get(role), start_time=T0,
-                                  stop_time=T0 + n_ticks * Ts)
+                                  stop_time=last_step_end(T0, n_ticks, Ts,
+                                                          getattr(slave, "step_mult", 1)))
             status[ROLE], status[CALL] = -1, NO_CALL
             wbufs = self._inputs_in_initialization(slaves, plan, T0)
             for j, (role, slave) in enumerate(slaves):
@@ -1225,6 +1226,18 @@ def _check_attr(cname, blk, attr, index, name):
     except (TypeError, ValueError):
         if val is not None:          # None before the first step (e.g. a previous value)
             raise SystemError_(f"record: {name!r} is a {type(val).__name__}, not a number") from None
+
+
+def last_step_end(T0: float, n_ticks: int, Ts: float, d: int = 1) -> float:
+    """The stop time given to an FMU: where its last doStep ends, computed as the tick
+    loop and the FMU compute it (from t_{N-1} = (N - 1) Ts, or T0 + (N - 1) Ts, and the
+    step: d Ts from t_{N-1} - (d - 1) Ts for an FMU stepped every d base steps). N Ts
+    itself may be an ulp short of it (9 * 0.001 + 0.001 > 10 * 0.001): a strict FMU
+    (OpenModelica's, checking t + h > stopTime) would refuse the last step."""
+    t = (n_ticks - 1) * Ts if T0 == 0.0 else T0 + (n_ticks - 1) * Ts
+    if d == 1:
+        return t + Ts
+    return (t - (d - 1) * Ts) + d * Ts
 
 
 def _int_range(slave, v):
