@@ -81,14 +81,15 @@ terminateSimulation) ends the run normally: the tick is completed and recorded, 
 
 Speed
 -----
-``Master.run`` resolves every name once and generates one specialised Python
-function for the tick loop (see :attr:`Master.source`), the reference that the
-compiled engine (:mod:`cosim.master.engine`) reproduces bit for bit when it runs the
-ticks instead (``Master(engine=...)``): values live in a flat list,
-FMUs are called through their raw ctypes function pointers with preallocated
-buffers (statuses checked inline), controller inputs are dict displays, and rows are
-appended to a flat ``array('d')``. Non-finite checks are one ``sum`` per group of
-values per tick, with a diagnostic pass only when it is not finite.
+``Master.run`` resolves every name once and builds the run's tick loop
+(:class:`cosim.master.loop.TickLoop`: one explicit Python loop over prepared lists,
+the reference) or lets the compiled engine (:mod:`cosim.master.fast.engine`) run the
+same ticks, bit for bit (``Master(engine=...)``): values live in a flat list, FMUs
+are called through their raw ctypes function pointers with preallocated buffers
+(statuses checked inline), and rows are written into the run's
+:class:`~cosim.master.rows.RowBuffer`, which a supervisor may own
+(:func:`cosim.master.rows.supervised`). Non-finite checks are one ``sum`` per group
+of values per tick, with a diagnostic pass only when it is not finite.
 """
 from __future__ import annotations
 
@@ -733,9 +734,10 @@ class Master:
     'ctrl.attr[i]' / 'ctrl.attr[i,j]', e.g. 'aakf.P[0,0]'). ``timing=True`` measures
     the wall time of every FMU call and controller (slower; see RunResult.timing).
     ``engine``: 'auto' (default, or ``$COSIM_ENGINE``) runs the ticks in the compiled
-    engine when it can (:mod:`cosim.master.engine`: bit-identical results, the same
-    errors), 'python' always in the generated Python loop, 'compiled' refuses a system
-    the engine cannot run; :attr:`engine_used` says which ran.
+    engine when it can (:mod:`cosim.master.fast.engine`: bit-identical results, the
+    same errors), 'python' always in the Python tick loop (:mod:`cosim.master.loop`),
+    'compiled' refuses a system the engine cannot run; :attr:`engine_used` says which
+    ran.
     """
 
     def __init__(self, system: System, record: list[str] | None = None, timing: bool = False,
@@ -751,7 +753,7 @@ class Master:
         self.engine = engine
         #: how the last run was made: 'python', 'compiled-loop' (every controller
         #: compiled: one C call for all ticks) or 'compiled-calls' (C for the FMI calls,
-        #: Python controllers); and why (cosim.master.engine)
+        #: Python controllers); and why (cosim.master.fast.engine)
         self.engine_used: str | None = None
         self.engine_reason: str | None = None
         #: benchmarks: the engine measures the FMUs' own doStep time (``_engine_program.
