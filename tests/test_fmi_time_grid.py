@@ -66,3 +66,16 @@ def test_last_step_end_is_the_loops_sum():
     for n in range(1, 500):
         assert last_step_end(0.0, n, 1e-3) == (n - 1) * 1e-3 + 1e-3
         assert last_step_end(0.0, 4 * n, 1e-3, 4) == ((4 * n - 1) * 1e-3 - 3 * 1e-3) + 4e-3
+
+
+def test_simulate_runs_whole_steps_of_the_fmus_own(tmp_path):
+    """`cosim fmus simulate/check --simulate` at 1 ms for 10 ms on an FMU whose fixed
+    internal step is 3 ms: 4 of its steps (12 ms), not an error that 10 ms is not a
+    multiple of 3 ms."""
+    from cosim.master.simulate import simulate_fmu
+    from test_fmi_lifecycle import build_probe3
+    fmu = build_probe3(tmp_path, extra_cs='canHandleVariableCommunicationStepSize="true" '
+                                          'fixedInternalStepSize="0.003"')
+    r = simulate_fmu(fmu, stop_time=0.01, step=1e-3)
+    assert r.completed, r.error
+    assert r.ticks == 13 and r["time"][-1] == pytest.approx(0.012)
