@@ -134,6 +134,10 @@ class TickLoop:
         self.Ts, self.T0 = Ts, T0
         self.V = [0.0] * len(slots)
         self.fmus = fmus               # [FmuCalls] in role order
+        # the same calls flat, in loop order (fewer lookups per tick)
+        self.read_calls = [(F.j, *r) for F in fmus for r in F.reads]
+        self.write_calls = [(F.j, F.d, f"fmu:{F.role}:set", F.writes) for F in fmus if F.writes]
+        self.step_calls = [(F.j, F.d, F.seq, F.step, F.role) for F in fmus]
         self.stimuli = stimuli         # [(slot, fn)]
         self.controllers = controllers  # [(name, step, [(key, slot)], [(output, slot)], faults)]
         self.attrs = attrs             # [(slot, block, attr, index)]
@@ -169,7 +173,9 @@ class TickLoop:
         V, rows, status = self.V, self.rows, self.rows.status
         flat, ncol = rows.flat, len(rows.columns)
         rec, text = self.rec, self.text
-        fmus, stimuli, controllers, attrs = self.fmus, self.stimuli, self.controllers, self.attrs
+        reads, writes = self.read_calls, self.write_calls
+        stimuli, controllers, attrs = self.stimuli, self.controllers, self.attrs
+        steps = self._steps
         faults_in, stim_end, ctrl_end = self.faults_in, self.stim_end, self.ctrl_end
         check_in, check_ctrl = stim_end > 1, ctrl_end > stim_end
         engine = self.fmi_calls
@@ -184,23 +190,22 @@ class TickLoop:
                 if engine.read(k):
                     engine.fail()
             else:
-                for F in fmus:
-                    if F.reads:
-                        status[ROLE], status[CALL] = F.j, GET
-                        for get, args, buf, a, m, decode, label in F.reads:
-                            if timed:
-                                t0 = pc()
-                            if (st := get(*args)) > 1:
-                                self.fail_fmu(F.j, "get", t, st)
-                            if decode is None:
-                                if m == 1:
-                                    V[a] = buf[0]
-                                else:
-                                    V[a:a + m] = buf
-                            else:
-                                V[a:a + m] = decode(buf)
-                            if timed:
-                                T[lab(label)] += pc() - t0
+                for j, get, args, buf, a, m, decode, label in reads:
+                    if timed:
+                        t0 = pc()
+                    status[ROLE] = j
+                    status[CALL] = GET
+                    if (st := get(*args)) > 1:
+                        self.fail_fmu(j, "get", t, st)
+                    if decode is None:
+                        if m == 1:
+                            V[a] = buf[0]
+                        else:
+                            V[a:a + m] = buf
+                    else:
+                        V[a:a + m] = decode(buf)
+                    if timed:
+                        T[lab(label)] += pc() - t0
                 status[CALL] = NO_CALL
             # 2. stimuli at t_k, input faults, finite inputs
             if stimuli:
@@ -270,25 +275,27 @@ class TickLoop:
                 if engine.write_step(k):
                     engine.fail()
                 continue
-            for F in fmus:
-                if F.writes and (F.d == 1 or not k % F.d):
-                    if timed:
-                        t0 = pc()
-                    status[ROLE], status[CALL] = F.j, SET
-                    for set_, args, buf, terms, plain in F.writes:
-                        if plain is not None:
-                            buf[:] = plain(V)
-                        else:
-                            for p, term in terms:
-                                buf[p] = term.value(V[term.src], t)
-                        if (st := set_(*args)) > 1:
-                            self.fail_fmu(F.j, "set", t, st)
-                    if timed:
-                        T[lab(f"fmu:{F.role}:set")] += pc() - t0
+            for j, d, label, calls in writes:
+                if d > 1 and k % d:        # an FMU stepped every d ticks: inputs at its start
+                    continue
+                if timed:
+                    t0 = pc()
+                status[ROLE] = j
+                status[CALL] = SET
+                for set_, args, buf, terms, plain in calls:
+                    if plain is not None:
+                        buf[:] = plain(V)
+                    else:
+                        for p, term in terms:
+                            buf[p] = term.value(V[term.src], t)
+                    if (st := set_(*args)) > 1:
+                        self.fail_fmu(j, "set", t, st)
+                if timed:
+                    T[lab(label)] += pc() - t0
             # 6. doSteps from t_k to t_k+1
             if tc is not None:
                 tc.value = t
-            self._steps(k, t, -1)
+            steps(k, t, -1)
         status[ROLE], status[CALL] = -1, NO_CALL
 
     def steps(self, k, j0) -> None:
@@ -301,31 +308,34 @@ class TickLoop:
     def _steps(self, k, t, j0) -> None:
         status, V = self.rows.status, self.V
         timed, pc, T = self._timed, _time.perf_counter, self.timing
-        for F in self.fmus:
-            if F.j <= j0 or (F.d > 1 and (k + 1) % F.d):
+        for j, d, seq, step, role in self.step_calls:
+            if j <= j0 or (d > 1 and (k + 1) % d):
                 continue
-            if F.seq is not None:
+            if seq is not None:
                 # Gauss-Seidel inputs: the sources (stepped earlier in this tick) read at
                 # t_{k+1}, set just before this FMU's doStep
                 if timed:
                     t0 = pc()
-                gets, set_, args, buf = F.seq
+                gets, set_, args, buf = seq
                 for q, (si, get, gargs, gbuf, term) in enumerate(gets):
-                    status[ROLE], status[CALL] = si, GET
+                    status[ROLE] = si
+                    status[CALL] = GET
                     if (st := get(*gargs)) > 1:
                         self.fail_fmu(si, "get", t, st)
                     buf[q] = term.value(gbuf[0], t)
-                status[ROLE], status[CALL] = F.j, SET
+                status[ROLE] = j
+                status[CALL] = SET
                 if (st := set_(*args)) > 1:
-                    self.fail_fmu(F.j, "set", t, st)
+                    self.fail_fmu(j, "set", t, st)
                 if timed:
-                    T[self._lab(f"fmu:{F.role}:sequential-inputs")] += pc() - t0
+                    T[self._lab(f"fmu:{role}:sequential-inputs")] += pc() - t0
             if timed:
                 t0 = pc()
-            status[ROLE], status[CALL] = F.j, STEP
-            F.step(t)
+            status[ROLE] = j
+            status[CALL] = STEP
+            step(t)
             if timed:
-                T[self._lab(f"fmu:{F.role}:doStep")] += pc() - t0
+                T[self._lab(f"fmu:{role}:doStep")] += pc() - t0
         status[CALL] = NO_CALL
 
     # --------------------------------------------------------------- failures
