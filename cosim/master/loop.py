@@ -232,7 +232,7 @@ class TickLoop:
                 if timed:
                     t0 = pc()
                 try:
-                    o = step({key: V[s] for key, s in wiring})
+                    o = step({key: V[s] for key, s in wiring} if wiring else {})
                 except Exception as e:
                     self.fail_ctrl(i, t, e, None)
                 try:
@@ -322,7 +322,7 @@ class TickLoop:
                     status[CALL] = GET
                     if (st := get(*gargs)) > 1:
                         self.fail_fmu(si, "get", t, st)
-                    buf[q] = term.value(gbuf[0], t)
+                    buf[q] = gbuf[0] if term is None else term.value(gbuf[0], t)
                 status[ROLE] = j
                 status[CALL] = SET
                 if (st := set_(*args)) > 1:
@@ -642,7 +642,8 @@ def build(system, plan, slot, slaves, bounds, rows, Ts, T0, wbufs, faults, inter
                 sio = fmus[si].io
                 svr, sbuf = (ctypes.c_uint32 * 1)(slaves[si][1].var(s_var).vr), (ctypes.c_double * 1)()
                 gargs = (sio.comp, svr, n1, sbuf, n1) if sio.fmi3 else (sio.comp, svr, n1, sbuf)
-                gets.append((si, sio.get, gargs, sbuf, term(c, src=0)))
+                t_ = term(c, src=0)
+                gets.append((si, sio.get, gargs, sbuf, None if t_.plain else t_))
             F.seq = (gets, io.set, (comp, vr, cn, buf, cn) if io.fmi3 else (comp, vr, cn, buf), buf)
         F.step = _stepper(F, slave, io, tc, h1, one, true, Ts)
         fmus.append(F)
