@@ -111,7 +111,7 @@ from .fast import engine as _engine
 from .faults import Fault, FaultKind
 from .fmu import INT_RANGE, STATUS, FMUError, FMUSlave, suggest
 from .loop import ControllerError, Terminated, convert as _convert, finite as _finite
-from .loop import call_groups as _groups, fast_dest as _fast_dest
+from .loop import call_groups as _groups
 from .roles import CONTRACTS, RoleContract, check_contract
 from .rows import (CALL, INITIALISE, INSTANTIATE, NO_CALL, PHASE, ROLE, TERMINATE,
                    RowBuffer)

@@ -64,11 +64,8 @@ from .store import CRASH_PREFIX, publish_run, run_tmp_dir
 ISOLATION = ("auto", "process", "none")
 #: the per-run wall-clock limit without ``timeout_s`` or ``--timeout`` [s]
 DEFAULT_TIMEOUT_S = 1800.0
-#: the watcher's flush period in the child [s] (what a crash while the GIL is held, or a
-#: SIGKILL, keeps; a crash in an FMU call or a timeout gets an exact last flush)
-FLUSH_S = 0.25
-#: after the child's stack dump of a fatal signal, how long its watcher may take to
-#: write the last rows before the parent kills it [s]
+#: after the child's stack dump of a fatal signal, how long it may take to die of the
+#: signal before the parent kills it [s] (its rows are in the mapped files either way)
 CRASH_GRACE_S = 5.0
 #: after SIGUSR1 on a timeout, how long the child may take to write its stacks [s]
 DUMP_GRACE_S = 1.0
@@ -392,7 +389,7 @@ def _supervise(p, rx, scratch: Path, timeout_s):
             return None, False
         now = time.monotonic()
         if dumped_at is None and _size(scratch / STACKS) > 0:
-            dumped_at = now               # a fatal signal: the watcher writes the rows
+            dumped_at = now               # a fatal signal: the child is dying of it
         if dumped_at is not None and now - dumped_at > CRASH_GRACE_S:
             p.kill()
             p.join()

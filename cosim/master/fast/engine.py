@@ -15,7 +15,7 @@ ctypes functions and buffers, its row buffer):
 * ``python``: anything else (see :func:`unsupported`): the Python loop as before.
 
 Both compiled modes do the operations of the Python loop in its order with the same
-double arithmetic (unit conversion as ``system._affine``), so the results are
+double arithmetic (unit conversion as ``loop.Term.value``), so the results are
 bit-identical (tests/test_engine.py). A failure returns (code, tick, index, status)
 and the Python side raises the error the Python loop raises, through the loop's own
 ``fail_*`` methods; the rows are written into the run's
