@@ -114,6 +114,8 @@ def main() -> None:
     say(f"  difference per step: median {per['process'] - per['none']:+.2f} us "
         f"({(per['process'] / per['none'] - 1) * 100:+.1f} %), fastest run "
         f"{lo['process'] - lo['none']:+.2f} us ({(lo['process'] / lo['none'] - 1) * 100:+.1f} %)")
+    say(f"  isolated / in process per step: median {per['process'] / per['none']:.2f}x, "
+        f"fastest run {lo['process'] / lo['none']:.2f}x (goal: at most 1.5x)")
     if a.out:
         Path(a.out).parent.mkdir(parents=True, exist_ok=True)
         Path(a.out).write_text("\n".join(lines) + "\n")

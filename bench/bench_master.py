@@ -5,7 +5,7 @@
    kept, which suppresses the noise of a shared machine):
 
    * ``master``: the master as it runs by default (``engine='auto'``: the compiled
-     tick engine, cosim/master/engine.py); ``m-py``: the same with its Python loop;
+     tick engine, cosim/master/fast/engine.py); ``m-py``: the same with its Python loop;
    * ``fmpy``: FMPy's ``FMU2Slave.setReal / doStep / getReal`` per FMU and tick;
    * ``raw``:  the same FMI calls made directly through FMPy's ctypes function
      pointers with preallocated buffers (a hand-written loop);

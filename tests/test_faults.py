@@ -123,18 +123,21 @@ def test_noise_burst_is_the_seeded_stream_and_repeats():
     assert abs(e.mean()) < 0.05 and abs(e.std() / 2.0 - 1) < 0.02
 
 
-def test_no_fault_no_change_in_the_generated_loop():
-    """System.faults empty: the tick loop has no fault line (an engine may take such a
+def test_no_fault_no_change_in_the_tick_loop():
+    """System.faults empty: the tick loop applies no fault (an engine may take such a
     system; with faults it must fall back to this loop)."""
     s = System(TS)
     s.add_stimulus("x", lambda t: t)
     s.add_controller("p", Pass(), {"u": "stim.x"})
     m = Master(s, ["p.y"])
-    m.run(0.005)
-    assert s.faults == [] and "_flt" not in m.source
+    r0 = m.run(0.005)
+    assert s.faults == [] and m.loop.faults_in == []
+    assert all(not c[4] for c in m.loop.controllers)
     s.add_fault("p.y", F.make("bias", {"offset": 1.0}))
-    m.run(0.005)
-    assert "_flt0(t, " in m.source
+    r1 = m.run(0.005)
+    (name, _, _, outputs, faults), = m.loop.controllers
+    assert name == "p" and [s_ for s_, _ in faults] == [dict(outputs)["y"]]
+    assert np.array_equal(r1["p.y"], r0["p.y"] + 1.0)
 
 
 def test_master_rerun_resets_the_faults():

@@ -47,7 +47,7 @@ def test_a_c_kernel_edit_changes_the_source_hash_and_the_run_key(tmp_path, monke
     assert store.source_hash(root) == store.source_hash()       # the same computation
     names = {p.relative_to(root).as_posix() for p in store.source_files(root)}
     assert {"algorithms/c/zero_force.c", "algorithms/c/cosim_kernel.h",
-            "master/c/engine.c"} <= names
+            "master/fast/c/engine.c"} <= names
     assert not any(n.startswith("report/") for n in names)
     before = store.source_hash(root)
     zf = root / "algorithms" / "c" / "zero_force.c"

@@ -164,7 +164,7 @@ def test_wheel_installs_builds_fmus_in_user_cache_and_runs_a_scenario(tmp_path):
     assert not list(work.rglob("*.fmu"))
     # the compiled tick engine (issue 11): its C sources are package data, and it was
     # built from them into the user cache on first use, never into site-packages
-    assert (site / "cosim" / "master" / "c" / "engine.c").is_file()
+    assert (site / "cosim" / "master" / "fast" / "c" / "engine.c").is_file()
     assert (site / "cosim" / "algorithms" / "c" / "cosim_kernel.h").is_file()
     assert {p.name for p in (site / "cosim" / "algorithms" / "c").glob("*.c")} == \
         {p.name for p in (REPO / "cosim" / "algorithms" / "c").glob("*.c")}

@@ -752,7 +752,7 @@ class FMUSlave:
             def step(t, h):
                 st = do(comp, D(t), D(h), one)
                 if st > 1:
-                    raise self.error("fmi2DoStep", st, t)
+                    raise self.error("fmiDoStep" if self.fmi1 else "fmi2DoStep", st, t)
                 self.time = t + h
         return step
 

@@ -161,6 +161,10 @@ def simulate_fmu(path, input_csv=None, start: dict | None = None, stop_time: flo
     if record is None:
         record = [n_ for n_, v in slave.variables.items() if v.causality == "output"]
     names = [f"{role}.{r}" for r in record]
+    # an FMU stepped every d base steps (its fixed internal step, or a DefaultExperiment
+    # step it cannot vary from) runs whole steps of its own: the stop time rounded up
+    d = getattr(slave, "step_mult", 1)
+    n = -(-n // d) * d
     return Master(s, record=names).run(n * h, raise_on_error=False)
 
 

@@ -81,18 +81,18 @@ terminateSimulation) ends the run normally: the tick is completed and recorded, 
 
 Speed
 -----
-``Master.run`` resolves every name once and generates one specialised Python
-function for the tick loop (see :attr:`Master.source`), the reference that the
-compiled engine (:mod:`cosim.master.engine`) reproduces bit for bit when it runs the
-ticks instead (``Master(engine=...)``): values live in a flat list,
-FMUs are called through their raw ctypes function pointers with preallocated
-buffers (statuses checked inline), controller inputs are dict displays, and rows are
-appended to a flat ``array('d')``. Non-finite checks are one ``sum`` per group of
-values per tick, with a diagnostic pass only when it is not finite.
+``Master.run`` resolves every name once and builds the run's tick loop
+(:class:`cosim.master.loop.TickLoop`: one explicit Python loop over prepared lists,
+the reference) or lets the compiled engine (:mod:`cosim.master.fast.engine`) run the
+same ticks, bit for bit (``Master(engine=...)``): values live in a flat list, FMUs
+are called through their raw ctypes function pointers with preallocated buffers
+(statuses checked inline), and rows are written into the run's
+:class:`~cosim.master.rows.RowBuffer`, which a supervisor may own
+(:func:`cosim.master.rows.supervised`). Non-finite checks are one ``sum`` per group
+of values per tick, with a diagnostic pass only when it is not finite.
 """
 from __future__ import annotations
 
-import array
 import dataclasses
 import json
 import keyword
@@ -106,19 +106,20 @@ from typing import Callable, Mapping
 import numpy as np
 
 from . import coupled as _coupled
+from . import loop as _loop
+from .fast import engine as _engine
 from .faults import Fault, FaultKind
-from .fmu import _C2, _C3, INT_RANGE, STATUS, FMUError, FMUSlave, FMUTerminated, suggest
+from .fmu import INT_RANGE, STATUS, FMUError, FMUSlave, suggest
+from .loop import ControllerError, Terminated, convert as _convert, finite as _finite
+from .loop import call_groups as _groups
 from .roles import CONTRACTS, RoleContract, check_contract
+from .rows import (CALL, INITIALISE, INSTANTIATE, NO_CALL, PHASE, ROLE, TERMINATE,
+                   RowBuffer)
 from .units import unit_conversion
 
 
 class SystemError_(ValueError):
     """A system description that cannot run (unknown name, mismatched contract)."""
-
-
-class ControllerError(FMUError):
-    """A controller or stimulus that raised, or returned a missing, non-numeric or
-    non-finite value, during a run."""
 
 
 @dataclasses.dataclass
@@ -739,15 +740,6 @@ class _Plan:
     alias: dict
 
 
-class _Terminated(Exception):
-    """An FMU ended the simulation normally (fmi2Discard + fmi2Terminated, FMI 3
-    terminateSimulation) during the doStep of tick ``k``."""
-
-    def __init__(self, j, k, reason):
-        super().__init__(reason)
-        self.j, self.k, self.reason = j, k, reason
-
-
 class Master:
     """Runs a System for a duration at its fixed step.
 
@@ -756,9 +748,10 @@ class Master:
     'ctrl.attr[i]' / 'ctrl.attr[i,j]', e.g. 'aakf.P[0,0]'). ``timing=True`` measures
     the wall time of every FMU call and controller (slower; see RunResult.timing).
     ``engine``: 'auto' (default, or ``$COSIM_ENGINE``) runs the ticks in the compiled
-    engine when it can (:mod:`cosim.master.engine`: bit-identical results, the same
-    errors), 'python' always in the generated Python loop, 'compiled' refuses a system
-    the engine cannot run; :attr:`engine_used` says which ran.
+    engine when it can (:mod:`cosim.master.fast.engine`: bit-identical results, the
+    same errors), 'python' always in the Python tick loop (:mod:`cosim.master.loop`),
+    'compiled' refuses a system the engine cannot run; :attr:`engine_used` says which
+    ran.
     """
 
     def __init__(self, system: System, record: list[str] | None = None, timing: bool = False,
@@ -766,24 +759,23 @@ class Master:
         self.system = system
         self.record = list(record or [])
         self.timing = bool(timing)
-        from .engine import MODES
         engine = engine if engine is not None else (os.environ.get("COSIM_ENGINE") or "auto")
-        if engine not in MODES:
-            raise SystemError_(f"engine must be one of {list(MODES)} (argument or $COSIM_ENGINE), "
+        if engine not in _engine.MODES:
+            raise SystemError_(f"engine must be one of {list(_engine.MODES)} (argument or $COSIM_ENGINE), "
                                f"not {engine!r}")
         #: 'auto' (the compiled engine when it can run the system), 'python', 'compiled'
         self.engine = engine
         #: how the last run was made: 'python', 'compiled-loop' (every controller
         #: compiled: one C call for all ticks) or 'compiled-calls' (C for the FMI calls,
-        #: Python controllers); and why (cosim.master.engine)
+        #: Python controllers); and why (cosim.master.fast.engine)
         self.engine_used: str | None = None
         self.engine_reason: str | None = None
         #: benchmarks: the engine measures the FMUs' own doStep time (``_engine_program.
         #: step_seconds``, per role in order) when this is set before run()
         self._time_steps = False
         self._engine_program = None
-        #: the generated tick-loop source of the last run (for inspection)
-        self.source: str | None = None
+        #: the tick loop of the last run (:class:`cosim.master.loop.TickLoop`)
+        self.loop = None
         #: the coupled groups' integrators of the last run (cosim.fmi.me_group.MEGroup)
         self.groups: list = []
 
@@ -984,87 +976,91 @@ class Master:
                 if v.kind in ("str", "bin"):
                     text_cols.append(name)
         num_cols = [c for c in columns if c not in text_cols]
-        rec = array.array("d")
-        srec: list = []
-        self._cols = (columns, num_cols, text_cols, dtypes, srec)
         self._notes: list[str] = []
         self._stop = None
+        rows = self._rows = RowBuffer.for_run(
+            num_cols, text_cols, n_ticks + 1, self._head(num_cols, text_cols, Ts), sys_)
+        self._cols = (columns, num_cols, text_cols, dtypes)
 
         slaves = list(sys_.roles.items())
         mode, why, kernels = "python", "engine='python'", None
         if self.engine != "python":
-            from . import engine as _engine
             mode, why, kernels = _engine.choose(self, plan, n_ticks + 1)  # steps k = 0..N
             if mode == "python" and self.engine == "compiled":
                 raise SystemError_(f"engine='compiled': the compiled engine cannot run this "
                                    f"system: {why}")
         self.engine_used, self.engine_reason = mode, why
+        status = rows.status
         try:
-            for role, slave in slaves:
+            for j, (role, slave) in enumerate(slaves):
+                status[ROLE], status[CALL] = j, INSTANTIATE
                 slave.instantiate(sys_.params.get(role), start_time=T0,
-                                  stop_time=T0 + n_ticks * Ts)
+                                  stop_time=last_step_end(T0, n_ticks, Ts,
+                                                          getattr(slave, "step_mult", 1)))
+            status[ROLE], status[CALL] = -1, NO_CALL
             wbufs = self._inputs_in_initialization(slaves, plan, T0)
-            for role, slave in slaves:
+            for j, (role, slave) in enumerate(slaves):
+                status[ROLE], status[CALL] = j, INITIALISE
                 slave.exit_initialization()
+            status[ROLE], status[CALL] = -1, NO_CALL
             self.groups = _coupled.start(sys_, T0, SystemError_)
-            src, ns = self._generate(slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec,
-                                     srec, Ts, T0, wbufs, engine_calls=mode == "compiled-calls")
+            internal = {id(c) for c in sys_._connections if _coupled.is_internal(sys_, c)}
+            loop = self.loop = _loop.build(
+                sys_, plan, slot, slaves, (fmu_end, stim_end, ctrl_end), rows, Ts, T0, wbufs,
+                _fault_hooks(sys_, plan), internal, timing=self.timing, notes=self._notes)
+            run_ticks, finish_tick = loop.run, loop.steps
             if mode != "python":
-                _engine.attach(self, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end,
-                               rec, kernels, n_ticks, Ts, T0)
-                if mode == "compiled-loop":
-                    src = ("# not run: the compiled engine runs this loop (compiled-loop)\n"
-                           + src)
+                run_ticks, finish_tick = _engine.attach(
+                    loop, mode, kernels, n_ticks, time_steps=self._time_steps)
+                self._engine_program = loop.program if self._time_steps else None
         except BaseException as exc:
             for _, s in slaves:
                 s.terminate()
             if isinstance(exc, (FMUError, SystemError_)):
                 if isinstance(exc, FMUError):
-                    exc.result = self._result(rec, Ts, str(exc), None)
+                    exc.result = self._result(rows, Ts, str(exc), None)
                 raise
             err = FMUError(f"initialisation failed: {type(exc).__name__}: {exc}")
-            err.result = self._result(rec, Ts, str(err), None)
+            err.result = self._result(rows, Ts, str(err), None)
             raise err from exc
-        self.source = src
-        loop = ns["_loop"]
-        timing = ns.get("_T")
-        ncol = len(num_cols)
 
         error: BaseException | None = None
         t_start = _time.perf_counter()
         try:
             try:
-                loop(0, n_ticks)
-            except _Terminated as term:
+                run_ticks(0, n_ticks)
+            except Terminated as term:
                 # finish the tick (the FMUs after it are stepped too), record its end
                 # row and stop: the FMU's own end is a normal end (FMI 2.0 section
                 # 4.2.3, FMI 3.0 section 4.2.1: the master terminates the simulation)
                 stops = [term]
                 while True:
                     try:
-                        ns["_steps"](term.k, stops[-1].j)
+                        finish_tick(term.k, stops[-1].j)
                         break
-                    except _Terminated as more:
+                    except Terminated as more:
                         stops.append(more)
-                loop(term.k + 1, term.k + 1)
+                run_ticks(term.k + 1, term.k + 1)
                 self._stop = "; ".join(x.reason for x in stops)
         except FMUError as exc:
             error = exc
         except Exception as exc:          # a bug outside the guarded calls
-            k = len(rec) // ncol
+            k = rows.n
             error = FMUError(f"run failed at tick {k} (t = {T0 + k * Ts:.6f} s): "
                              f"{type(exc).__name__}: {exc}")
             error.__cause__ = exc
         finally:
             wall = _time.perf_counter() - t_start
-            for _, s in slaves:
+            for j, (_, s) in enumerate(slaves):
+                status[ROLE], status[CALL] = j, TERMINATE
                 s.terminate()
+            status[ROLE], status[CALL] = -1, NO_CALL
         tim = None
-        if timing is not None:
-            tim = {label: float(x) for label, x in zip(ns["_T_labels"], timing)}
+        if self.timing:
+            tim = {label: float(x) for label, x in zip(loop.labels, loop.timing)}
             tim["total"] = wall
             tim["master"] = wall - sum(v for k, v in tim.items() if k != "total")
-        result = self._result(rec, Ts, str(error) if error else None, tim)
+        result = self._result(rows, Ts, str(error) if error else None, tim)
         result.wall_time = wall
         if error is not None:
             error.result = result           # nothing recorded is lost
@@ -1072,46 +1068,13 @@ class Master:
                 raise error
         return result
 
-    def _continue_early(self, j, slave, ns, t, h):
-        """An FMI 3 FMU returned early from fmi3DoStep (earlyReturn, lastSuccessfulTime
-        < t + h). The master instantiates every FMU with earlyReturnAllowed = false, so
-        this is the FMU's doing: if it can handle a variable communication step the
-        master steps it on from lastSuccessfulTime to t + h (and notes it in
-        ``RunResult.notes``), else the run fails; it never goes on as if the step had
-        been completed (FMI 3.0 section 4.2.1, fmi3DoStep)."""
-        import ctypes
-        do, c = ns[f"do_{j}"], ns[f"c_{j}"]
-        early, last, term = ns[f"early_{j}"], ns[f"last_{j}"], ns[f"term_{j}"]
-        extra = tuple(ns[f"x{i}_{j}"] for i in range(4))
-        tend = t + h
-        eps = 1e-9 * max(1.0, abs(tend))
-        first = last.value
-        n = 0
-        while early.value and last.value < tend - eps and not term.value:
-            if not getattr(slave.iface, "canHandleVariableCommunicationStepSize", False):
-                raise slave.error(
-                    f"fmi3DoStep from t = {t:.6f} s to {tend:.6f} s returned early at "
-                    f"lastSuccessfulTime = {last.value:.6f} s although it was instantiated "
-                    f"with earlyReturnAllowed = false, and it cannot handle a variable "
-                    f"communication step (canHandleVariableCommunicationStepSize = false) "
-                    f"to complete the step", None, t)
-            n += 1
-            if n > 10_000:
-                raise slave.error(f"fmi3DoStep kept returning early before t = {tend:.6f} s "
-                                  f"(10000 continuations)", None, t)
-            tl = last.value
-            if not tl > t - eps:
-                raise slave.error(f"fmi3DoStep returned early with lastSuccessfulTime = "
-                                  f"{tl!r} outside the step [{t:.6f}, {tend:.6f}] s", None, t)
-            st = do(c, ctypes.c_double(tl), ctypes.c_double(tend - tl), ctypes.c_bool(True),
-                    *extra)
-            if st > 1:
-                raise slave.error(f"fmi3DoStep from t = {tl:.6f} s (continuing after an "
-                                  f"early return)", st, tl)
-        if len(self._notes) < 50:
-            self._notes.append(f"role {slave.role}: fmi3DoStep from t = {t:.6f} s returned "
-                               f"early at {first:.6f} s; stepped on to {tend:.6f} s in {n} "
-                               f"more call(s)")
+    def _head(self, num_cols, text_cols, Ts) -> dict:
+        """What a supervisor needs to store the rows of a run whose process died
+        (:class:`~cosim.master.rows.RowSink`)."""
+        sys_ = self.system
+        return {"columns": list(num_cols), "dropped": list(text_cols), "step_size": Ts,
+                "phase": PHASE.get(),
+                "roles": {r: str(getattr(s, "path", "")) for r, s in sys_.roles.items()}}
 
     def _inputs_in_initialization(self, slaves, plan, T0):
         """Set every input driven by a stimulus or an FMU in initialisation mode (as
@@ -1177,17 +1140,15 @@ class Master:
                 break
         return wbufs
 
-    def _result(self, rec, Ts, error, timing) -> RunResult:
-        columns, num_cols, text_cols, dtypes, srec = self._cols
-        ncol = len(num_cols)
-        n = len(rec) // ncol
-        data = np.frombuffer(rec, dtype=np.float64)[: n * ncol].reshape(n, ncol) if n else \
-            np.empty((0, ncol))
+    def _result(self, rows, Ts, error, timing) -> RunResult:
+        columns, num_cols, text_cols, dtypes = self._cols
+        data = rows.numeric()
+        n = data.shape[0]
         signals = {}
         for name in columns:
             if name in text_cols:
                 i = text_cols.index(name)
-                signals[name] = np.array([r[i] for r in srec[:n]], dtype=object)
+                signals[name] = np.array([r[i] for r in rows.text[:n]], dtype=object)
                 continue
             col = data[:, num_cols.index(name)]
             dt = dtypes.get(name, "float64")
@@ -1206,459 +1167,22 @@ class Master:
                          stop_reason=getattr(self, "_stop", None),
                          notes=list(getattr(self, "_notes", [])))
 
-    # ----------------------------------------------------------------- codegen
-    def _generate(self, slaves, plan, fmu_end, stim_end, ctrl_end, slot, rec, srec, Ts, T0,
-                  wbufs, engine_calls=False):
-        """Source and namespace of the specialised tick loop ``_loop(k0, N)`` (and of
-        ``_steps(k, j0)``, the doSteps of tick k after FMU j0, to finish a tick in which
-        an FMU ended the simulation). ``engine_calls``: the FMI calls of a tick are two
-        calls of the compiled engine (``_e_read``, ``_e_ws``, set by
-        :func:`cosim.master.engine.attach`), the rest stays in Python."""
-        import ctypes
-        sys_ = self.system
-        timing = self.timing
-        fmu_reads, stim_used, ctrl_used, attrs = (plan.fmu_reads, plan.stim_used,
-                                                  plan.ctrl_used, plan.attrs)
-        columns, num_cols, text_cols, _, _ = self._cols
 
-        def S(name):        # the slot of a name as written ("ss.y[ 2]" -> "ss.y[2]")
-            return slot[plan.alias.get(name, name)]
-
-        ns: dict = {"Ts": Ts, "T0": T0, "_V": [0.0] * len(slot), "_rec_extend": rec.extend,
-                    "_srec_append": srec.append,
-                    "_tc": ctypes.c_double(0.0), "_h": ctypes.c_double(Ts),
-                    "_one": ctypes.c_int(1), "_true": ctypes.c_bool(True),
-                    "_string_at": ctypes.string_at}
-        # raw ctypes calls take ctypes objects (see FMUSlave.raw): counts are c_size_t
-        # constants, the communication point is _tc (set once per tick)
-        labels: list[str] = []
-        L_fault, L_fault_ctrl, _fwrap = _fault_hooks(sys_, plan, slot, ns)
-
-        def timed(label: str, body: list[str], indent: str) -> list[str]:
-            if not timing:
-                return [indent + b for b in body]
-            i = len(labels)
-            labels.append(label)
-            return ([indent + "_t0 = _pc()"] + [indent + b for b in body]
-                    + [indent + f"_T[{i}] += _pc() - _t0"])
-
-        def every(d, body, end=False):
-            # an FMU stepped every d base steps (a macro step from t_k, k % d == 0, to
-            # t_{k+d}): its inputs are set at the macro step's start, its doStep is made
-            # in the macro step's last tick, so that its outputs read in between are its
-            # values at t_k (held), never values from the future
-            if d == 1:
-                return body
-            return [f"if not {'(k + 1)' if end else 'k'} % {d}:"] + ["    " + b for b in body]
-
-        read_blocks = []       # (role, slave, names, first slot)
-        L_read, L_write, L_step = [], [], []
-        step_blocks: list[list[str]] = []
-        conv_errs: list = []   # (connection, destination VarInfo) of checked conversions
-        for j, (role, slave) in enumerate(slaves):
-            io = slave.raw()
-            ns[f"c_{j}"] = io.comp
-            d = getattr(slave, "step_mult", 1)
-            extra = ""
-            names = fmu_reads[role]
-            if names:
-                a = slot[f"{role}.{names[0]}"]
-                n = len(names)
-                vrs = [slave.var(x).vr for x in names]
-                ns[f"get_{j}"] = io.get
-                ns[f"rvr_{j}"] = (ctypes.c_uint32 * n)(*vrs)
-                ns[f"rb_{j}"] = (ctypes.c_double * n)()
-                ns[f"rn_{j}"] = ctypes.c_size_t(n)
-                extra = f", rn_{j}" if io.fmi3 else ""
-                body = [f"if (st := get_{j}(c_{j}, rvr_{j}, rn_{j}, rb_{j}{extra})) > 1: "
-                        f"_fail_fmu({j}, 'get', t, st)",
-                        f"V[{a}:{a + n}] = rb_{j}" if n > 1 else f"V[{a}] = rb_{j}[0]"]
-                L_read += timed(f"fmu:{role}:get", body, "        ")
-                read_blocks.append((role, slave, names, a))
-            # every other type with its own call (fmi2GetInteger, fmi3GetFloat32, ...),
-            # one call per type; arrays fill one slot per element
-            for q, (call, vs) in enumerate(_groups(slave, plan.typed_reads[role]
-                                                   + plan.text_reads[role])):
-                fn, ct, _ = slave.typed_io(vs[0], "Get")
-                m = sum(v.size for v in vs)
-                els = [e for v in vs for e in FMUSlave.element_names(v)]
-                a = slot[f"{role}.{els[0]}"]
-                g = f"{j}_{q}"
-                ns[f"tg_{g}"] = fn
-                ns[f"tgvr_{g}"] = (ctypes.c_uint32 * len(vs))(*[v.vr for v in vs])
-                ns[f"tgn_{g}"] = ctypes.c_size_t(len(vs))
-                ns[f"tgm_{g}"] = ctypes.c_size_t(m)
-                ns[f"tgb_{g}"] = (ct * m)()
-                ex = f", tgm_{g}" if io.fmi3 else ""
-                if call == "Binary":
-                    ns[f"tgz_{g}"] = (ctypes.c_size_t * m)()
-                    body = [f"if (st := tg_{g}(c_{j}, tgvr_{g}, tgn_{g}, tgz_{g}, tgb_{g}, tgm_{g})) > 1: "
-                            f"_fail_fmu({j}, 'get', t, st)",
-                            f"V[{a}:{a + m}] = [_string_at(p, z) if p else None "
-                            f"for p, z in zip(tgb_{g}, tgz_{g})]"]
-                elif call == "String":
-                    body = [f"if (st := tg_{g}(c_{j}, tgvr_{g}, tgn_{g}, tgb_{g}{ex})) > 1: "
-                            f"_fail_fmu({j}, 'get', t, st)",
-                            f"V[{a}:{a + m}] = [x.decode('utf-8', 'replace') if x is not None "
-                            f"else None for x in tgb_{g}]"]
-                else:
-                    body = [f"if (st := tg_{g}(c_{j}, tgvr_{g}, tgn_{g}, tgb_{g}{ex})) > 1: "
-                            f"_fail_fmu({j}, 'get', t, st)",
-                            f"V[{a}:{a + m}] = tgb_{g}"]
-                    read_blocks.append((role, slave, els, a))
-                L_read += timed(f"fmu:{role}:get{call}", body, "        ")
-            ins = [c for c in sys_._connections      # (inside a coupled group: continuous)
-                   if c.dest.partition(".")[0] == role and not c.sequential
-                   and not _coupled.is_internal(sys_, c)]
-            fast = [c for c in ins if _fast_dest(slave, c.dest)]
-            typed = [c for c in ins if c not in fast]
-            seq = [c for c in sys_._connections
-                   if c.dest.partition(".")[0] == role and c.sequential]
-            L_seq = []
-            if seq:
-                # Gauss-Seidel inputs: the sources (stepped earlier in this tick) are read
-                # at t_{k+1} and set just before this FMU's doStep
-                n = len(seq)
-                ns[f"sset_{j}"] = io.set
-                ns[f"swvr_{j}"] = (ctypes.c_uint32 * n)(*[slave.var(c.dest.partition(".")[2]).vr
-                                                        for c in seq])
-                ns[f"swb_{j}"] = (ctypes.c_double * n)()
-                ns[f"swn_{j}"] = ctypes.c_size_t(n)
-                for q, c in enumerate(seq):
-                    src_role, _, src_var = c.source.partition(".")
-                    si = [r for r, _ in slaves].index(src_role)
-                    src_slave = slaves[si][1]
-                    sio = src_slave.raw()
-                    ns[f"sget_{j}_{q}"] = sio.get
-                    ns[f"sc_{j}_{q}"] = sio.comp
-                    ns[f"srvr_{j}_{q}"] = (ctypes.c_uint32 * 1)(src_slave.var(src_var).vr)
-                    ns[f"srb_{j}_{q}"] = (ctypes.c_double * 1)()
-                    ex = ", _n1" if sio.fmi3 else ""
-                    L_seq += [f"if (st := sget_{j}_{q}(sc_{j}_{q}, srvr_{j}_{q}, _n1, srb_{j}_{q}{ex})) > 1: "
-                              f"_fail_fmu({si}, 'get', t, st)",
-                              f"swb_{j}[{q}] = {_fwrap(c, _affine(f'srb_{j}_{q}[0]', c))}"]
-                ex = f", swn_{j}" if io.fmi3 else ""
-                L_seq += [f"if (st := sset_{j}(c_{j}, swvr_{j}, swn_{j}, swb_{j}{ex})) > 1: "
-                          f"_fail_fmu({j}, 'set', t, st)"]
-                ns["_n1"] = ctypes.c_size_t(1)
-            W = []
-            if fast:
-                n = len(fast)
-                vrs = [slave.var(c.dest.partition(".")[2]).vr for c in fast]
-                ns[f"set_{j}"] = io.set
-                ns[f"wvr_{j}"] = (ctypes.c_uint32 * n)(*vrs)
-                ns[f"wb_{j}"] = (ctypes.c_double * n)()
-                ns[f"wn_{j}"] = ctypes.c_size_t(n)
-                terms = [_fwrap(c, _affine(f"V[{S(c.source)}]", c)) for c in fast]
-                extra = f", wn_{j}" if io.fmi3 else ""
-                assign = (f"wb_{j}[:] = ({', '.join(terms)})" if n > 1 else f"wb_{j}[0] = {terms[0]}")
-                W += [assign,
-                      f"if (st := set_{j}(c_{j}, wvr_{j}, wn_{j}, wb_{j}{extra})) > 1: "
-                      f"_fail_fmu({j}, 'set', t, st)"]
-            # other destinations (integers, Booleans, Float32, array elements): one
-            # buffer and one call per type; an array is set whole, its unwired
-            # elements keep their values from initialisation
-            dvars = []
-            for c in typed:
-                dv, _ = slave.element(c.dest.partition(".")[2])
-                if dv.name not in [x.name for x in dvars]:
-                    dvars.append(dv)
-            for q, (call, vs) in enumerate(_groups(slave, dvars)):
-                fn, ct, _ = slave.typed_io(vs[0], "Set")
-                g = f"{j}_{q}"
-                off, init = {}, []
-                for v in vs:
-                    off[v.name] = len(init)
-                    init += wbufs.get(role, {}).get(v.name) or [0] * v.size
-                m = len(init)
-                ns[f"ts_{g}"] = fn
-                ns[f"tsvr_{g}"] = (ctypes.c_uint32 * len(vs))(*[v.vr for v in vs])
-                ns[f"tsn_{g}"] = ctypes.c_size_t(len(vs))
-                ns[f"tsm_{g}"] = ctypes.c_size_t(m)
-                ns[f"tsb_{g}"] = (ct * m)(*init)
-                for c in typed:
-                    dv, el = slave.element(c.dest.partition(".")[2])
-                    if dv.name not in off:
-                        continue
-                    x = f"V[{S(c.source)}]"
-                    from_fmu = c.source.partition(".")[0] in sys_.roles
-                    if dv.kind == "real":
-                        x = _affine(x, c)
-                    elif not from_fmu:
-                        conv_errs.append((c, dv))
-                        x = (f"({x} != 0)" if dv.kind == "bool" else
-                             f"_toint({x}, {len(conv_errs) - 1}, t)")
-                    x = _fwrap(c, x)
-                    W.append(f"tsb_{g}[{off[dv.name] + (el or 0)}] = {x}")
-                ex = f", tsm_{g}" if io.fmi3 else ""
-                W.append(f"if (st := ts_{g}(c_{j}, tsvr_{g}, tsn_{g}, tsb_{g}{ex})) > 1: "
-                         f"_fail_fmu({j}, 'set', t, st)")
-            if W:
-                L_write += timed(f"fmu:{role}:set", every(d, W), "        ")
-            h, tc, pre = "_h", "_tc", []
-            if d > 1:
-                h, tc = f"_h{j}", f"_tc{j}"
-                ns[h] = ctypes.c_double(d * Ts)
-                ns[tc] = ctypes.c_double(0.0)
-                pre = [f"{tc}.value = t - {(d - 1) * Ts!r}"]
-            if slave.kind == "me":
-                ns[f"me_{j}"] = slave.stepper()
-                body = ["try:", f"    me_{j}(t - {(d - 1) * Ts!r}, {d * Ts!r})", "except Exception as e:",
-                        f"    _fail_fmu({j}, 'step', t, None, e)"]
-            elif io.fmi3:
-                ns[f"do_{j}"] = io.step
-                ns[f"term_{j}"] = io.terminate_flag
-                ns[f"early_{j}"] = io.early_flag
-                ns[f"last_{j}"] = io.last_time
-                for i, x in enumerate(io.step_extra):
-                    ns[f"x{i}_{j}"] = x
-                body = pre + [f"if (st := do_{j}(c_{j}, {tc}, {h}, _true, x0_{j}, x1_{j}, x2_{j}, x3_{j})) > 1 "
-                        f"or term_{j}.value or early_{j}.value: _fail_fmu({j}, 'step', t, st)"]
-            else:
-                ns[f"do_{j}"] = io.step
-                body = pre + [f"if (st := do_{j}(c_{j}, {tc}, {h}, _one)) > 1: _fail_fmu({j}, 'step', t, st)"]
-            blk = []
-            if L_seq:
-                blk += timed(f"fmu:{role}:sequential-inputs", every(d, L_seq, True), "")
-            blk += timed(f"fmu:{role}:doStep", every(d, body, True), "")
-            step_blocks.append(blk)
-            L_step += ["        " + x for x in blk]
-
-        # stimuli
-        L_stim = []
-        for i, s in enumerate(stim_used):
-            ns[f"stim_{i}"] = sys_.stimuli[s]
-            L_stim += [f"V[{slot['stim.' + s]}] = stim_{i}(t)"]
-        if L_stim:
-            L_stim = ["try:"] + ["    " + x for x in L_stim] + \
-                ["except Exception as e:", "    _fail_stim(t, e)"]
-            L_stim = timed("stimuli", L_stim, "        ")
-        # controllers
-        L_ctrl = []
-        for i, c in enumerate(sys_.controllers):
-            ns[f"step_{i}"] = c.block.step
-            args = ", ".join(f"{key!r}: V[{S(src)}]" for key, src in c.wiring.items())
-            body = ["try:", f"    o = step_{i}({{{args}}})",
-                    "except Exception as e:", f"    _fail_ctrl({i}, t, e, None)"]
-            if ctrl_used[c.name]:
-                body.append("try:")
-                for o in ctrl_used[c.name]:
-                    body.append(f"    V[{slot[c.name + '.' + o]}] = o[{o!r}]")
-                body += ["except Exception as e:", f"    _fail_ctrl({i}, t, e, o)"]
-            body += L_fault_ctrl.get(c.name, [])
-            L_ctrl += timed(f"ctrl:{c.name}", body, "        ")
-        # attributes: identifiers and integer indices were validated by _ATTR
-        L_attr = []
-        for i, (name, cname, attr, index) in enumerate(attrs):
-            ci = [c.name for c in sys_.controllers].index(cname)
-            ns[f"blk_{ci}"] = sys_.controllers[ci].block
-            idx = f"[{', '.join(map(str, index))}]" if index else ""
-            L_attr.append(f"    V[{slot[name]}] = float(blk_{ci}.{attr}{idx})")
-        if L_attr:
-            L_attr = ["try:"] + L_attr + ["except Exception as e:", "    _fail_attr(t, e)"]
-        rec_idx = [slot[c] for c in num_cols]
-        L_rec = [f"_rec_extend(({', '.join(f'V[{i}]' for i in rec_idx)},))"]
-        if text_cols:
-            L_rec.append(f"_srec_append(({', '.join(f'V[{slot[c]}]' for c in text_cols)},))")
-
-        checks = []
-        if stim_end > 1:
-            checks = ["try:", f"    x = sum(V[1:{stim_end}])",
-                      "except TypeError:", "    x = math.nan",
-                      "if x - x: _nonfinite_in(t)"]
-        L_cchk = []
-        if ctrl_end > stim_end:
-            L_cchk = ["try:", f"    x = sum(V[{stim_end}:{ctrl_end}])",
-                      "except TypeError:", "    x = math.nan",
-                      "if x - x: _nonfinite_ctrl(t)"]
-
-        if engine_calls:     # cosim.master.engine: the same FMI calls, compiled
-            L_read = ["        if _e_read(k): _e_fail()"]
-            L_write = ["        if _e_ws(k): _e_fail()"]
-            L_step = []
-        lines = ["def _loop(k0, N):", "    V = _V"]
-        if timing:
-            lines.append("    _T = _T_list")
-        t_expr = "k * Ts" if T0 == 0.0 else "T0 + k * Ts"
-        lines += ["    for k in range(k0, N + 1):",
-                  f"        t = {t_expr}",
-                  "        V[0] = t"]
-        lines += L_read
-        lines += L_stim
-        lines += ["        " + x for x in L_fault]
-        lines += ["        " + x for x in checks]
-        lines += L_ctrl
-        lines += ["        " + x for x in L_cchk]
-        lines += ["        " + x for x in L_attr]
-        lines += timed("record", L_rec, "        ")
-        lines += ["        if k == N:", "            break"]
-        lines += L_write
-        if any(s.kind == "cs" for _, s in slaves) and not engine_calls:
-            lines.append("        _tc.value = t")
-        lines += L_step
-        # the rest of a tick after FMU j0 ended the simulation in its doStep
-        tail = ["def _steps(k, j0):", f"    t = {t_expr}"]
-        if any(s.kind == "cs" for _, s in slaves):
-            tail.append("    _tc.value = t")
-        for j, blk in enumerate(step_blocks):
-            tail += [f"    if j0 < {j}:"] + ["        " + x for x in blk]
-        if timing:
-            tail.insert(1, "    _T = _T_list")
-        src = "\n".join(lines) + "\n\n" + "\n".join(tail) + "\n"
-
-        # ---- error reporting (cold paths)
-        V = ns["_V"]
-        ctrls = sys_.controllers
-
-        def _fail_fmu(j, what, t, status=None, exc=None):
-            role, slave = slaves[j]
-            # the FMU's own, normal end (a Model Exchange integrator marks its
-            # terminateSimulation exception `terminated`, cosim.fmi.me)
-            if isinstance(exc, FMUTerminated) or getattr(exc, "terminated", False):
-                raise _Terminated(j, int(round((t - T0) / Ts)),
-                                  f"role {role}: {slave.path.name} ended the simulation "
-                                  f"({exc})")
-            if exc is not None:           # e.g. FMPy's FMICallException (has .status)
-                slave.note_status(getattr(exc, "status", None))
-            if isinstance(exc, FMUError):
-                raise exc
-            if exc is not None:
-                raise slave.error(f"doStep failed ({type(exc).__name__}: {exc})", None, t) from exc
-            if what == "get":
-                raise slave.error(f"getting {', '.join(fmu_reads[role])}", status, t)
-            if what == "set":
-                raise slave.error("setting inputs " + ", ".join(
-                    c.dest.partition('.')[2] for c in sys_._connections
-                    if c.dest.partition('.')[0] == role), status, t)
-            d = getattr(slave, "step_mult", 1)
-            h = d * Ts
-            k = int(round((t - T0) / Ts))
-            t = t - (d - 1) * Ts        # the macro step's start (see every())
-            term = ns.get(f"term_{j}")
-            if term is not None and (status is None or status <= 1):
-                early, last = ns[f"early_{j}"], ns[f"last_{j}"]
-                if early.value and last.value < t + h - 1e-9 * max(1.0, abs(t + h)):
-                    self._continue_early(j, slave, ns, t, h)
-                if term.value:
-                    tl = last.value if t < last.value <= t + h else t + h
-                    raise _Terminated(j, k, f"role {role}: {slave.path.name} ended the "
-                                      f"simulation (fmi3DoStep terminateSimulation = true) "
-                                      f"at t = {tl:.6f} s")
-                return
-            if not slave.fmi3 and slave.kind == "cs" and status == 2:
-                ended, tl = slave.terminated_status()
-                if ended:
-                    tl = t + h if tl is None else tl
-                    raise _Terminated(j, k, f"role {role}: {slave.path.name} ended the "
-                                      f"simulation (fmi2DoStep returned fmi2Discard, "
-                                      f"fmi2Terminated = true, fmi2LastSuccessfulTime = "
-                                      f"{tl:.6f} s)")
-            raise slave.error(f"{'fmi3' if slave.fmi3 else 'fmi2'}DoStep from t = {t:.6f} s "
-                              f"to {t + h:.6f} s", status, t)
-
-        def _toint(x, i, t):
-            c, dv = conv_errs[i]
-            return _convert(x, dv, c, f"connection {c.source} -> {c.dest} at t = {t:.6f} s")
-
-        def _nonfinite_in(t):
-            for role, slave, names, a in read_blocks:
-                bad = [f"{n} = {V[a + i]}" for i, n in enumerate(names)
-                       if not math.isfinite(V[a + i])]
-                if bad:
-                    raise FMUError(f"role {role}: {slave.path.name}: non-finite output(s) "
-                                   f"{', '.join(bad)} at t = {t:.6f} s")
-            for s in stim_used:
-                x = V[slot["stim." + s]]
-                if not _finite(x):
-                    raise ControllerError(f"stimulus {s!r} returned {x!r} at t = {t:.6f} s")
-
-        def _bad_outputs(i):
-            c = ctrls[i]
-            bad = []
-            for o in ctrl_used[c.name]:
-                x = V[slot[f"{c.name}.{o}"]]
-                if not _finite(x):
-                    bad.append(f"{o} = {x!r}")
-            return bad
-
-        def _nonfinite_ctrl(t):
-            for i, c in enumerate(ctrls):
-                bad = _bad_outputs(i)
-                if bad:
-                    raise ControllerError(f"controller {c.name!r}: non-finite or non-numeric "
-                                          f"output {', '.join(bad)} at t = {t:.6f} s")
-
-        def _fail_ctrl(i, t, exc, out):
-            c = ctrls[i]
-            for j in range(i):         # a NaN from an earlier controller is the cause
-                bad = _bad_outputs(j)
-                if bad:
-                    raise ControllerError(
-                        f"controller {ctrls[j].name!r}: non-finite or non-numeric output "
-                        f"{', '.join(bad)} at t = {t:.6f} s") from None
-            if out is not None and isinstance(exc, (KeyError, TypeError, IndexError)) and \
-                    not isinstance(out, Mapping):
-                raise ControllerError(f"controller {c.name!r} returned a "
-                                      f"{type(out).__name__}, not a mapping of outputs, at "
-                                      f"t = {t:.6f} s") from None
-            if out is not None and isinstance(exc, KeyError):
-                raise ControllerError(f"controller {c.name!r} returned no output "
-                                      f"{exc.args[0]!r} at t = {t:.6f} s (it returned "
-                                      f"{sorted(out)})") from None
-            raise ControllerError(f"controller {c.name!r} failed at t = {t:.6f} s: "
-                                  f"{type(exc).__name__}: {exc}") from exc
-
-        def _fail_stim(t, exc):
-            for s in stim_used:
-                try:
-                    sys_.stimuli[s](t)
-                except Exception:
-                    raise ControllerError(f"stimulus {s!r} failed at t = {t:.6f} s: "
-                                          f"{type(exc).__name__}: {exc}") from exc
-            raise ControllerError(f"a stimulus failed at t = {t:.6f} s: {exc}") from exc
-
-        def _fail_attr(t, exc):
-            for name, cname, attr, index in attrs:
-                blk = next(c.block for c in ctrls if c.name == cname)
-                try:
-                    v = getattr(blk, attr)
-                    float(v[index] if index else v)
-                except Exception as e:
-                    raise ControllerError(f"recording {name!r} at t = {t:.6f} s: "
-                                          f"{type(e).__name__}: {e}") from exc
-            raise ControllerError(f"recording an attribute failed at t = {t:.6f} s: {exc}")
-
-        ns.update(_fail_fmu=_fail_fmu, _nonfinite_in=_nonfinite_in, _toint=_toint,
-                  _nonfinite_ctrl=_nonfinite_ctrl, _fail_ctrl=_fail_ctrl,
-                  _fail_stim=_fail_stim, _fail_attr=_fail_attr, math=math)
-        if timing:
-            ns["_T_list"] = [0.0] * len(labels)
-            ns["_T"] = ns["_T_list"]
-            ns["_T_labels"] = labels
-            ns["_pc"] = _time.perf_counter
-        code = compile(src, "<cosim master tick loop>", "exec")
-        exec(code, ns)
-        return src, ns
-
-
-def _fault_hooks(sys_, plan, slot=None, ns=None):
-    """Where the faults of ``sys_.faults`` act in the generated tick loop (see
-    :mod:`cosim.master.faults`): lines applying FMU-output and stimulus faults after
-    the reads and stimuli, lines per controller applying its output faults after its
-    step, and ``wrap(connection, expr)`` applying a connection's faults to the value
-    it sets. A connection's fault is named by its destination input. Without ``ns``
-    only checks (at planning)."""
+def _fault_hooks(sys_, plan):
+    """Where the faults of ``sys_.faults`` act in the tick loop (see
+    :mod:`cosim.master.faults`): (FMU-output and stimulus faults [(name, apply)],
+    applied after the reads and stimuli; {controller: [(output, apply)]}, applied after
+    its step; {id(connection): [apply]}, applied to the value the connection sets). A
+    connection's fault is named by its destination input. Raises SystemError_ for a
+    fault the loop cannot apply (checked at planning)."""
     dests = {c.dest: c for c in sys_._connections}
     dests.update({plan.alias[c.dest]: c for c in sys_._connections if c.dest in plan.alias})
     seq = {plan.alias.get(c.source, c.source): c for c in sys_._connections if c.sequential}
     ctrl_names = [c.name for c in sys_.controllers]
-    L_in: list[str] = []
-    L_ctrl: dict[str, list[str]] = {}
-    on_conn: dict[int, list[str]] = {}
-    for i, f in enumerate(sys_.faults):
-        fn = f"_flt{i}"
-        if ns is not None:
-            ns[fn] = f.apply
+    on_in: list = []
+    on_ctrl: dict = {}
+    on_conn: dict = {}
+    for f in sys_.faults:
         what = f"fault {f.name or f.signal!r}"
         name = plan.alias.get(f.signal, f.signal)
         head, _, tail = f.signal.partition(".")
@@ -1674,7 +1198,7 @@ def _fault_hooks(sys_, plan, slot=None, ns=None):
                                    f"a coupled group (exchanged continuously by its solver, "
                                    f"not at the tick): fault {c.source} or a signal outside "
                                    f"the group")
-            on_conn.setdefault(id(dests[name]), []).append(fn)
+            on_conn.setdefault(id(dests[name]), []).append(f.apply)
             continue
         if head in sys_.roles and v.causality == "input":
             raise SystemError_(f"{what}: input {f.signal} is not driven by a connection or "
@@ -1684,25 +1208,11 @@ def _fault_hooks(sys_, plan, slot=None, ns=None):
             raise SystemError_(f"{what}: {f.signal} feeds {c.dest} sequentially (read "
                                f"after the FMU's doStep, not from the tick's values): "
                                f"fault the connection instead (signal: {c.dest})")
-        if ns is None:
-            continue
         if head in ctrl_names:
-            L_ctrl.setdefault(head, []).append(f"V[{slot[name]}] = {fn}(t, V[{slot[name]}])")
+            on_ctrl.setdefault(head, []).append((name, f.apply))
         else:
-            L_in.append(f"V[{slot[name]}] = {fn}(t, V[{slot[name]}])")
-
-    def wrap(c, expr: str) -> str:
-        for fn in on_conn.get(id(c), ()):
-            expr = f"{fn}(t, {expr})"
-        return expr
-    return L_in, L_ctrl, wrap
-
-
-def _finite(x) -> bool:
-    try:
-        return math.isfinite(x)
-    except TypeError:
-        return False
+            on_in.append((name, f.apply))
+    return on_in, on_ctrl, on_conn
 
 
 def _check_attr(cname, blk, attr, index, name):
@@ -1732,6 +1242,18 @@ def _check_attr(cname, blk, attr, index, name):
     except (TypeError, ValueError):
         if val is not None:          # None before the first step (e.g. a previous value)
             raise SystemError_(f"record: {name!r} is a {type(val).__name__}, not a number") from None
+
+
+def last_step_end(T0: float, n_ticks: int, Ts: float, d: int = 1) -> float:
+    """The stop time given to an FMU: where its last doStep ends, computed as the tick
+    loop and the FMU compute it (from t_{N-1} = (N - 1) Ts, or T0 + (N - 1) Ts, and the
+    step: d Ts from t_{N-1} - (d - 1) Ts for an FMU stepped every d base steps). N Ts
+    itself may be an ulp short of it (9 * 0.001 + 0.001 > 10 * 0.001): a strict FMU
+    (OpenModelica's, checking t + h > stopTime) would refuse the last step."""
+    t = (n_ticks - 1) * Ts if T0 == 0.0 else T0 + (n_ticks - 1) * Ts
+    if d == 1:
+        return t + Ts
+    return (t - (d - 1) * Ts) + d * Ts
 
 
 def _int_range(slave, v):
@@ -1778,32 +1300,6 @@ def _unit_conversion(both, sslave, su, dslave, du):
                            dslave.md.unitDefinitions, SystemError_)
 
 
-def _fast_dest(slave, dest: str) -> bool:
-    """A scalar Real/Float64 destination: set with the tick's one fmi2SetReal /
-    fmi3SetFloat64 call."""
-    v, el = slave.element(dest.partition(".")[2])
-    return v.fmi_type in ("Real", "Float64") and not v.shape
-
-
-def _affine(x: str, c) -> str:
-    """The source expression ``x`` scaled and unit-converted for connection ``c``."""
-    if c.gain != 1.0:
-        x = f"{x} * {c.gain!r}"
-    if c.unit_offset != 0.0:
-        x = f"{x} + {c.unit_offset!r}"
-    return x
-
-
-def _groups(slave, vs) -> list:
-    """[(FMI call type, [VarInfo...])]: the variables of one call, in a fixed order
-    (the slots of a group's values are contiguous)."""
-    out: dict = {}
-    for v in vs:
-        call, _, _ = (_C3 if slave.fmi3 else _C2)[v.fmi_type]
-        out.setdefault(call, []).append(v)
-    return list(out.items())
-
-
 def _parse_start(v) -> list:
     """The start values of an array variable, from its ``start`` attribute."""
     parts = (v.start or "").split()
@@ -1812,19 +1308,3 @@ def _parse_start(v) -> list:
     conv = {"real": float, "int": lambda x: int(float(x)),
             "bool": lambda x: x.lower() in ("true", "1")}.get(v.kind, str)
     return [conv(x) for x in parts[: v.size]]
-
-
-def _convert(x, dv, c, where):
-    """A connection's value for destination ``dv``: scaled and unit-converted for a
-    Real; a whole number in range for an integer; non-zero is true for a Boolean."""
-    if dv.kind == "real":
-        return x * c.gain + c.unit_offset
-    if dv.kind == "bool":
-        return bool(x)
-    if isinstance(x, (bool, np.bool_)) or not _finite(x) or x != int(x):
-        raise ControllerError(f"{where}: {x!r} is not a whole number for {dv.fmi_type} {c.dest}")
-    lo, hi = INT_RANGE.get(dv.fmi_type, INT_RANGE["Int64"])      # FMI 3 Enumeration: Int64
-    if not lo <= int(x) <= hi:
-        raise ControllerError(f"{where}: {x!r} is out of the range [{lo}, {hi}] of "
-                              f"{dv.fmi_type} {c.dest}")
-    return int(x)

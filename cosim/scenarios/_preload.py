@@ -5,8 +5,14 @@ results) imported already, so a child starts in tens of milliseconds instead of
 importing them again (about 1.8 s; bench/bench_isolation.py). Nothing here opens an
 FMU: the forkserver holds no extracted folder or FMU library."""
 import importlib
+import multiprocessing.spawn
 
+from .isolate import prepare_without_main
 from .registry import load_trials
+
+# a run's child does not execute the parent's __main__ script again (isolate.py)
+multiprocessing.spawn.prepare = (lambda data, _prepare=multiprocessing.spawn.prepare:
+                                 prepare_without_main(data, _prepare))
 
 load_trials()
 for _name in ("cosim.master.system", "cosim.scenarios.runner", "cosim.scenarios.isolate",

@@ -18,19 +18,25 @@ The parent supervises the child:
   names the signal, the role and FMU being called, the last simulated time reached
   and keeps the rows recorded before the crash.
 
-How the rows survive a crash: a watcher thread in the child finds the running
-:class:`~cosim.master.system.Master` on the main thread's stack (its ``run`` frame's
-``rec``, the flat float64 row buffer, and the generated tick loop's current line,
-which names the FMU called: ``c_<j>`` is role j) and appends new rows to a file of
-the run's temporary folder every :data:`FLUSH_S` seconds. The child's fatal-signal
-handlers are Python's own (they only note the signal and write its number to a
-wake-up pipe) behind :mod:`faulthandler` (which first writes the stack): the faulting
-thread then faults again and again in place, its state frozen, while the watcher,
-woken by the pipe, writes the last rows and where it stopped, then restores the
-default action so the child dies of its signal. An FMU call runs with the GIL
-released (ctypes), so the watcher can run; a crash while the GIL is held leaves the
-watcher blocked: the parent then kills the child a few seconds after the stack was
-written, and the record keeps the rows of the last periodic flush.
+How the rows survive a crash: the child installs a row sink
+(:func:`cosim.master.rows.supervised`): every run's row buffer
+(:class:`~cosim.master.rows.RowBuffer`, into which the Python tick loop and the compiled
+engine write each row as it is made, and keep its header current: rows recorded, the
+role whose FMU is being called, which call) is a file of the run's temporary folder
+mapped into the child's memory, described by a JSON file beside it (columns, units,
+roles, the procedure's phase). What the child wrote is in those files whatever way it
+dies (a signal, a kill after a timeout, with or without the interpreter lock held), so
+the isolated run uses the compiled engine like a run in process. The child's
+:mod:`faulthandler` writes every thread's Python stack on a fatal signal (and on
+SIGUSR1, when the parent's timeout passes).
+
+The child runs only what the run needs: the forkserver's children are forked with
+cosim imported and do not execute the caller's ``__main__`` script again (a script
+without a ``if __name__ == "__main__":`` guard is not re-run;
+:func:`prepare_without_main`). Trial parts (procedures, controllers, stimuli,
+metrics) registered in that script are therefore unknown in the child: such a run
+is refused with an error saying so (register them in an importable module, or run
+with ``isolation="none"``).
 """
 from __future__ import annotations
 
@@ -41,7 +47,6 @@ import math
 import multiprocessing
 import os
 import re
-import select
 import shutil
 import signal
 import sys
@@ -59,24 +64,18 @@ from .store import CRASH_PREFIX, publish_run, run_tmp_dir
 ISOLATION = ("auto", "process", "none")
 #: the per-run wall-clock limit without ``timeout_s`` or ``--timeout`` [s]
 DEFAULT_TIMEOUT_S = 1800.0
-#: the watcher's flush period in the child [s] (what a crash while the GIL is held, or a
-#: SIGKILL, keeps; a crash in an FMU call or a timeout gets an exact last flush)
-FLUSH_S = 0.25
-#: after the child's stack dump of a fatal signal, how long its watcher may take to
-#: write the last rows before the parent kills it [s]
+#: after the child's stack dump of a fatal signal, how long it may take to die of the
+#: signal before the parent kills it [s] (its rows are in the mapped files either way)
 CRASH_GRACE_S = 5.0
 #: after SIGUSR1 on a timeout, how long the child may take to write its stacks [s]
 DUMP_GRACE_S = 1.0
 _FATAL = (signal.SIGSEGV, signal.SIGBUS, signal.SIGFPE, signal.SIGILL)
 _TOOL = "rehab-cosim fmubuild"
-_LOOP_FILE = "<cosim master tick loop>"
-# the FMU wrappers: a frame of one of them outside the tick loop names its role
-_FMU_FILES = (os.path.join("master", "fmu.py"), os.path.join("fmi", "me.py"),
-              os.path.join("fmi", "fmi1.py"))
-# the watcher's files in the run's temporary folder (store.clean_run_tmp knows the prefix)
-ROWS, HEAD, PROGRESS, STACKS = (CRASH_PREFIX + x for x in ("rows", "head.json",
-                                                           "progress.json", "stacks.txt"))
-SCRATCH_FILES = (ROWS, HEAD, PROGRESS, STACKS, PROGRESS + ".part")
+#: the name prefix of a run's child process (:func:`prepare_without_main`)
+CHILD_PREFIX = "cosim-run-"
+# the child's files in the run's temporary folder (store.clean_run_tmp knows the
+# prefix): each run's rows (mapped memory) and their description, numbered in order
+ROWS, HEAD, STACKS = (CRASH_PREFIX + x for x in ("rows-", "head-", "stacks.txt"))
 
 
 _WHERE = ["none"]
@@ -162,105 +161,36 @@ def alarm(timeout_s: float | None):
 
 
 # =========================================================================== the child
-class _Watcher(threading.Thread):
-    """In the child: copies the running Master's rows to ``ROWS`` and where it is to
-    ``PROGRESS``, every :data:`FLUSH_S` and at a fatal signal (wake-up pipe)."""
+class MappedRows:
+    """The row sink of a run's child (:class:`cosim.master.rows.RowSink`): the memory of
+    run i's row buffer is the file ``crash.rows-<i>`` of the run's temporary folder,
+    mapped shared; ``crash.head-<i>.json`` (written first) describes it."""
 
-    def __init__(self, scratch: Path, wake_fd: int):
-        super().__init__(name="cosim-crash-watcher", daemon=True)
-        from cosim.master.system import Master
-        self.run_code = Master.run.__code__
-        self.main = threading.main_thread().ident
-        self.dir, self.wake = scratch, wake_fd
-        self.stop = threading.Event()
-        self.rec = None                  # the buffer being copied (held: its id stays its own)
-        self.written = 0
-        self.fd = None
+    def __init__(self, scratch: Path):
+        self.dir = Path(scratch)
+        self.count = 0
+        self.maps: list = []
 
-    def run(self):
-        while not self.stop.is_set():
-            try:
-                ready, _, _ = select.select([self.wake], [], [], FLUSH_S)
-            except (OSError, ValueError):
-                return
-            sig = None
-            final = False
-            if ready:
-                data = os.read(self.wake, 4096)
-                sig = next((b for b in data if b in {int(s) for s in _FATAL}), None)
-                final = sig is not None or int(signal.SIGUSR2) in data
-            try:
-                self.flush(sig, final)
-            except Exception:             # never let the watcher take the child down
-                pass
-            if sig is not None:
-                import ctypes
-                libc = ctypes.CDLL(None)
-                libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
-                libc.signal(sig, None)    # SIG_DFL: the next fault ends the child
-                time.sleep(2.0)
-                os.kill(os.getpid(), signal.SIGKILL)
-
-    def _find(self):
-        """(Master, its row buffer, tick-loop line, function, FMU role being called
-        outside the tick loop) from the main thread's stack."""
-        f = sys._current_frames().get(self.main)
-        line = fn = role = None
-        while f is not None:
-            if f.f_code.co_filename == _LOOP_FILE and line is None:
-                line, fn = f.f_lineno, f.f_code.co_name
-            elif role is None and line is None and f.f_code.co_filename.endswith(_FMU_FILES):
-                r = getattr(f.f_locals.get("self"), "role", None)
-                role = (r, f.f_code.co_name) if isinstance(r, str) else None
-            if f.f_code is self.run_code:
-                loc = f.f_locals
-                return loc.get("self"), loc.get("rec"), line, fn, role
-            f = f.f_back
-        return None, None, None, None, role
-
-    def flush(self, sig=None, final=False):
-        master, rec, line, fn, role = self._find()
-        prog = {"time": time.time(), "signal": sig, "final": final}
-        if role is not None:
-            prog.update(role=role[0], call=f"calling {role[1]}() outside the tick loop")
-        if master is not None and rec is not None and getattr(master, "_cols", None):
-            columns, num_cols = master._cols[0], master._cols[1]
-            ncol = len(num_cols)
-            if rec is not self.rec:             # a new run (phase): a new rows file
-                self._start(master, rec, columns, num_cols)
-            n = len(rec) // ncol
-            if n > self.written:
-                os.write(self.fd, rec[self.written * ncol: n * ncol].tobytes())
-                self.written = n
-            prog.update(rows=self.written, line=line, function=fn,
-                        code=_source_line(master, line))
-            if line is None:
-                prog.setdefault("call", "instantiating, initialising or terminating the FMUs")
-            j = _fmu_index(prog["code"])
-            roles = list(master.system.roles)
-            if j is not None and j < len(roles):
-                prog["role"] = roles[j]
-                prog["call"] = _call_kind(prog["code"])
-        tmp = self.dir / (PROGRESS + ".part")
-        tmp.write_text(json.dumps(prog))
-        os.replace(tmp, self.dir / PROGRESS)
-
-    def _start(self, master, rec, columns, num_cols):
-        if self.fd is not None:
-            os.close(self.fd)
-        self.fd = os.open(self.dir / ROWS, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        self.rec, self.written = rec, 0
-        sys_ = master.system
+    def open(self, head: dict, system, nbytes: int):
+        import mmap
+        i = self.count
+        self.count += 1
         try:
             from .units import signal_units
-            units = signal_units(num_cols, [sys_])
+            units = signal_units(head["columns"], [system])
         except Exception:
             units = {}
-        head = {"columns": list(num_cols), "dropped": [c for c in columns if c not in num_cols],
-                "step_size": sys_.Ts, "units": units,
-                "roles": {r: str(getattr(s, "path", "")) for r, s in sys_.roles.items()},
-                "provenance": _safe(sys_.provenance)}
-        (self.dir / HEAD).write_text(json.dumps(head, default=str))
+        head = {**head, "units": units, "nbytes": nbytes,
+                "provenance": _safe(system.provenance)}
+        (self.dir / f"{HEAD}{i}.json").write_text(json.dumps(head, default=str))
+        fd = os.open(self.dir / f"{ROWS}{i}", os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o600)
+        try:
+            os.ftruncate(fd, nbytes)          # zeros: no row, no call yet
+            mem = mmap.mmap(fd, nbytes)       # MAP_SHARED: the file is the memory
+        finally:
+            os.close(fd)
+        self.maps.append(mem)
+        return mem
 
 
 def _safe(fn):
@@ -270,25 +200,41 @@ def _safe(fn):
         return []
 
 
-def _source_line(master, line) -> str | None:
-    src = getattr(master, "source", None)
-    if not src or not line:
-        return None
-    lines = src.splitlines()
-    return lines[line - 1].strip() if 0 < line <= len(lines) else None
+def prepare_without_main(data: dict, prepare):
+    """``multiprocessing.spawn.prepare`` for the forkserver's children: a run's child
+    (named :data:`CHILD_PREFIX`...) does not import or execute the parent's
+    ``__main__`` (a user's script without a ``__main__`` guard would run again in it);
+    every other child is prepared as multiprocessing does."""
+    if str(data.get("name", "")).startswith(CHILD_PREFIX):
+        data = {k: v for k, v in data.items()
+                if k not in ("init_main_from_path", "init_main_from_name")}
+    return prepare(data)
 
 
-def _fmu_index(code: str | None) -> int | None:
-    m = re.search(r"\b(?:c|do|me)_(\d+)\b", code or "")
-    return int(m.group(1)) if m else None
+def main_script_parts(scenario_path) -> list[str]:
+    """The trial parts the scenario uses that are registered in the ``__main__``
+    script (unknown in a run's child, which does not execute it)."""
+    from . import registry as reg
+    from .schema import load
+    words: set = set()
 
-
-def _call_kind(code: str) -> str:
-    if re.search(r"\b(?:do|me)_\d+\(", code):
-        return "doStep"
-    if re.search(r"\bts_", code):
-        return "setting inputs"
-    return "getting outputs"
+    def walk(x):
+        if isinstance(x, dict):
+            for k, v in x.items():
+                words.add(str(k))
+                walk(v)
+        elif isinstance(x, (list, tuple)):
+            for v in x:
+                walk(v)
+        elif isinstance(x, str):
+            words.add(x)
+    try:
+        walk(load(scenario_path).data)
+    except Exception:
+        return []
+    reg.load_trials()
+    return [f"{e.kind} {e.name!r}" for kind in reg.KINDS for e in reg._REG[kind].values()
+            if getattr(e.obj, "__module__", "") == "__main__" and e.name in words]
 
 
 def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, target,
@@ -296,6 +242,7 @@ def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, target,
     """The child process's main: supervision aids, then the run, its info sent back.
     ``env``, ``tmpdir``: the parent's now (the forkserver has those of its start)."""
     import resource
+    from ..master.rows import supervised
     signal.signal(signal.SIGINT, signal.SIG_IGN)       # Ctrl-C is the parent's to handle
     _WHERE[0] = "process"
     try:
@@ -304,29 +251,19 @@ def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, target,
         pass
     os.environ.clear()
     os.environ.update(env)
-    # the supervision reads the Python tick loop (its row buffer and the line being
-    # executed: which FMU); the compiled engine runs the ticks in C holding the
-    # interpreter lock, where neither can be read: an isolated run uses the Python loop
-    os.environ["COSIM_ENGINE"] = "python"
     tempfile.tempdir = tmpdir
     scratch = Path(scratch)
     stacks = open(scratch / STACKS, "w")
-    r, w = os.pipe()
-    os.set_blocking(w, False)
-    for s in (*_FATAL, signal.SIGUSR2):   # (behind faulthandler) only write to the pipe
-        signal.signal(s, lambda *_: None)
-    signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+    # a fatal signal: the stacks, then the default action (the child dies of it)
     faulthandler.enable(file=stacks, all_threads=True)
     faulthandler.register(signal.SIGUSR1, file=stacks, all_threads=True)
-    watcher = _Watcher(scratch, r)
-    watcher.start()
     from .build import LOCAL_FMUS
     token = LOCAL_FMUS.set(local_fmus)
     try:
-        info = target(*args, **kwargs)
+        with supervised(MappedRows(scratch)):
+            info = target(*args, **kwargs)
     finally:
         LOCAL_FMUS.reset(token)
-        watcher.stop.set()
     conn.send(info)
     conn.close()
 
@@ -359,7 +296,18 @@ def run_in_child(target, scenario_path: str, run_label: str, out_dir: str, fmu_s
     scratch = run_tmp_dir(runs_dir, run_label)
     ctx = _context()
     rx, tx = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, name=f"cosim-run-{run_label}",
+    used = main_script_parts(scenario_path)
+    if used:
+        info = {**(base or {"label": run_label}), "key": key, "status": "error",
+                "error": f"{', '.join(used)} is registered in the script "
+                         f"{getattr(sys.modules['__main__'], '__file__', '__main__')} "
+                         f"(__main__), which a run's child process does not execute: "
+                         f"register it in an importable module (imported by the script), "
+                         f"or run with isolation='none'", "wall_s": time.perf_counter() - t0}
+        (scratch / "run.json").write_text(json.dumps(info, indent=1, default=str))
+        publish_run(runs_dir, scratch, run_label)
+        return info
+    p = ctx.Process(target=_child, name=f"{CHILD_PREFIX}{run_label}",
                     args=(tx, str(scratch), dict(os.environ), tempfile.gettempdir(),
                           dict(LOCAL_FMUS.get()), target,
                           (scenario_path, run_label, out_dir, fmu_swaps, fmu_dir, key),
@@ -383,8 +331,8 @@ def run_in_child(target, scenario_path: str, run_label: str, out_dir: str, fmu_s
         if info is None:
             info = _crash_record(p, scratch, base or {"label": run_label}, key, timeout_s,
                                  timed_out, time.perf_counter() - t0)
-            for f in SCRATCH_FILES:
-                (scratch / f).unlink(missing_ok=True)
+            for f in scratch.glob(CRASH_PREFIX + "*"):
+                f.unlink(missing_ok=True)
             (scratch / "run.json").write_text(json.dumps(info, indent=1, default=str))
             publish_run(runs_dir, scratch, run_label)
         return info
@@ -441,7 +389,7 @@ def _supervise(p, rx, scratch: Path, timeout_s):
             return None, False
         now = time.monotonic()
         if dumped_at is None and _size(scratch / STACKS) > 0:
-            dumped_at = now               # a fatal signal: the watcher writes the rows
+            dumped_at = now               # a fatal signal: the child is dying of it
         if dumped_at is not None and now - dumped_at > CRASH_GRACE_S:
             p.kill()
             p.join()
@@ -449,10 +397,8 @@ def _supervise(p, rx, scratch: Path, timeout_s):
         if now > deadline:
             with contextlib.suppress(OSError):
                 os.kill(p.pid, signal.SIGUSR1)        # faulthandler: where it hangs
-                os.kill(p.pid, signal.SIGUSR2)        # the watcher: a last flush
             end = time.monotonic() + DUMP_GRACE_S
-            while time.monotonic() < end and not (
-                    _size(scratch / STACKS) and (_read_json(scratch / PROGRESS) or {}).get("final")):
+            while time.monotonic() < end and not _size(scratch / STACKS):
                 time.sleep(0.02)
             p.kill()
             p.join()
@@ -481,52 +427,73 @@ def _signame(code) -> str | None:
         return f"signal {-code}"
 
 
+def _runs_of(scratch: Path) -> list:
+    """[(head, rows, [role index, call])] of every run the child started, in order."""
+    import mmap
+    from cosim.master.rows import read_rows
+    out = []
+    heads = sorted(scratch.glob(HEAD + "*.json"), key=lambda f: int(f.stem[len(HEAD):]))
+    for hf in heads:
+        head = _read_json(hf)
+        if not head:
+            continue
+        ncol = len(head["columns"])
+        rows, where = None, [-1, 0]
+        try:
+            with open(scratch / f"{ROWS}{hf.stem[len(HEAD):]}", "rb") as f:
+                with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mem:
+                    rows, where = read_rows(mem, ncol)
+        except (OSError, ValueError):
+            pass
+        cap = (head.get("nbytes", 0) - 32) // 8 // ncol if ncol else 0
+        out.append((head, rows, where, cap))
+    return out
+
+
 def _crash_record(p, scratch: Path, base: dict, key, timeout_s, timed_out: bool,
                   wall: float) -> dict:
-    """run.json of a child that died or was killed, and ``main.parquet`` with the rows
-    it had recorded (written into ``scratch``)."""
+    """run.json of a child that died or was killed, and a Parquet file per phase with
+    the rows it had recorded (written into ``scratch``): the phase it died in with
+    ``completed = false``."""
     import numpy as np
+    from cosim.master.rows import CALL_TEXT, STEP
     from cosim.master.system import RunResult
+    from .store import safe_name
     info = {**base, "key": key, "status": "error"}
-    head = _read_json(scratch / HEAD)
-    prog = _read_json(scratch / PROGRESS) or {}
+    runs = _runs_of(scratch)
     stacks = _read_text(scratch / STACKS)
     sig = _signame(p.exitcode)
-    if prog.get("signal"):
-        sig = signal.Signals(prog["signal"]).name
     m = re.search(r"Fatal Python error: (.+)", stacks)
     if sig in (None, "SIGKILL") and m and not timed_out:
         sig = {"Segmentation fault": "SIGSEGV", "Bus error": "SIGBUS",
                "Floating point exception": "SIGFPE", "Illegal instruction": "SIGILL",
                "Aborted": "SIGABRT"}.get(m.group(1).strip(), sig)
-    role = prog.get("role")
-    fmu = (head or {}).get("roles", {}).get(role) if role else None
-    rows = None
-    if head:
-        ncol = len(head["columns"])
-        raw = np.fromfile(scratch / ROWS, dtype=np.float64) if (scratch / ROWS).is_file() \
-            else np.empty(0)
-        n = raw.size // ncol if ncol else 0
-        rows = raw[: n * ncol].reshape(n, ncol)
+    head, rows, (j, call), cap = runs[-1] if runs else (None, None, (-1, 0), 0)
     n = 0 if rows is None else rows.shape[0]
+    # the last run ended normally (all its rows, no call): the child died outside a run
+    between = head is not None and n == cap and j < 0 and not call
+    roles = list((head or {}).get("roles", {}))
+    role = roles[j] if call and 0 <= j < len(roles) else None
+    fmu = (head or {}).get("roles", {}).get(role) if role else None
+    phase = None if head is None or between else head.get("phase", "main")
     t_last = float(rows[-1, 0]) if n else None
     h = (head or {}).get("step_size")
-    call = prog.get("call")
+    call_text = CALL_TEXT.get(call)
     if role:
         where = f"in role {role} ({Path(fmu).name if fmu else 'its FMU'})"
-        if call == "doStep":
+        if call == STEP:
             where += " during its doStep" + (
                 f" from t = {t_last:.6f} s" + (f" to {t_last + h:.6f} s" if h else "")
                 if t_last is not None else "")
-        elif call:
-            where += f" while {call}"
-    elif head is None:
+        elif call_text:
+            where += f" while {call_text}"
+    elif head is None or between:
         where = "outside the tick loop (building or initialising the system)"
     else:
-        where = "in the master's run" + (f" while {call}" if call else "") + (
-            f" (tick-loop line: {prog['code']})" if prog.get("code") else "")
-    kept = (f"rows up to t = {t_last:.6f} s kept ({n} rows, main.parquet)" if n else
-            "no rows had been recorded")
+        where = "in the master's run (not in an FMU call)"
+    kept = (f"rows up to t = {t_last:.6f} s kept ({n} rows of phase {phase}, "
+            f"{safe_name(phase)}.parquet)" if n and phase else
+            "no rows had been recorded" + (f" (phase {phase})" if phase else ""))
     if timed_out:
         what = f"timeout: the run passed its wall-clock limit of {timeout_s:g} s; it hung {where}"
         stop = f"timeout after {timeout_s:g} s"
@@ -539,22 +506,34 @@ def _crash_record(p, scratch: Path, base: dict, key, timeout_s, timed_out: bool,
     info["error"] = f"{what}; " + (f"last simulated time reached t = {t_last:.6f} s; "
                                    if t_last is not None else "no simulated time reached; ") + kept
     info["crash"] = {"kind": "timeout" if timed_out else "crash", "signal": sig,
-                     "exitcode": p.exitcode, "role": role, "fmu": fmu,
-                     "call": prog.get("call"), "loop_line": prog.get("code"),
-                     "t_last": t_last, "rows_kept": n,
+                     "exitcode": p.exitcode, "phase": phase, "role": role, "fmu": fmu,
+                     "call": call_text, "t_last": t_last, "rows_kept": n,
                      "dropped_columns": (head or {}).get("dropped", []),
                      "stacks": _main_stack(stacks)}
     info["wall_s"] = wall
-    if head is not None:
-        signals = {c: rows[:, i].copy() for i, c in enumerate(head["columns"])}
-        rr = RunResult(signals, head.get("provenance", []), completed=False,
-                       error=info["error"], ticks=n, step_size=h, stop_reason=stop,
+    # every phase's rows (the last run of a phase name counts), the failed one last
+    by_phase: dict = {}
+    for i, (hd, rw, _, cp) in enumerate(runs):
+        by_phase.pop(hd.get("phase", "main"), None)
+        by_phase[hd.get("phase", "main")] = (i, hd, rw, cp)
+    phases = []
+    for name, (i, hd, rw, cp) in by_phase.items():
+        failed = i == len(runs) - 1 and not between
+        nr = 0 if rw is None else rw.shape[0]
+        signals = {c: (rw[:, q].copy() if rw is not None else np.empty(0))
+                   for q, c in enumerate(hd["columns"])}
+        rr = RunResult(signals, hd.get("provenance", []), completed=not failed and nr == cp,
+                       error=info["error"] if failed else None, ticks=nr,
+                       step_size=hd.get("step_size"), stop_reason=stop if failed else None,
                        notes=[f"{c} (text) was not kept: the child died"
-                              for c in head.get("dropped", [])])
-        rr.to_parquet(scratch / "main.parquet", units=head.get("units") or {})
-        info["phases"] = [{"phase": "main", "file": "main.parquet", "completed": False,
-                           "error": info["error"], "ticks": n, "wall_s": wall}]
-        info["provenance"] = head.get("provenance", [])
+                              for c in hd.get("dropped", [])])
+        f = f"{safe_name(name)}.parquet"
+        rr.to_parquet(scratch / f, units=hd.get("units") or {})
+        phases.append({"phase": name, "file": f, "completed": rr.completed,
+                       "error": rr.error, "ticks": nr, "wall_s": wall if failed else 0.0})
+        info.setdefault("provenance", hd.get("provenance", []))
+    if phases:
+        info["phases"] = phases
     return info
 
 

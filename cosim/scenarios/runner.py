@@ -23,6 +23,7 @@ import traceback
 from pathlib import Path
 
 from ..logs.fileio import jsonable
+from ..master.rows import PHASE
 from . import registry as reg
 from .build import check_build, make_builder
 from .expand import deep_merge, expand
@@ -58,6 +59,7 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
     info: dict = {"label": run_label, "key": key, "status": "error", "error": None,
                   "isolation": where()}
     tmp = run_tmp_dir(runs_dir, run_label)
+    phase_token = PHASE.set("main")
     try:
         sc = load(scenario_path)
         runs = {r.label: r for r in all_runs(sc)}
@@ -73,6 +75,9 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
         systems = []                  # what the procedure built: the recorded units
 
         def build(overrides: dict | None = None):
+            # the phase the procedure builds for names the rows of its runs (a crash
+            # record keeps them under it: cosim.master.rows.PHASE)
+            PHASE.set(ctx.phase or "main")
             system, record = make(overrides)
             systems.append(system)
             return system, record
@@ -94,8 +99,10 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
                 info["error"] = (f"timeout: the run passed its wall-clock limit of "
                                  f"{timeout_s:g} s (stopped in Python code: {exc})")
             partial = getattr(exc, "result", None)
-            if partial is not None:
-                result = reg.ProcedureResult(runs={"main": partial})
+            if partial is not None:          # the rows of the phase that failed, under its name
+                phase = ctx.phase or "main"
+                result = reg.ProcedureResult(runs={phase: partial})
+                info["failed_phase"] = phase
             info["traceback"] = traceback.format_exc(limit=6)
         if result is not None:
             phases = []
@@ -126,6 +133,7 @@ def execute_run(scenario_path: str, run_label: str, out_dir: str, fmu_swaps: dic
     except Exception as exc:          # a bug in the framework/trial code: recorded too
         info["error"] = f"{type(exc).__name__}: {exc}"
         info["traceback"] = traceback.format_exc(limit=6)
+    PHASE.reset(phase_token)
     info["wall_s"] = time.perf_counter() - t0
     (tmp / "run.json").write_text(json.dumps(jsonable(info), indent=1))
     publish_run(runs_dir, tmp, run_label)  # atomic: the run appears complete or not at all

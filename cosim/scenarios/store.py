@@ -231,8 +231,8 @@ def _host() -> str:
     return safe_name(socket.gethostname())
 
 
-#: the files a run's crash watcher (:mod:`.isolate`) writes into the run's temporary
-#: folder are named ``crash.<what>``
+#: the files a run's child process (:mod:`.isolate`: mapped rows, stacks) writes into
+#: the run's temporary folder are named ``crash.<what>``
 CRASH_PREFIX = "crash."
 
 
@@ -263,7 +263,7 @@ def clean_run_tmp(out_dir: Path) -> list[Path]:
     an interrupt) and those of processes of this host that no longer exist. Only
     folders named as :func:`run_tmp_dir` names them (or as before that, without the
     process) and holding nothing but ``*.parquet`` and ``run.json`` files are
-    touched (and the crash watcher's ``crash.*`` files of a run in a child process,
+    touched (and the child's ``crash.*`` files of a run in a child process,
     :mod:`.isolate`); a folder of a process on another host is left
     alone. Returns the removed folders."""
     import os

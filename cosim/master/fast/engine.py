@@ -1,8 +1,9 @@
 """The master's compiled tick engine (``c/engine.c``): what it runs, and when.
 
-:class:`~cosim.master.system.Master` plans a run and writes its Python tick loop
-(``Master._generate``); this module decides whether the compiled engine can run the
-same ticks, and prepares its *program* from the same plan and the same ctypes objects:
+:class:`~cosim.master.system.Master` plans a run and builds its Python tick loop
+(:class:`cosim.master.loop.TickLoop`); this module decides whether the compiled engine
+can run the same ticks, and prepares its *program* from the same loop (its slots, its
+ctypes functions and buffers, its row buffer):
 
 * ``compiled-loop``: every controller has a compiled step (``block.c_kernel()`` is a
   :class:`~cosim.algorithms.ckernel.CKernel`): one C call runs all the ticks (FMU
@@ -14,10 +15,12 @@ same ticks, and prepares its *program* from the same plan and the same ctypes ob
 * ``python``: anything else (see :func:`unsupported`): the Python loop as before.
 
 Both compiled modes do the operations of the Python loop in its order with the same
-double arithmetic (unit conversion as ``system._affine``), so the results are
+double arithmetic (unit conversion as ``loop.Term.value``), so the results are
 bit-identical (tests/test_engine.py). A failure returns (code, tick, index, status)
 and the Python side raises the error the Python loop raises, through the loop's own
-``_fail_*`` functions; the rows recorded so far are kept.
+``fail_*`` methods; the rows are written into the run's
+:class:`~cosim.master.rows.RowBuffer` as they are made (so a supervisor sees them even
+if the process dies), with the row count and the FMU being called in its header.
 
 The extension is compiled with gcc from ``c/engine.c`` and every kernel source of
 ``cosim/algorithms/c`` (a generated table names them), on first use, into
@@ -43,9 +46,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..algorithms import ckernel
-from ..algorithms.ckernel import CFLAGS, KERNEL_DIR, compile_shared
-from ..paths import cache_dir
+from ...algorithms import ckernel
+from ...algorithms.ckernel import CFLAGS, KERNEL_DIR, compile_shared
+from ...paths import cache_dir
+from ..loop import fast_dest
 
 __all__ = ["ENGINE_SOURCE", "MODES", "load", "library_path", "unsupported", "choose", "attach"]
 
@@ -124,7 +128,6 @@ def load():
 # ====================================================================== the whitelist
 def unsupported(master, plan) -> str | None:
     """Why the compiled engine cannot run this system at all (None: it can)."""
-    from .system import _fast_dest
     sys_ = master.system
     if master.timing:
         return "timing=True measures every call in the Python loop"
@@ -141,7 +144,7 @@ def unsupported(master, plan) -> str | None:
             return f"role {role!r}: non-Float64 or array variables are read"
     for c in sys_._connections:
         role = c.dest.partition(".")[0]
-        if not _fast_dest(sys_.roles[role], c.dest):
+        if not fast_dest(sys_.roles[role], c.dest):
             return f"connection to {c.dest}: not a scalar Real/Float64 input"
     return None
 
@@ -220,15 +223,16 @@ def _addr(fp) -> int:
     return ctypes.cast(fp, ctypes.c_void_p).value or 0
 
 
-def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, rec, kernels,
-           n_ticks, Ts, T0):
-    """Build the program and put the engine's ``_loop`` / ``_steps`` (compiled-loop),
-    or ``_e_read`` / ``_e_ws`` / ``_steps`` (compiled-calls, called by the loop that
-    ``Master._generate(..., engine_calls=True)`` wrote), into the loop's namespace."""
+def attach(loop, mode, kernels, n_ticks, time_steps=False):
+    """Build the program of the run whose Python tick loop is ``loop``. Returns
+    ``(run(k0, N), steps(k, j0))``: the engine's whole loop (compiled-loop), or the
+    Python loop with the engine's FMI calls (compiled-calls: ``loop.fmi_calls``)."""
     mod = load()
-    sys_ = master.system
+    sys_, plan, slot, slaves = loop.system, loop.plan, loop.slot, loop.slaves
+    fmu_end, stim_end, ctrl_end = loop.fmu_end, loop.stim_end, loop.ctrl_end
+    rows, Ts, T0 = loop.rows, loop.Ts, loop.T0
     whole = mode == "compiled-loop"
-    columns, num_cols, _, _, _ = master._cols
+    num_cols = rows.columns
     roles = [r for r, _ in slaves]
     alias = plan.alias
 
@@ -236,11 +240,10 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
         return slot[alias.get(name, name)]
 
     nslot = len(slot)
-    Vl = ns["_V"]
+    Vl = loop.V
     Vd = np.zeros(nslot) if whole else None
     nstim = stim_end - fmu_end
     Sbuf = np.zeros((n_ticks + 1) * max(nstim, 1)) if whole else None
-    rows = np.zeros((n_ticks + 1) * max(len(num_cols), 1)) if whole else None
     t0zero = T0 == 0.0
 
     L = _Layout()
@@ -248,10 +251,10 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
            nstim if whole else 0, stim_end, ctrl_end, len(num_cols) if whole else 0,
            -1, (n_ticks + 1) if whole else 0,
            Vd.ctypes.data if whole else 0, Sbuf.ctypes.data if whole else 0,
-           rows.ctypes.data if whole else 0)
+           rows.address() if whole else 0, rows.status_address())
     L.dbls(Ts, T0)
     for j, (role, slave) in enumerate(slaves):
-        io = slave.raw()
+        io = loop.fmus[j].io
         L.ints(io.comp.value or 0, slave.fmi3, _addr(io.get), _addr(io.set), _addr(io.step))
         names = plan.fmu_reads[role]
         L.ints(len(names), slot[f"{role}.{names[0]}"] if names else 0,
@@ -268,15 +271,15 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
             s_role, _, s_var = c.source.partition(".")
             si = roles.index(s_role)
             src = slaves[si][1]
-            sio = src.raw()
+            sio = loop.fmus[si].io
             L.ints(slave.var(c.dest.partition(".")[2]).vr, si, _addr(sio.get),
                    sio.comp.value or 0, src.fmi3, src.var(s_var).vr)
             L.term(0, c)
         d = getattr(slave, "step_mult", 1)
         L.ints(d)
         L.dbls(Ts if d == 1 else d * Ts, (d - 1) * Ts)
-        if slave.fmi3:        # the out-arguments _fail_fmu / _continue_early read
-            L.ints(*[ctypes.addressof(ns[f"x{i}_{j}"]._obj) for i in range(4)])
+        if slave.fmi3:        # the out-arguments loop.fail_fmu / continue_early read
+            L.ints(*[ctypes.addressof(x._obj) for x in io.step_extra])
         else:
             L.ints(0, 0, 0, 0)
     keep = [Vd, Sbuf, rows]
@@ -298,6 +301,10 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
     prog = mod.Program(np.array(L.i, dtype=np.int64).tobytes(),
                        np.array(L.d, dtype=np.float64).tobytes(), tuple(knames),
                        None if whole else Vl, keep)
+    loop.program = prog
+    if time_steps:
+        # benchmarks: the FMUs' doStep time, read after the run (prog.step_seconds)
+        prog.time_steps = True
 
     stim_error = [None, None]        # (tick, exception) of the first failing stimulus tick
 
@@ -319,52 +326,50 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
 
     def handle(code, k, who, st):
         """Raise the Python loop's error; return only for a doStep the FMU ended
-        normally (FMI 3 early return continued by _fail_fmu)."""
+        normally (FMI 3 early return continued by fail_fmu)."""
         t = tick_t(k)
         sync_V()
         if code == mod.E_GET:
-            ns["_fail_fmu"](who, "get", t, st)
+            loop.fail_fmu(who, "get", t, st)
         elif code == mod.E_SET:
-            ns["_fail_fmu"](who, "set", t, st)
+            loop.fail_fmu(who, "set", t, st)
         elif code == mod.E_STEP:
-            ns["_fail_fmu"](who, "step", t, st)
+            loop.fail_fmu(who, "step", t, st)
             return
         elif code == mod.E_STIM:
             raw_stimuli(t)
             if stim_error[1] is not None:
-                ns["_fail_stim"](t, stim_error[1])
-            ns["_nonfinite_in"](t)
+                loop.fail_stim(t, stim_error[1])
+            loop.fail_nonfinite_in(t)
         elif code == mod.E_NONFINITE_IN:
             raw_stimuli(t)
-            ns["_nonfinite_in"](t)
+            loop.fail_nonfinite_in(t)
         elif code == mod.E_KERNEL:
             c = sys_.controllers[who]
-            ns["_fail_ctrl"](who, t, c.block.c_kernel_error(st), None)
+            loop.fail_ctrl(who, t, c.block.c_kernel_error(st), None)
         elif code == mod.E_NONFINITE_CTRL:
-            ns["_nonfinite_ctrl"](t)
+            loop.fail_nonfinite_ctrl(t)
         raise RuntimeError(f"compiled engine: failure {code} at tick {k} (index {who}, "
                            f"status {st}) that the Python loop does not raise")
 
-    def _steps(k, j0):
+    def steps(k, j0):
         while prog.steps(k, j0):
             code, kk, who, st = prog.error
             handle(code, kk, who, st)
             j0 = who
 
-    ns["_steps"] = _steps
-    ns["_engine"] = prog
-    if master._time_steps:
-        # benchmarks: the FMUs' doStep time, read after the run (the program, and its
-        # buffers, otherwise go with the run)
-        prog.time_steps = True
-        master._engine_program = prog
     if not whole:
-        def _e_fail():
-            code, k, who, st = prog.error
-            handle(code, k, who, st)
-            _steps(k, who)          # the rest of the tick after a continued doStep
-        ns.update(_e_read=prog.read, _e_ws=prog.write_step, _e_fail=_e_fail)
-        return prog
+        class Calls:
+            """The FMI calls of a tick for the Python loop (loop.fmi_calls)."""
+            read, write_step = prog.read, prog.write_step
+
+            @staticmethod
+            def fail():
+                code, k, who, st = prog.error
+                handle(code, k, who, st)
+                steps(k, who)          # the rest of the tick after a continued doStep
+        loop.fmi_calls = Calls
+        return loop.run, steps
 
     # ---- stimuli: functions of t only, evaluated for every tick before the ticks run
     stim_fns = [sys_.stimuli[s] for s in plan.stim_used]
@@ -412,18 +417,11 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
         if stim_error[0] is not None:
             prog.stim_fail = stim_error[0]      # the engine stops there (E_STIM)
 
-    synced = [0]
-    ncol = len(num_cols)
-
     def sync():
-        n = prog.nrows
-        if n > synced[0]:
-            rec.frombytes(rows[synced[0] * ncol:n * ncol].tobytes())
-            synced[0] = n
         for c, k, st in zip(sys_.controllers, kernels, states):
             c.block.c_kernel_sync(list(st[:len(k.state)]))
 
-    def _loop(k0, N):
+    def run(k0, N):
         try:
             precompute()
             k = k0
@@ -432,10 +430,9 @@ def attach(master, ns, mode, plan, slaves, slot, fmu_end, stim_end, ctrl_end, re
                     return
                 code, k, who, st = prog.error
                 handle(code, k, who, st)       # raises, or returns after a doStep
-                _steps(k, who)
+                steps(k, who)
                 k += 1
         finally:
             sync()
 
-    ns["_loop"] = _loop
-    return prog
+    return run, steps

@@ -1,9 +1,9 @@
 /* engine.c: the master's compiled tick engine (CPython extension _cosim_engine).
  *
- * It executes a "program" that cosim/master/engine.py prepares from the master's plan
+ * It executes a "program" that cosim/master/fast/engine.py prepares from the master's plan
  * (cosim/master/system.py): the same operations, in the same order and with the same
- * double arithmetic, as the Python tick loop that Master._generate writes, so that the
- * results are bit-identical. Two modes:
+ * double arithmetic, as the Python tick loop (cosim/master/loop.py, TickLoop.run), so
+ * that the results are bit-identical. Two modes:
  *
  *   whole loop  run(k0, N): FMU reads into V, precomputed stimuli, compiled controller
  *               steps (cosim_kernel.h), non-finite checks, recording into a
@@ -15,7 +15,7 @@
  *
  * A failure (status > 1, a non-finite value, a kernel's error code) stops the call
  * with 1 and leaves (code, tick, index, status) in Program.error: the Python side
- * raises the error the Python loop would have raised (its _fail_* functions).
+ * raises the error the Python loop would have raised (its fail_* methods).
  * -1: a Python exception is set. Nothing is global; a Program owns copies of its
  * tables and pointers to buffers the Python side keeps alive.
  *
@@ -45,6 +45,9 @@ typedef int (*step3_t)(void *, double, double, bool, bool *, bool *, bool *, dou
 
 enum { E_GET = 1, E_SET = 2, E_STEP = 3, E_STIM = 4, E_NONFINITE_IN = 5, E_KERNEL = 6,
        E_NONFINITE_CTRL = 7 };
+/* the row buffer's header fields and calls (cosim/master/rows.py: ROWS, ROLE, CALL) */
+enum { S_ROWS = 0, S_ROLE = 1, S_CALL = 2 };
+enum { C_NONE = 0, C_GET = 1, C_SET = 2, C_STEP = 3 };
 
 typedef struct { int64_t src; int has_gain, has_off; double gain, off; } Term;
 
@@ -75,7 +78,8 @@ typedef struct {
     double Ts, T0;
     double *V;              /* whole loop: the values; per tick: scratch */
     double *S;              /* stimuli, (N+1) x nstim */
-    double *rows;           /* rows_cap x ncol */
+    double *rows;           /* rows_cap x ncol: the run's row buffer (cosim/master/rows.py) */
+    int64_t *status;        /* its header: rows recorded, FMU being called, which call */
     int64_t *rec;           /* slot of each recorded column */
     Fmu *f; Ctrl *c;
     PyObject *Vlist;        /* per tick: the Python loop's list V */
@@ -94,6 +98,11 @@ static inline double affine(double x, const Term *c)
     if (c->has_gain) x = x * c->gain;
     if (c->has_off) x = x + c->off;
     return x;
+}
+
+static inline void calling(Program *P, int64_t j, int64_t call)
+{   /* where the loop is, for a supervisor reading the row buffer of a dead process */
+    P->status[S_ROLE] = j; P->status[S_CALL] = call;
 }
 
 static inline int fail(Program *P, int64_t code, int64_t k, int64_t who, int64_t st)
@@ -130,6 +139,7 @@ static int do_reads(Program *P, int64_t k)
         Fmu *F = &P->f[j];
         if (!F->nr) continue;
         double *dst = P->Vlist ? F->rb : P->V + F->ra;
+        calling(P, j, C_GET);
         int st = fmu_get(F->get, F->fmi3, F->comp, F->rvr, (size_t)F->nr, dst);
         if (st > 1) return fail(P, E_GET, k, j, st);
         if (P->Vlist) {
@@ -140,6 +150,7 @@ static int do_reads(Program *P, int64_t k)
             }
         }
     }
+    calling(P, -1, C_NONE);
     return 0;
 }
 
@@ -153,9 +164,11 @@ static int do_writes(Program *P, int64_t k)
             if (value_of(P, F->wt[i].src, &x)) return -1;
             F->wb[i] = affine(x, &F->wt[i]);
         }
+        calling(P, j, C_SET);
         int st = fmu_set(F->set, F->fmi3, F->comp, F->wvr, (size_t)F->nw, F->wb);
         if (st > 1) return fail(P, E_SET, k, j, st);
     }
+    calling(P, -1, C_NONE);
     return 0;
 }
 
@@ -170,16 +183,19 @@ static int do_steps(Program *P, int64_t k, int64_t j0)
             for (int64_t q = 0; q < F->ns; q++) {
                 Seq *s = &F->sq[q];
                 double b;
+                calling(P, s->si, C_GET);
                 int st = fmu_get(s->get, s->fmi3, s->comp, &s->vr, 1, &b);
                 if (st > 1) return fail(P, E_GET, k, s->si, st);
                 F->sb[q] = affine(b, &s->t);
             }
+            calling(P, j, C_SET);
             int st = fmu_set(F->set, F->fmi3, F->comp, F->svr, (size_t)F->ns, F->sb);
             if (st > 1) return fail(P, E_SET, k, j, st);
         }
         double tc = F->d > 1 ? t - F->tcoff : t;
         struct timespec a, b;
         if (P->time_steps) clock_gettime(CLOCK_MONOTONIC, &a);
+        calling(P, j, C_STEP);
         int st, stop;
         if (F->fmi3) {
             st = ((step3_t)F->step)(F->comp, tc, F->h, true, F->ev, F->term, F->early, F->last);
@@ -194,6 +210,7 @@ static int do_steps(Program *P, int64_t k, int64_t j0)
         }
         if (stop) return fail(P, E_STEP, k, j, st);
     }
+    calling(P, -1, C_NONE);
     return 0;
 }
 
@@ -201,6 +218,7 @@ static int run_loop(Program *P, int64_t k0, int64_t N)
 {
     double *V = P->V;
     int r;
+    P->nrows = k0;              /* row k is at its place: row k0 follows rows 0..k0-1 */
     for (int64_t k = k0; k <= N; k++) {
         if (!((k - k0 + 1) & 4095) && PyErr_CheckSignals()) return -1;
         V[0] = tick_time(P, k);
@@ -224,6 +242,7 @@ static int run_loop(Program *P, int64_t k0, int64_t N)
             double *row = P->rows + P->nrows * P->ncol;
             for (int64_t i = 0; i < P->ncol; i++) row[i] = V[P->rec[i]];
             P->nrows++;
+            P->status[S_ROWS] = P->nrows;
         }
         if (k == N) break;
         if ((r = do_writes(P, k))) return r;
@@ -291,7 +310,7 @@ static cosim_kernel_fn find_kernel(const char *name)
 }
 
 /* Program(ints, doubles, kernel_names, Vlist_or_None, keep): the layout is written by
- * cosim/master/engine.py (_Layout) and read here in the same order. */
+ * cosim/master/fast/engine.py (_Layout) and read here in the same order. */
 static int Program_init(Program *P, PyObject *args, PyObject *kw)
 {
     (void)kw;
@@ -305,7 +324,8 @@ static int Program_init(Program *P, PyObject *args, PyObject *kw)
     P->nslot = I(&c); P->t0zero = I(&c); P->nfmu = I(&c); P->nctrl = I(&c);
     P->stim0 = I(&c); P->nstim = I(&c); P->stim_end = I(&c); P->ctrl_end = I(&c);
     P->ncol = I(&c); P->stim_fail = I(&c); P->rows_cap = I(&c); P->nrows = 0;
-    P->V = A(&c); P->S = A(&c); P->rows = A(&c);
+    P->V = A(&c); P->S = A(&c); P->rows = A(&c); P->status = A(&c);
+    if (!P->status) c.bad = 1;
     P->Ts = D(&c); P->T0 = D(&c);
     P->f = zalloc(P->nfmu, sizeof(Fmu));
     P->c = zalloc(P->nctrl, sizeof(Ctrl));
@@ -511,7 +531,7 @@ static PyTypeObject ProgramType = {
     .tp_dealloc = (destructor)Program_dealloc,
     .tp_methods = Program_methods,
     .tp_getset = Program_getset,
-    .tp_doc = "A tick program of the master (see cosim/master/engine.py).",
+    .tp_doc = "A tick program of the master (see cosim/master/fast/engine.py).",
 };
 
 static PyObject *kernel_names(PyObject *self, PyObject *unused)
