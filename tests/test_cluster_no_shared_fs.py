@@ -97,9 +97,13 @@ def cluster():
             # a task whose worker dies is not retried (as the suite's local cluster)
             env={**os.environ, "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "0"}))
         t0 = time.time()
-        while not sfile.is_file() and time.time() - t0 < 30:
-            time.sleep(0.2)
-        address = json.loads(sfile.read_text())["address"]
+        address = None               # the scheduler writes its file after creating it
+        while address is None and time.time() - t0 < 60:
+            try:
+                address = json.loads(sfile.read_text())["address"]
+            except (OSError, ValueError, KeyError):
+                time.sleep(0.2)
+        assert address, "the dask scheduler did not start within 60 s"
         log = open(wdir / "worker.log", "wb")
         procs.append(subprocess.Popen(_worker_cmd(wdir, address), stdout=log, stderr=log,
                                       start_new_session=True))

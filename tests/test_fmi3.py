@@ -11,6 +11,7 @@ import fmpy
 from fmpy.validation import validate_fmu
 
 from cosim.fmubuild.build import BuildError, build_fmu, platform_tuple
+from cosim.master.simulate import smoke_run
 from cosim.fmi.check import check_fmu
 from cosim.fmubuild.importers import run_fmpy
 
@@ -196,7 +197,7 @@ def test_fmi3_cache_is_separate_and_reproducible(built23, tmp_path):
 
 def test_check_accepts_fmi3(built23):
     fmus, _, _ = built23
-    rep = check_fmu(fmus[("Noisy", "3.0")], simulate=True)
+    rep = check_fmu(fmus[("Noisy", "3.0")], simulate=smoke_run)
     assert rep.ok, rep.errors
     assert rep.simulated and rep.fmi_version == "3.0" and rep.interfaces == ["CoSimulation"]
     assert {v["name"]: v["type"] for v in rep.variables}["seed"] == "Int32"
@@ -260,7 +261,7 @@ def test_real_models_fmi3_in_simulate_fmu_and_check(fmus, real_fmi3):
             assert _max_rel(r2[n], r3[n]) <= 1e-12, (ident, n)
         assert np.ptp(r3[r3.dtype.names[1]]) > 0
     for ident, f3 in sorted(real_fmi3.items()):
-        rep = check_fmu(f3, simulate=True)
+        rep = check_fmu(f3, simulate=smoke_run)
         assert rep.ok and rep.simulated and rep.fmi_version == "3.0", (ident, rep.errors)
 
 

@@ -257,12 +257,13 @@ def _instantiate(md, unzipdir: Path, kind: str) -> None:
     fmu.freeInstance()
 
 
-def check_fmu(path, simulate: bool = False, strict: bool = False,
+def check_fmu(path, simulate=None, strict: bool = False,
               instantiate: bool = True) -> CheckReport:
     """Validate an FMU and describe its interface. Never extracts outside a temp dir.
 
-    ``simulate``: a 10 ms smoke simulation (:func:`smoke_run`, at the FMU's own step)
-    when the FMU is runnable (warnings do not prevent it); ``strict``: warnings count as errors (:attr:`CheckReport.ok`);
+    ``simulate``: a function ``(path, step, steps)`` that runs a 10 ms smoke simulation
+    at the FMU's own step (:func:`smoke_grid`; e.g. :func:`cosim.master.simulate.smoke_run`,
+    the master sits on a higher floor than this module) when the FMU is runnable (warnings do not prevent it); ``strict``: warnings count as errors (:attr:`CheckReport.ok`);
     ``instantiate``: load each interface's binary and instantiate it once.
     """
     import fmpy
@@ -330,7 +331,7 @@ def check_fmu(path, simulate: bool = False, strict: bool = False,
     if simulate and not rep.errors:
         h, n = smoke_grid(md)
         try:
-            smoke_run(path, h, n)
+            simulate(path, h, n)
             rep.simulated = True
         except Exception as exc:
             rep.errors.append(f"smoke simulation ({n} steps of {h:g} s) failed: {exc}")
@@ -359,15 +360,6 @@ def smoke_grid(md) -> tuple[float, int]:
     q = SMOKE_S / h
     n = max(1, int(round(q)) if abs(q - round(q)) < 1e-9 * max(1.0, q) else math.ceil(q))
     return h, n
-
-
-def smoke_run(path, h: float, n: int) -> None:
-    """n steps of h through the master's own FMU layer and tick loop (the integer grid,
-    the last doStep ending at the stop time the FMU was given): raises on an error."""
-    from ..master.system import Master, System      # (the layer above this one)
-    with System(h) as s:
-        s.add_fmu("fmu", path)
-        Master(s, [], engine="python").run(n * h)
 
 
 def format_report(rep: CheckReport) -> str:

@@ -205,3 +205,13 @@ def write_result(result: RunResult, out, role: str = "fmu"):
 
 __all__ = ["SimulateError", "default_experiment", "input_function", "read_input_csv",
            "simulate_fmu", "write_result", "SystemError_"]
+
+
+def smoke_run(path, h: float, n: int) -> None:
+    """n steps of h through the master's own FMU layer and tick loop (the integer grid,
+    the last doStep ending at the stop time the FMU was given): raises on an error.
+    The smoke simulation of :func:`cosim.fmi.check.check_fmu`."""
+    from .system import Master, System
+    with System(h) as s:
+        s.add_fmu("fmu", path)
+        Master(s, [], engine="python").run(n * h)
