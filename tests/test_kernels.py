@@ -311,7 +311,7 @@ def _reaching_rows(n: int, seed: int):
 
 @pytest.mark.parametrize("opts", [dict(k_N_per_m2s=1500.0, tau_s=20.0, damping_mass_kg=(5.6, 8.3)),
                                   dict(k_N_per_m2s=1000.0, tau_s=5.0, a_min_N_per_m=9.5,
-                                       damping_form="printed"),
+                                       clamp_weights=True, damping_form="printed"),
                                   dict(k_N_per_m2s=4000.0, tau_s=2.5, motors_on=False)])
 def test_adaptive_compliance_within_1e12(lib, opts):
     p = AdaptiveComplianceParams(**opts)
@@ -321,10 +321,10 @@ def test_adaptive_compliance_within_1e12(lib, opts):
 
 
 def test_adaptive_compliance_kernel_none_when_not_2d_or_snapshots_unsized():
-    from cosim.trials.reaching import AssistController, compliance_params
+    from cosim.trials.reaching import compliance_params
     assert AdaptiveComplianceController(AdaptiveComplianceParams(n_dof=1)).c_kernel() is None
-    assert AssistController(compliance_params(1000.0, 5.0), snapshot_every=250).c_kernel() is None
-    c = AssistController(compliance_params(1000.0, 5.0))
+    assert AdaptiveComplianceController(compliance_params(1000.0, 5.0), snapshot_every=250).c_kernel() is None
+    c = AdaptiveComplianceController(compliance_params(1000.0, 5.0))
     c.step({"pos_x": 0.0, "pos_y": 0.0, "ref_x": 0.01, "ref_y": 0.0})
     k = c.c_kernel()
     assert k is not None and k.state[2 * 36 + 8] == 1.0      # ticks stepped so far
@@ -335,17 +335,17 @@ def test_adaptive_compliance_kernel_none_when_not_2d_or_snapshots_unsized():
 def test_adaptive_compliance_snapshots_as_circular(lib):
     """circular.yaml's controller (snapshot every 250 ticks): the kernel, packed for the
     run's ticks, takes the same map snapshots at the same ticks; one more is refused."""
-    from cosim.trials.reaching import AssistController, compliance_params
+    from cosim.trials.reaching import compliance_params
     p = compliance_params(1000.0, 5.0, 10.0)
     objs: list = []
     rows = _reaching_rows(20000, 10)
-    _compare(lambda: AssistController(p, snapshot_every=250), rows, lib, legs=(0.1013, 0.9),
+    _compare(lambda: AdaptiveComplianceController(p, snapshot_every=250), rows, lib, legs=(0.1013, 0.9),
              rtol=1e-12, objects=objs)
     a, b = objs
     assert [t for t, _ in a.snapshots] == [t for t, _ in b.snapshots] == list(range(0, 20000, 250))
     for (_, A), (_, B) in zip(a.snapshots, b.snapshots):
         assert np.max(np.abs(A - B)) <= 1e-12 * np.max(np.abs(A))
-    c = AssistController(p, snapshot_every=250)
+    c = AdaptiveComplianceController(p, snapshot_every=250)
     k = c.c_kernel(ticks=250)                  # room for the snapshot at tick 0 only
     run = lib.runner(k)
     for m in rows[:250]:
@@ -420,9 +420,9 @@ def test_kernel_packed_after_reset(lib, logs, which):
 def test_adaptive_compliance_one_reaching_training(lib):
     """150 s, as one training of reaching.yaml (k 1500, tau 20 s, the table's axis
     masses): the map does not drift apart over 150 000 ticks."""
-    from cosim.trials.reaching import AssistController, compliance_params
+    from cosim.trials.reaching import compliance_params
     p = compliance_params(1500.0, 20.0, 10.0)
-    worst, _ = _compare(lambda: AssistController(p), _reaching_rows(150000, 9), lib,
+    worst, _ = _compare(lambda: AdaptiveComplianceController(p), _reaching_rows(150000, 9), lib,
                         legs=(0.01, 0.99), rtol=1e-12, attrs=("a", "kp", "kd"))
     print("adaptive_compliance 150 s worst relative difference", max(worst.values()))
 
