@@ -38,7 +38,7 @@ from cosim.algorithms.zero_force import ZeroForceController, ZeroForceParams
 from cosim.synth import simulate_ballscrew
 
 KERNELS = ("aakf", "dob", "rfob", "zero_force", "encoder_diff", "bilateral",
-           "adaptive_compliance")
+           "adaptive_compliance", "stability_1dof")
 
 
 @pytest.fixture(scope="module")
@@ -464,3 +464,33 @@ def test_aakf_bank_under_python312_sum(lib, logs, monkeypatch):
         oplain = plain(m)[1]
         differs += any(not _same(o[nm], oplain[nm]) for nm in o)
     assert differs > 0                         # the two summations do differ on this run
+
+
+# ------------------------------------------------------------------ 1-DOF stability loop
+@pytest.mark.parametrize("opts", [dict(clamp_weights=False, xi=0.7, damping_form="physical"),
+                                  dict(clamp_weights=True, xi=0.0, damping_form="printed")])
+def test_stability_1dof_compiled_equals_python_loop(opts):
+    """simulate_1dof's C twin (c/stability_1dof.c) against the Python loop: the same
+    trajectories (x, x~, k_p, f_c) to 1e-12 of their range and the same verdict, on a
+    damped and an undamped (growing, diverging) loop, with and without the clamp."""
+    import dataclasses
+    from cosim.algorithms.stability import HumanImpedance, simulate_1dof
+    p = AdaptiveComplianceParams(n_dof=1, axis_names=("q",), workspace_min_m=(-0.2,),
+                                 workspace_size_m=(0.4,), k_N_per_m2s=2.0e4, tau_s=1.0,
+                                 damping_mass_kg=(1.5,), **opts)
+    h = HumanImpedance(M_h_kg=1.0, b_h_Ns_per_m=5.0 if opts["xi"] else 0.0, K_h_N_per_m=50.0)
+
+    def tri(t):                                  # triangle at 5 cm/s over +-0.1 m
+        ph = (t / 8.0) % 1.0
+        return ((0.4 * ph, 0.05) if ph < 0.25 else (0.1 - 0.4 * (ph - 0.25), -0.05)
+                if ph < 0.75 else (-0.1 + 0.4 * (ph - 0.75), 0.05))
+    a = simulate_1dof(p, h, 1.5, tri, 6.0, substeps=2, x0_m=0.01)
+    b = simulate_1dof(dataclasses.replace(p), h, 1.5, tri, 6.0, substeps=2, x0_m=0.01,
+                      compiled=True)
+    for k in ("x_m", "err_m", "kp_N_per_m", "f_N"):
+        x, y = getattr(a, k), getattr(b, k)
+        assert np.array_equal(np.isnan(x), np.isnan(y)), k
+        ok = ~np.isnan(x)
+        assert np.max(np.abs(x[ok] - y[ok])) <= 1e-12 * np.max(np.abs(x[ok])), k
+    assert (a.diverged, a.stable) == (b.diverged, b.stable)
+    assert a.growth_ratio == pytest.approx(b.growth_ratio, rel=1e-9)

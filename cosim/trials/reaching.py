@@ -818,13 +818,14 @@ def _session_value(params, ctx):
 
 
 # ---------------------------------------------------------------- scenario-scope metrics
-def _sessions(ctx):
+def _sessions(ctx, cases=()):
     """(subject, week) -> values of one session (prefix removed), from the course runs
-    (one view per run: the values are the run's, whatever the phase)."""
+    (one view per run: the values are the run's, whatever the phase) of ``cases`` (all
+    when empty)."""
     out = {}
     seen = set()
     for r in ctx.runs:
-        if r.label in seen:
+        if r.label in seen or (cases and r.case not in cases):
             continue
         seen.add(r.label)
         a = r.artifacts or {}
@@ -839,15 +840,18 @@ def _sessions(ctx):
 
 @dataclasses.dataclass(frozen=True)
 class TrendParams:
-    """``subjects``: restrict to these subjects (empty: all)."""
+    """``subjects``: restrict to these subjects (empty: all); ``cases``: to the runs of
+    these cases (empty: all; two cases of one subject, e.g. another gain, would share
+    its sessions)."""
     subjects: tuple = ()
+    cases: tuple = ()
 
 
 @metric("post_better_fraction", params=TrendParams, scope="scenario")
 def _post_better_fraction(params, ctx):
     """Fraction of sessions whose post assessment (trial 5) total MAE is below the pre
     assessment (trial 1) (Fig. 51: "red squares are typically below blue dots")."""
-    ss = {k: v for k, v in _sessions(ctx).items()
+    ss = {k: v for k, v in _sessions(ctx, tuple(params.get("cases") or ())).items()
           if not params.get("subjects") or k[0] in params["subjects"]}
     return float(np.mean([v["post_total_MAE_mm"] < v["pre_total_MAE_mm"] for v in ss.values()]))
 
@@ -863,7 +867,7 @@ def _slope(x, y) -> float:
 def _worst_weekly_slope(params, ctx):
     """Largest (least negative) least-squares slope of the pre-assessment total MAE over
     the weeks among the subjects [mm/week] (Fig. 51: overall improving trend)."""
-    ss = _sessions(ctx)
+    ss = _sessions(ctx, tuple(params.get("cases") or ()))
     subs = sorted({k[0] for k in ss if not params.get("subjects") or k[0] in params["subjects"]})
     slopes = []
     weeks = {s: sorted(w for (k, w) in ss if k == s) for s in subs}
