@@ -314,8 +314,16 @@ def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
                          "kills": [{"req": k[0], "value": k[1], "limit": k[2], "baseline": k[3],
                                     "margin": k[4]} for k in kills],
                          "error": got.get("_error")})
+            # the requirement whose value moved most (relative to its baseline)
+            moved = sorted(((abs(v["value"] / base[r]["value"] - 1.0), r, base[r]["value"],
+                             v["value"], v["limit"]) for r, v in got.items()
+                            if not r.startswith("_") and v.get("value") is not None
+                            and base.get(r, {}).get("value")), reverse=True)
+            rows[-1]["moved_most"] = moved[0][1:] if moved else None
             desc = (f"{best[0]} {best[1]:.4g} vs {best[2]} (baseline {best[3]:.4g}, "
                     f"margin {100 * best[4]:.0f} %) +{len(kills) - 1}" if best else
+                    f"moved most: {moved[0][1]} {moved[0][2]:.4g} -> {moved[0][3]:.4g} "
+                    f"(limit {moved[0][4]})" if moved else
                     (got.get("_error") or "")[-120:].replace("\n", " "))
             print(f"{bug_id:28s} {severity:6s} {outcome:8s} {desc}", flush=True)
     for sev in ("gross", "subtle"):

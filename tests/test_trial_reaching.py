@@ -433,6 +433,15 @@ def test_course_metrics_on_stored_values():
     assert pb({"subjects": ("S1",)}, ctx2) == 0.75
     assert sl({"subjects": ("S1",)}, ctx2) == pytest.approx(np.polyfit([0, 1, 2, 3], [5.0, 4.8, 4.7, 4.5], 1)[0])
     assert sl({}, ctx2) == 0.0 and sl({"subjects": ("S3",)}, ctx2) == 0.0
+    # a second case of subject 3 (another gain) shares the subject: ``cases`` keeps the
+    # trends on the subjects' own cases
+    c = reg.RunView("S3_k1500", "S3_k1500", "w1t1", 0, {},
+                    {**b.values, "w1_pre_total_MAE_mm": 30.0, "w3_pre_total_MAE_mm": 20.0},
+                    {"subject": "S3"}, {})
+    ctx3 = reg.MetricContext(signals={}, values={}, runs=[a, b, c])
+    assert sl({"cases": ("S1", "S3"), "subjects": ("S3",)}, ctx3) == 0.0
+    assert sl({"cases": ("S3_k1500",)}, ctx3) == pytest.approx(-5.0)
+    assert pb({"cases": ("S1", "S3")}, ctx3) == pytest.approx(3 / 7)
 
 
 def test_vectorized_targets_equal_the_scalar_ones():
