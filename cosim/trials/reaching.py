@@ -9,8 +9,9 @@ session is 5 trainings with the motor drivers OFF/ON/ON/ON/OFF (Table 6). Output
 MAE and SDE per axis per training (Tables 7-8), the stiffness map at the end of every
 training (Fig. 49) and its ON/OFF contrast (Fig. 50), pre/post total MAE over four
 weekly sessions (Fig. 51), and the eq. 90-91 check of (k, tau) per axis (Sec. 3.3.2.2).
-The scenario runs the effective k = 1500 (3x the printed 500, calibrated on Table 7:
-cosim/devices/assumptions.py); the functions here take k as a parameter.
+The scenario judges the thesis's claims with the printed k = 500 and the package's
+effective k = 1500 (3x, calibrated on Table 7: cosim/devices/assumptions.py) as an
+extension case; the functions here take k as a parameter.
 
 Decisions (the thesis does not give these; each is a modelling choice)
 -----------------------------------------------------------------------
