@@ -82,8 +82,9 @@ def _cases(n: int) -> list[Case]:
            "ref_y": float(-0.1 + 0.12 * np.sin(2 * np.pi * s / 5))} for s in t]
 
     def ac_make():
-        from cosim.trials.reaching import AssistController, compliance_params
-        return AssistController(compliance_params(1500.0, 20.0, 10.0))   # reaching.yaml
+        from cosim.algorithms.adaptive_compliance import AdaptiveComplianceController
+        from cosim.trials.reaching import compliance_params
+        return AdaptiveComplianceController(compliance_params(1500.0, 20.0, 10.0))
     return [
         Case("aakf bank of 9 (zero_force.yaml)", lambda: AaKF(AakfParams()), aak),
         Case("aakf bank, thesis reset (free_motion.yaml)",

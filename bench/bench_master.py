@@ -516,11 +516,12 @@ def reaching_master(fmus: Path, dur: float, engine: str):
     """One reaching training of scenarios/reaching.yaml's controller (k = 1500 N/m,
     tau = 20 s, alpha0 = 10), subject S1, shortened to ``dur`` seconds."""
     from cosim.trials.patients import subject
-    from cosim.trials.reaching import (RECORD, AssistController, ReachingPath,
-                                       build_table_system, compliance_params)
+    from cosim.algorithms.adaptive_compliance import AdaptiveComplianceController
+    from cosim.trials.reaching import (RECORD, ReachingPath, build_table_system,
+                                       compliance_params)
     p = compliance_params(1500.0, 20.0, 10.0)
     path = ReachingPath()
-    ctrl = AssistController(p)
+    ctrl = AdaptiveComplianceController(p)
     s = build_table_system(subject("S1").human_parameters(), ctrl, path.functions(),
                            fmus_dir=fmus, start_m=path.start_m)
     m = Master(s, RECORD, engine=engine)

@@ -90,8 +90,8 @@ BUGS: list[tuple[str, str, str, str, str]] = [
      "dex = (ex - prev[0]) / Ts; dey = (ey - prev[1]) / Ts",
      "dex = (prev[0] - ex) / Ts; dey = (ey - prev[1]) / Ts", T_AC),
     ("ac-rbf-normalisation", "cosim/algorithms/adaptive_compliance.py",
-     "        self.c = 1.0 / float(self.evaluate(pts).sum(axis=1).max())",
-     "        self.c = 1.0 / float(self.evaluate(pts).sum(axis=1).mean())", T_AC),
+     "c = _NORMALISATION[key] = 1.0 / float(self.evaluate(pts).sum(axis=1).max())",
+     "c = _NORMALISATION[key] = 1.0 / float(self.evaluate(pts).sum(axis=1).mean())", T_AC),
     # ---- trials and their metrics
     ("chain-identified-J-30pct", "cosim/trials/startup_identification.py",
      "\"J_kg_m2\": v[\"J\"] * s[\"J\"]", "\"J_kg_m2\": 1.3 * v[\"J\"] * s[\"J\"]",
@@ -146,6 +146,208 @@ BUGS: list[tuple[str, str, str, str, str]] = [
 ]
 
 
+# ================================================================ requirement kills
+# The second half of the bench (``--scenarios``): bugs planted in the code that runs,
+# killed (or not) by the requirements of the scenarios. Each bug is planted once in the
+# readable Python class (the run uses the Python loop: COSIM_ENGINE=python) and once in
+# its C twin (the compiled engine runs it: COSIM_ENGINE=auto). ``gross``: a sign, a
+# missing term; ``subtle``: a parameter 30-50 % off where a thesis claim says the
+# quantity matters. A bug is KILLED when a requirement that holds on the unbugged code
+# (same path) no longer holds; the margin is how far past its limit the value went.
+AC_PY, AC_C = "cosim/algorithms/adaptive_compliance.py", "cosim/algorithms/c/adaptive_compliance.c"
+ZF_PY, ZF_C = "cosim/algorithms/zero_force.py", "cosim/algorithms/c/zero_force.c"
+BL_PY, BL_C = "cosim/algorithms/bilateral.py", "cosim/algorithms/c/bilateral.c"
+RF_PY, RF_C = "cosim/algorithms/dob.py", "cosim/algorithms/c/rfob.c"
+DB_C = "cosim/algorithms/c/dob.c"
+
+#: scenario -> cases whose runs the bench executes (the others are skipped: their
+#: requirements report no value)
+SCENARIO_CASES = {
+    "scenarios/circular.yaml": ["thesis", "k_high"],
+    "scenarios/zero_force.yaml": ["no_control", "load_cell", "dob_rfob", "off_table_identified",
+                                  "off_table_table1"],
+    "scenarios/bilateral.yaml": ["encoder", "aakf"],
+}
+
+#: parameters the bench sets in a scenario to keep it short (bilateral: no g sweep, so
+#: BL-6 has no value in the bench)
+SCENARIO_PARAMETERS = {"scenarios/bilateral.yaml": {"g_sweep": {"g_rad_s": []}}}
+
+#: (id, severity, file, text as it is, text with the bug, scenario)
+SCENARIO_BUGS: list[tuple[str, str, str, str, str, str]] = [
+    # ---- adaptive compliance (eq. 69-71), circular test
+    ("ac-forgetting-sign/py", "gross", AC_PY, "- kp_prev * (1.0 / (p.tau_s * g2)))",
+     "+ kp_prev * (1.0 / (p.tau_s * g2)))", "scenarios/circular.yaml"),
+    ("ac-forgetting-sign/c", "gross", AC_C, "cxo = Ts * (p[1] * fabs(ex) - kpx * inv);",
+     "cxo = Ts * (p[1] * fabs(ex) + kpx * inv);", "scenarios/circular.yaml"),
+    ("ac-tau-30pct-long/py", "subtle", AC_PY, "- kp_prev * (1.0 / (p.tau_s * g2)))",
+     "- kp_prev * (1.0 / (1.3 * p.tau_s * g2)))", "scenarios/circular.yaml"),
+    ("ac-tau-30pct-long/c", "subtle", AC_C, "double inv = 1.0 / (p[2] * g2);",
+     "double inv = 1.0 / (1.3 * p[2] * g2);", "scenarios/circular.yaml"),
+    ("ac-k-40pct-low/py", "subtle", AC_PY, "coef = Ts * (p.k_N_per_m2s * np.array((abs(ex), abs(ey)))",
+     "coef = Ts * (0.6 * p.k_N_per_m2s * np.array((abs(ex), abs(ey)))", "scenarios/circular.yaml"),
+    ("ac-k-40pct-low/c", "subtle", AC_C, "cxo = Ts * (p[1] * fabs(ex) - kpx * inv);\n        cyo = Ts * (p[1] * fabs(ey) - kpy * inv);",
+     "cxo = Ts * (0.6 * p[1] * fabs(ex) - kpx * inv);\n        cyo = Ts * (0.6 * p[1] * fabs(ey) - kpy * inv);",
+     "scenarios/circular.yaml"),
+    # ---- zero-force controller (Fig. 28)
+    ("zf-gain-sign/py", "gross", ZF_PY, "self.f_cntr = p.force_gain * (f_r - f_int) if p.enabled else 0.0",
+     "self.f_cntr = p.force_gain * (f_int - f_r) if p.enabled else 0.0", "scenarios/zero_force.yaml"),
+    ("zf-gain-sign/c", "gross", ZF_C, "s[0] = p[2] != 0.0 ? p[0] * (f_r - f_int) : 0.0;",
+     "s[0] = p[2] != 0.0 ? p[0] * (f_int - f_r) : 0.0;", "scenarios/zero_force.yaml"),
+    ("zf-gain-40pct-low/py", "subtle", ZF_PY, "self.f_cntr = p.force_gain * (f_r - f_int) if p.enabled else 0.0",
+     "self.f_cntr = 0.6 * p.force_gain * (f_r - f_int) if p.enabled else 0.0", "scenarios/zero_force.yaml"),
+    ("zf-gain-40pct-low/c", "subtle", ZF_C, "s[0] = p[2] != 0.0 ? p[0] * (f_r - f_int) : 0.0;",
+     "s[0] = p[2] != 0.0 ? 0.6 * p[0] * (f_r - f_int) : 0.0;", "scenarios/zero_force.yaml"),
+    # ---- RFOB (eq. 8-10)
+    ("rfob-coulomb-sign/py", "gross", RF_PY, "tau_f = self.fc * smooth_sign(w_mid, prm.w_eps_rad_s)",
+     "tau_f = -self.fc * smooth_sign(w_mid, prm.w_eps_rad_s)", "scenarios/zero_force.yaml"),
+    ("rfob-coulomb-sign/c", "gross", RF_C, "double tau_f = p[2] * smooth_sign(w_mid, p[3]);",
+     "double tau_f = -p[2] * smooth_sign(w_mid, p[3]);", "scenarios/zero_force.yaml"),
+    ("rfob-coulomb-40pct-low/py", "subtle", RF_PY, "tau_f = self.fc * smooth_sign(w_mid, prm.w_eps_rad_s)",
+     "tau_f = 0.6 * self.fc * smooth_sign(w_mid, prm.w_eps_rad_s)", "scenarios/zero_force.yaml"),
+    ("rfob-coulomb-40pct-low/c", "subtle", RF_C, "double tau_f = p[2] * smooth_sign(w_mid, p[3]);",
+     "double tau_f = 0.6 * p[2] * smooth_sign(w_mid, p[3]);", "scenarios/zero_force.yaml"),
+    # ---- DOB (eq. 5-7)
+    ("dob-icmp-sign/py", "gross", RF_PY, "i_cmp = self.tau_hat / prm.Ktn_Nm_per_A  # eq. 7",
+     "i_cmp = -self.tau_hat / prm.Ktn_Nm_per_A  # eq. 7", "scenarios/zero_force.yaml"),
+    ("dob-icmp-sign/c", "gross", DB_C, "double i_cmp = s[0] / p[0];",
+     "double i_cmp = -s[0] / p[0];", "scenarios/zero_force.yaml"),
+    # ---- bilateral (eq. 54-55)
+    ("bl-common-mode-sign/py", "gross", BL_PY, "f_c = f_m + f_s ", "f_c = f_m - f_s ",
+     "scenarios/bilateral.yaml"),
+    ("bl-common-mode-sign/c", "gross", BL_C, "double f_c = f_m + f_s;", "double f_c = f_m - f_s;",
+     "scenarios/bilateral.yaml"),
+    ("bl-Kp-50pct-low/py", "subtle", BL_PY, "a_d = p.Kp_per_s2 * (0.0 - x_d)",
+     "a_d = 0.5 * p.Kp_per_s2 * (0.0 - x_d)", "scenarios/bilateral.yaml"),
+    ("bl-Kp-50pct-low/c", "subtle", BL_C, "double a_d = p[0] * (0.0 - x_d)",
+     "double a_d = 0.5 * p[0] * (0.0 - x_d)", "scenarios/bilateral.yaml"),
+]
+
+_DRIVER = r"""
+import json, sys
+from pathlib import Path
+from cosim.scenarios.schema import load
+from cosim.scenarios.expand import expand
+from cosim.scenarios.runner import execute_run
+from cosim.scenarios.store import read_runs, run_key
+from cosim.scenarios.verdict import judge, metric_table
+path, out, fmus, cases = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4].split(",")
+sc = load(path, fmus)
+runs = [r for r in expand(sc) if r.case in cases]
+for r in runs:
+    execute_run(str(sc.path), r.label, out, None, fmus, run_key(sc, r, fmus), isolation="none")
+views, infos = read_runs(sc, Path(out), runs)
+mv, me = metric_table(sc, views, infos)
+res = {}
+for q in sc.requirements:
+    j = judge(q, mv, me, infos, q.case)
+    res[q.id] = {"value": j["value"], "held": j["held"], "rule": q.rule, "limit": q.limit}
+print("RESULT " + json.dumps(res))
+"""
+
+
+def _run_scenario(root: Path, scenario: str, engine: str, tmp: Path, timeout: float) -> dict:
+    """The requirements of ``scenario`` (its bench cases) on the code in ``root``."""
+    import yaml
+    out = tmp / f"out-{engine}-{time.monotonic_ns()}"
+    env = dict(os.environ, PYTHONPATH=str(root), COSIM_ENGINE=engine,
+               COSIM_FMU_DIR=str(REPO / "fmus"))
+    path = REPO / scenario
+    if scenario in SCENARIO_PARAMETERS:
+        d = yaml.safe_load(path.read_text())
+        for k, v in SCENARIO_PARAMETERS[scenario].items():
+            d.setdefault("parameters", {})[k] = {**d["parameters"].get(k, {}), **v}
+        path = tmp / f"bench-{Path(scenario).name}"
+        path.write_text(yaml.safe_dump(d, sort_keys=False))
+    cmd = [sys.executable, "-c", _DRIVER, str(path), str(out), str(REPO / "fmus"),
+           ",".join(SCENARIO_CASES[scenario])]
+    p = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True, timeout=timeout)
+    shutil.rmtree(out, ignore_errors=True)
+    line = next((ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")), None)
+    if line is None:
+        return {"_error": (p.stderr or p.stdout)[-400:]}
+    return json.loads(line[len("RESULT "):])
+
+
+def _margin(v: dict) -> float | None:
+    """How far the value is past its limit, relative to the limit (> 0: broken)."""
+    x, lim, rule = v["value"], v["limit"], v["rule"]
+    if x is None:
+        return None
+    if rule == "within":
+        lo, hi = lim
+        return max(lo - x, x - hi) / max(abs(hi), abs(lo), 1e-300)
+    if rule == "outside":
+        lo, hi = lim
+        return min(x - lo, hi - x) / max(abs(hi), abs(lo), 1e-300)
+    d = (x - lim) if rule in ("<=", "<") else (lim - x)
+    return d / max(abs(lim), 1e-300) if lim else d
+
+
+def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
+    """Plant each of SCENARIO_BUGS and report which requirements it breaks."""
+    bugs = [b for b in SCENARIO_BUGS if not only or b[0] in only]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="planted-scen-") as tmp:
+        tmp = Path(tmp)
+        base_root = tmp / "base"
+        shutil.copytree(REPO / "cosim", base_root / "cosim",
+                        ignore=shutil.ignore_patterns("__pycache__"))
+        baselines: dict = {}
+        for bug_id, severity, path, old, new, scen in bugs:
+            engine = "python" if path.endswith(".py") else "auto"
+            if (scen, engine) not in baselines:
+                baselines[(scen, engine)] = _run_scenario(base_root, scen, engine, tmp, timeout)
+                b = baselines[(scen, engine)]
+                print(f"baseline {scen} ({engine}): " + ", ".join(
+                    f"{k} {v['value']:.4g}" for k, v in b.items()
+                    if not k.startswith("_") and v["value"] is not None), flush=True)
+            base = baselines[(scen, engine)]
+            root = tmp / "bug"
+            shutil.rmtree(root, ignore_errors=True)
+            shutil.copytree(REPO / "cosim", root / "cosim",
+                            ignore=shutil.ignore_patterns("__pycache__"))
+            if not plant(root, path, old, new):
+                rows.append({"id": bug_id, "severity": severity, "outcome": "STALE"})
+                print(f"{bug_id:28s} STALE (the line is not in {path} once)", flush=True)
+                continue
+            t0 = time.perf_counter()
+            got = _run_scenario(root, scen, engine, tmp, timeout)
+            kills = []
+            for rid, v in got.items():
+                if rid.startswith("_"):
+                    continue
+                if base.get(rid, {}).get("held") and v["held"] is False:
+                    kills.append((rid, v["value"], v["limit"], base[rid]["value"], _margin(v)))
+            outcome = "killed" if kills else ("ERROR" if "_error" in got else "SURVIVED")
+            best = max(kills, key=lambda k: k[4] if k[4] is not None else -1) if kills else None
+            rows.append({"id": bug_id, "severity": severity, "scenario": scen, "engine": engine,
+                         "outcome": outcome, "seconds": round(time.perf_counter() - t0, 1),
+                         "kills": [{"req": k[0], "value": k[1], "limit": k[2], "baseline": k[3],
+                                    "margin": k[4]} for k in kills],
+                         "error": got.get("_error")})
+            # the requirement whose value moved most (relative to its baseline)
+            moved = sorted(((abs(v["value"] / base[r]["value"] - 1.0), r, base[r]["value"],
+                             v["value"], v["limit"]) for r, v in got.items()
+                            if not r.startswith("_") and v.get("value") is not None
+                            and base.get(r, {}).get("value")), reverse=True)
+            rows[-1]["moved_most"] = moved[0][1:] if moved else None
+            desc = (f"{best[0]} {best[1]:.4g} vs {best[2]} (baseline {best[3]:.4g}, "
+                    f"margin {100 * best[4]:.0f} %) +{len(kills) - 1}" if best else
+                    f"moved most: {moved[0][1]} {moved[0][2]:.4g} -> {moved[0][3]:.4g} "
+                    f"(limit {moved[0][4]})" if moved else
+                    (got.get("_error") or "")[-120:].replace("\n", " "))
+            print(f"{bug_id:28s} {severity:6s} {outcome:8s} {desc}", flush=True)
+    for sev in ("gross", "subtle"):
+        for eng in ("python", "auto"):
+            r = [x for x in rows if x["severity"] == sev and x.get("engine") == eng]
+            if r:
+                k = sum(x["outcome"] == "killed" for x in r)
+                print(f"score {sev:6s} {'Python class' if eng == 'python' else 'C twin':12s}: "
+                      f"{k}/{len(r)} killed")
+    return rows
+
+
 def plant(root: Path, path: str, old: str, new: str) -> bool:
     f = root / path
     text = f.read_text()
@@ -160,7 +362,14 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", help="bug ids to run (default: all)")
     ap.add_argument("--json", help="write the results here")
     ap.add_argument("--timeout", type=float, default=1500.0, help="per bug [s]")
+    ap.add_argument("--scenarios", action="store_true",
+                    help="the requirement kills of SCENARIO_BUGS instead of the tests")
     a = ap.parse_args(argv)
+    if a.scenarios:
+        rows = scenario_kills(a.only, a.timeout)
+        if a.json:
+            Path(a.json).write_text(json.dumps(rows, indent=1))
+        return 0 if all(r["outcome"] == "killed" for r in rows) else 1
     bugs = [b for b in BUGS if not a.only or b[0] in a.only]
     rows = []
     with tempfile.TemporaryDirectory(prefix="planted-") as tmp:

@@ -38,7 +38,7 @@ def main(argv=None):
     from cosim.algorithms.adaptive_compliance import AdaptiveComplianceController
     from cosim.fmubuild.build import build_all
     from cosim.trials.patients import subject
-    from cosim.trials.reaching import (AssistController, ReachingPath, compliance_params,
+    from cosim.trials.reaching import (ReachingPath, compliance_params,
                                        run_course, run_training)
 
     repo = Path(__file__).resolve().parents[1]
@@ -50,7 +50,7 @@ def main(argv=None):
 
     # ---- controller step cost
     m = {"pos_x": 0.01, "pos_y": -0.05, "ref_x": 0.012, "ref_y": -0.049}
-    for name, c in (("reference", AdaptiveComplianceController(p)), ("fast", AssistController(p))):
+    for name, c in (("reference", AdaptiveComplianceController(p)), ("fast", AdaptiveComplianceController(p))):
         n = 20000
         t0 = time.perf_counter()
         for _ in range(n):

@@ -398,9 +398,14 @@ def zero_force_verdicts(tmp_path_factory, hand_unit):
                                     {"unit": str(hand_unit)}))}
 
 
+#: requirements of the rig's zero_force.yaml the separate file does not carry: the
+#: chain cases on an off-Table-1 unit (ZF-6, ZF-7; the rig's J_u, fc_u parameters)
+RIG_ONLY = ("ZF-6", "ZF-7")
+
+
 def _compare(ref: dict, got: dict):
     assert got["status"] == ref["status"] == "pass", (got["errors"], got["metric_errors"])
-    by_id = {r["id"]: r for r in ref["requirements"]}
+    by_id = {r["id"]: r for r in ref["requirements"] if r["id"] not in RIG_ONLY}
     assert [r["id"] for r in got["requirements"]] == list(by_id)
     for r in got["requirements"]:
         q = by_id[r["id"]]
@@ -410,8 +415,11 @@ def _compare(ref: dict, got: dict):
         assert nc["held"] == nq["held"] is False
         assert _close(nc["value"], nq["value"]), (r["id"], nc["value"], nq["value"])
     for name, per in ref["metrics"].items():
+        if name not in got["metrics"]:          # the chain's ratios (RIG_ONLY)
+            continue
         for case, v in per.items():
-            assert _close(got["metrics"][name][case], v), (name, case)
+            if not case.startswith("off_table"):
+                assert _close(got["metrics"][name][case], v), (name, case)
 
 
 @pytest.mark.slow

@@ -38,7 +38,7 @@ from cosim.algorithms.zero_force import ZeroForceController, ZeroForceParams
 from cosim.logs.synth import simulate_ballscrew
 
 KERNELS = ("aakf", "dob", "rfob", "zero_force", "encoder_diff", "bilateral",
-           "adaptive_compliance")
+           "adaptive_compliance", "stability_1dof")
 
 
 @pytest.fixture(scope="module")
@@ -311,7 +311,7 @@ def _reaching_rows(n: int, seed: int):
 
 @pytest.mark.parametrize("opts", [dict(k_N_per_m2s=1500.0, tau_s=20.0, damping_mass_kg=(5.6, 8.3)),
                                   dict(k_N_per_m2s=1000.0, tau_s=5.0, a_min_N_per_m=9.5,
-                                       damping_form="printed"),
+                                       clamp_weights=True, damping_form="printed"),
                                   dict(k_N_per_m2s=4000.0, tau_s=2.5, motors_on=False)])
 def test_adaptive_compliance_within_1e12(lib, opts):
     p = AdaptiveComplianceParams(**opts)
@@ -321,10 +321,10 @@ def test_adaptive_compliance_within_1e12(lib, opts):
 
 
 def test_adaptive_compliance_kernel_none_when_not_2d_or_snapshots_unsized():
-    from cosim.trials.reaching import AssistController, compliance_params
+    from cosim.trials.reaching import compliance_params
     assert AdaptiveComplianceController(AdaptiveComplianceParams(n_dof=1)).c_kernel() is None
-    assert AssistController(compliance_params(1000.0, 5.0), snapshot_every=250).c_kernel() is None
-    c = AssistController(compliance_params(1000.0, 5.0))
+    assert AdaptiveComplianceController(compliance_params(1000.0, 5.0), snapshot_every=250).c_kernel() is None
+    c = AdaptiveComplianceController(compliance_params(1000.0, 5.0))
     c.step({"pos_x": 0.0, "pos_y": 0.0, "ref_x": 0.01, "ref_y": 0.0})
     k = c.c_kernel()
     assert k is not None and k.state[2 * 36 + 8] == 1.0      # ticks stepped so far
@@ -335,17 +335,17 @@ def test_adaptive_compliance_kernel_none_when_not_2d_or_snapshots_unsized():
 def test_adaptive_compliance_snapshots_as_circular(lib):
     """circular.yaml's controller (snapshot every 250 ticks): the kernel, packed for the
     run's ticks, takes the same map snapshots at the same ticks; one more is refused."""
-    from cosim.trials.reaching import AssistController, compliance_params
+    from cosim.trials.reaching import compliance_params
     p = compliance_params(1000.0, 5.0, 10.0)
     objs: list = []
     rows = _reaching_rows(20000, 10)
-    _compare(lambda: AssistController(p, snapshot_every=250), rows, lib, legs=(0.1013, 0.9),
+    _compare(lambda: AdaptiveComplianceController(p, snapshot_every=250), rows, lib, legs=(0.1013, 0.9),
              rtol=1e-12, objects=objs)
     a, b = objs
     assert [t for t, _ in a.snapshots] == [t for t, _ in b.snapshots] == list(range(0, 20000, 250))
     for (_, A), (_, B) in zip(a.snapshots, b.snapshots):
         assert np.max(np.abs(A - B)) <= 1e-12 * np.max(np.abs(A))
-    c = AssistController(p, snapshot_every=250)
+    c = AdaptiveComplianceController(p, snapshot_every=250)
     k = c.c_kernel(ticks=250)                  # room for the snapshot at tick 0 only
     run = lib.runner(k)
     for m in rows[:250]:
@@ -420,9 +420,9 @@ def test_kernel_packed_after_reset(lib, logs, which):
 def test_adaptive_compliance_one_reaching_training(lib):
     """150 s, as one training of reaching.yaml (k 1500, tau 20 s, the table's axis
     masses): the map does not drift apart over 150 000 ticks."""
-    from cosim.trials.reaching import AssistController, compliance_params
+    from cosim.trials.reaching import compliance_params
     p = compliance_params(1500.0, 20.0, 10.0)
-    worst, _ = _compare(lambda: AssistController(p), _reaching_rows(150000, 9), lib,
+    worst, _ = _compare(lambda: AdaptiveComplianceController(p), _reaching_rows(150000, 9), lib,
                         legs=(0.01, 0.99), rtol=1e-12, attrs=("a", "kp", "kd"))
     print("adaptive_compliance 150 s worst relative difference", max(worst.values()))
 
@@ -464,3 +464,33 @@ def test_aakf_bank_under_python312_sum(lib, logs, monkeypatch):
         oplain = plain(m)[1]
         differs += any(not _same(o[nm], oplain[nm]) for nm in o)
     assert differs > 0                         # the two summations do differ on this run
+
+
+# ------------------------------------------------------------------ 1-DOF stability loop
+@pytest.mark.parametrize("opts", [dict(clamp_weights=False, xi=0.7, damping_form="physical"),
+                                  dict(clamp_weights=True, xi=0.0, damping_form="printed")])
+def test_stability_1dof_compiled_equals_python_loop(opts):
+    """simulate_1dof's C twin (c/stability_1dof.c) against the Python loop: the same
+    trajectories (x, x~, k_p, f_c) to 1e-12 of their range and the same verdict, on a
+    damped and an undamped (growing, diverging) loop, with and without the clamp."""
+    import dataclasses
+    from cosim.algorithms.stability import HumanImpedance, simulate_1dof
+    p = AdaptiveComplianceParams(n_dof=1, axis_names=("q",), workspace_min_m=(-0.2,),
+                                 workspace_size_m=(0.4,), k_N_per_m2s=2.0e4, tau_s=1.0,
+                                 damping_mass_kg=(1.5,), **opts)
+    h = HumanImpedance(M_h_kg=1.0, b_h_Ns_per_m=5.0 if opts["xi"] else 0.0, K_h_N_per_m=50.0)
+
+    def tri(t):                                  # triangle at 5 cm/s over +-0.1 m
+        ph = (t / 8.0) % 1.0
+        return ((0.4 * ph, 0.05) if ph < 0.25 else (0.1 - 0.4 * (ph - 0.25), -0.05)
+                if ph < 0.75 else (-0.1 + 0.4 * (ph - 0.75), 0.05))
+    a = simulate_1dof(p, h, 1.5, tri, 6.0, substeps=2, x0_m=0.01)
+    b = simulate_1dof(dataclasses.replace(p), h, 1.5, tri, 6.0, substeps=2, x0_m=0.01,
+                      compiled=True)
+    for k in ("x_m", "err_m", "kp_N_per_m", "f_N"):
+        x, y = getattr(a, k), getattr(b, k)
+        assert np.array_equal(np.isnan(x), np.isnan(y)), k
+        ok = ~np.isnan(x)
+        assert np.max(np.abs(x[ok] - y[ok])) <= 1e-12 * np.max(np.abs(x[ok])), k
+    assert (a.diverged, a.stable) == (b.diverged, b.stable)
+    assert a.growth_ratio == pytest.approx(b.growth_ratio, rel=1e-9)

@@ -13,7 +13,7 @@ import yaml
 from cosim.algorithms.adaptive_compliance import AdaptiveComplianceController
 from cosim.algorithms.stability import StabilityProblem, admissibility_needs, stability_bounds
 from cosim.trials.patients import SUBJECTS, Course
-from cosim.trials.reaching import (SESSION_MOTORS, AssistController, ReachingPath,
+from cosim.trials.reaching import (SESSION_MOTORS, ReachingPath,
                                    assistance_dose_Ns, compliance_params, mae_sde, map_peak,
                                    run_course, run_training, stability_check)
 
@@ -23,11 +23,17 @@ from conftest import REPO
 # --------------------------------------------------------------------------- controller
 @pytest.mark.parametrize("form,motors", [("physical", True), ("printed", False)])
 def test_fast_step_equals_reference_controller(form, motors):
-    """The fast 2-D step (what AssistController and the controller use for N = 2) is the
-    same eq. 62-74 step as the vector-form reference (random walk over the workspace,
-    errors of cm, clamp active): outputs and heights to 1e-12."""
-    p = compliance_params(500.0, 0.5, damping_form=form, motors_on=motors)   # short tau: clamp hits
-    fast, ref = AssistController(p), AdaptiveComplianceController(p)
+    """The fast 2-D step (what the controller uses for N = 2) is the same eq. 62-74 step
+    as the vector-form reference (random walk over the workspace, errors of cm), with
+    the law as printed (weights go below a_min) and with the per-weight clamp (the
+    clamp hits): outputs and heights to 1e-12."""
+    for clamp in (False, True):
+        _fast_vs_reference(compliance_params(500.0, 0.5, damping_form=form, motors_on=motors,
+                                             clamp_weights=clamp), motors)
+
+
+def _fast_vs_reference(p, motors):
+    fast, ref = AdaptiveComplianceController(p), AdaptiveComplianceController(p)
     ref.step = ref.step_reference
     rng = np.random.default_rng(3)
     x = np.clip(np.cumsum(rng.normal(0, 0.003, (4000, 2)), axis=0), -0.19, 0.19)
@@ -40,7 +46,10 @@ def test_fast_step_equals_reference_controller(form, motors):
         worst = max(worst, max(abs(of[q] - orf[q]) / (1 + abs(orf[q])) for q in orf))
     assert worst < 1e-12
     assert np.allclose(fast.a, ref.a, rtol=1e-12, atol=1e-12)
-    assert (ref.a == p.a_min_N_per_m).any(), "the test should exercise the a_min clamp"
+    if p.clamp_weights:
+        assert (ref.a == p.a_min_N_per_m).any(), "the test should exercise the a_min clamp"
+    else:
+        assert (ref.a < p.a_min_N_per_m).any(), "the printed law lets weights below a_min"
     if not motors:
         assert of["f_x"] == 0.0 and of["f_y"] == 0.0
 
@@ -49,7 +58,7 @@ def test_initial_map_survives_reset():
     """A carried-over map is the state after reset() (the master resets every run)."""
     p = compliance_params(500.0, 20.0)
     a0 = np.linspace(2.0, 50.0, 72).reshape(2, 36)
-    c = AssistController(p, initial_a=a0)
+    c = AdaptiveComplianceController(p, initial_a=a0)
     c.step({"pos_x": 0.0, "pos_y": 0.0, "ref_x": 0.01, "ref_y": 0.0})
     c.reset()
     assert np.array_equal(c.a, a0)
@@ -101,7 +110,7 @@ def test_motors_off_training_applies_no_force_and_still_maps(fmus):
     # same system with the controller's forces scaled to zero by hand: identical motion
     from cosim.master import Master
     from cosim.trials.reaching import RECORD, build_table_system
-    c = AssistController(dataclasses.replace(p, motors_on=True))
+    c = AdaptiveComplianceController(dataclasses.replace(p, motors_on=True))
     sysm = build_table_system(hp, c, path.functions(), start_m=path.start_m)
     sysm._connections = [dataclasses.replace(k, scale=0.0) if k.source.startswith("ac.") else k
                          for k in sysm._connections]
@@ -109,14 +118,14 @@ def test_motors_off_training_applies_no_force_and_still_maps(fmus):
     assert np.array_equal(free.signals["table.x"], s["table.x"])
     assert np.array_equal(free.signals["table.y"], s["table.y"])
     # the map was computed: replay the recorded measurements offline
-    rep = AssistController(dataclasses.replace(p, motors_on=False))
+    rep = AdaptiveComplianceController(dataclasses.replace(p, motors_on=False))
     for k in range(len(s["time"])):
         rep.step({"pos_x": s["table.x_enc"][k], "pos_y": s["table.y_enc"][k],
                   "ref_x": s["stim.rx"][k], "ref_y": s["stim.ry"][k]})
     # (the run's controller is the compiled step, equal to the Python one to 1e-12 of
     # the map's magnitude, not bit for bit: tests/test_kernels.py)
     assert np.max(np.abs(rep.a - off.a_final)) <= 1e-12 * np.max(np.abs(off.a_final))
-    assert not np.array_equal(rep.a, AssistController(dataclasses.replace(p, motors_on=False)).a)
+    assert not np.array_equal(rep.a, AdaptiveComplianceController(dataclasses.replace(p, motors_on=False)).a)
     assert not np.array_equal(off.a_final, off.a_initial)
 
 
@@ -229,7 +238,7 @@ def test_thesis_pairs_cannot_meet_eq90_91():
     k_cap = admissibility_needs(500.0, 20.0, still)["k_ceiling_static_N_per_m2s"]
     assert k_cap == pytest.approx(10 / (0.2 * 20)) and stability_bounds(0.99 * k_cap, 20.0, still).admissible
     for k, rises in ((0.99 * k_cap, False), (500.0, True)):
-        c = AssistController(compliance_params(k, 20.0, 10.0, a_min_N_per_m=10.0))
+        c = AdaptiveComplianceController(compliance_params(k, 20.0, 10.0, a_min_N_per_m=10.0))
         x = c.grid.centres[14]                            # a cell centre, sum g ~ 1
         kp = [c.step({"pos_x": x[0], "pos_y": x[1], "ref_x": x[0] + 0.2, "ref_y": x[1]})["kp_x"]
               for _ in range(20000)]
@@ -424,6 +433,15 @@ def test_course_metrics_on_stored_values():
     assert pb({"subjects": ("S1",)}, ctx2) == 0.75
     assert sl({"subjects": ("S1",)}, ctx2) == pytest.approx(np.polyfit([0, 1, 2, 3], [5.0, 4.8, 4.7, 4.5], 1)[0])
     assert sl({}, ctx2) == 0.0 and sl({"subjects": ("S3",)}, ctx2) == 0.0
+    # a second case of subject 3 (another gain) shares the subject: ``cases`` keeps the
+    # trends on the subjects' own cases
+    c = reg.RunView("S3_k1500", "S3_k1500", "w1t1", 0, {},
+                    {**b.values, "w1_pre_total_MAE_mm": 30.0, "w3_pre_total_MAE_mm": 20.0},
+                    {"subject": "S3"}, {})
+    ctx3 = reg.MetricContext(signals={}, values={}, runs=[a, b, c])
+    assert sl({"cases": ("S1", "S3"), "subjects": ("S3",)}, ctx3) == 0.0
+    assert sl({"cases": ("S3_k1500",)}, ctx3) == pytest.approx(-5.0)
+    assert pb({"cases": ("S1", "S3")}, ctx3) == pytest.approx(3 / 7)
 
 
 def test_vectorized_targets_equal_the_scalar_ones():

@@ -61,10 +61,13 @@ Interpretations / decisions
   workspace). c is computed numerically as 1 / max(sum_i g_i) over a fine grid of the
   workspace, so eq. 64 holds with equality at the maximum; ``k_p ~ alpha0`` inside the
   workspace at start, about 0.6 alpha0 at the edges (0.4 alpha0 at corners, N = 2).
-* **Lower bound a_min (eq. 78).** The stability proof assumes the heights stay above
-  a_min > 0; the update law alone does not guarantee it (the projection can push a
-  weight below zero). Here every component is clamped to ``a_min_N_per_m`` after each
-  update (default 1 N/m, not given in the thesis; 0 disables the clamp effectively).
+* **Lower bound a_min (eq. 78).** Eq. 78, ``||a(t)||_inf >= a_min > 0``, is an assumption
+  of the stability proof on the LARGEST height, not a step of the update law: the law
+  as printed (the default, ``clamp_weights=False``) leaves every height where eq. 71
+  puts it (the projection can push a far weight below zero). ``clamp_weights=True`` is
+  the package's variant (an extension, judged as one): every height is clamped to
+  ``a_min_N_per_m`` after each update (default 1 N/m, not given in the thesis); it
+  holds clamped weights up, so the local stiffness no longer decays with tau alone.
 * **Multi-dimensional Gaussians.** Eq. 63 is written for N = 2 (prefactor 1/(2 pi));
   the N-dimensional prefactor ``(2 pi)^(-N/2)`` is used, which coincides for N = 2.
 * **Motors OFF (Table 6).** With ``motors_on=False`` the map keeps being updated but
@@ -99,7 +102,9 @@ class AdaptiveComplianceParams:
         1000, Sec. 3.6: 500).
     tau_s: forgetting time constant tau [s] (Sec. 3.5: 5 s, Sec. 3.6: 20 s).
     alpha0_N_per_m: initial height alpha0 of eq. 70 [N/m] (10 N/m in the thesis).
-    a_min_N_per_m: lower bound on every height (eq. 78) [N/m].
+    a_min_N_per_m: a_min of eq. 78 [N/m] (the stability bounds eq. 90-91; the clamp below).
+    clamp_weights: False = the law as printed; True = the package's per-weight clamp of
+        every height at a_min_N_per_m after each update (an extension).
     xi: constant damping factor [-].
     damping_form: "physical" (Kd = 2 xi sqrt(Kp m)) or "printed" (Kd = xi/2 sqrt(Kp)).
     damping_mass_kg: mass m per axis for the physical form [kg] (None = 1 kg, eq. 57).
@@ -117,6 +122,7 @@ class AdaptiveComplianceParams:
     tau_s: float = 20.0
     alpha0_N_per_m: float = 10.0
     a_min_N_per_m: float = 1.0
+    clamp_weights: bool = False
     xi: float = 0.7
     damping_form: str = "physical"
     damping_mass_kg: tuple[float, ...] | None = None
@@ -152,6 +158,10 @@ def damping_gain(kp: float, xi: float, form: str = "physical", mass_kg: float = 
     raise ValueError(form)
 
 
+#: eq. 64's c per grid geometry (n, lower corner, size, cells, sigma/cell)
+_NORMALISATION: dict = {}
+
+
 class RBFGrid:
     """The P Gaussian RBFs of eq. 63 on a regular grid of cells (eq. 64 normalisation)."""
 
@@ -169,11 +179,16 @@ class RBFGrid:
         self.sigma_m = p.sigma_over_cell * self.cell_m                  # per axis
         self._inv_var = 1.0 / self.sigma_m ** 2
         self._pref1 = 1.0 / ((2 * math.pi) ** (n / 2) * float(np.prod(self.sigma_m)))
-        # eq. 64: c = 1 / max over the workspace of sum_i g_i (with c = 1)
-        fine = [np.linspace(lo[j], lo[j] + size[j], 241) for j in range(n)]
-        pts = np.stack([m.ravel() for m in np.meshgrid(*fine, indexing="ij")], axis=1)
-        self.c = 1.0
-        self.c = 1.0 / float(self.evaluate(pts).sum(axis=1).max())
+        # eq. 64: c = 1 / max over the workspace of sum_i g_i (with c = 1); the same for
+        # every controller of the same geometry (a course builds one per training)
+        key = (n, tuple(lo), tuple(size), p.cells_per_axis, p.sigma_over_cell)
+        c = _NORMALISATION.get(key)
+        if c is None:
+            fine = [np.linspace(lo[j], lo[j] + size[j], 241) for j in range(n)]
+            pts = np.stack([m.ravel() for m in np.meshgrid(*fine, indexing="ij")], axis=1)
+            self.c = 1.0
+            c = _NORMALISATION[key] = 1.0 / float(self.evaluate(pts).sum(axis=1).max())
+        self.c = c
         self.prefactor = self.c * self._pref1
 
     def evaluate(self, points: np.ndarray) -> np.ndarray:
@@ -210,9 +225,17 @@ class AdaptiveComplianceController:
     outputs: tuple[str, ...] = ("f_x", "f_y", "kp_x", "kp_y", "kd_x", "kd_y", "err_x", "err_y")
     recordable = ("a", "kp", "kd")
 
-    def __init__(self, params: AdaptiveComplianceParams = AdaptiveComplianceParams()):
+    def __init__(self, params: AdaptiveComplianceParams = AdaptiveComplianceParams(),
+                 initial_a: np.ndarray | None = None, snapshot_every: int = 0):
+        """``initial_a`` (N x P) [N/m], if given, replaces a(0) = alpha0 (eq. 70) at every
+        ``reset()`` (the map a session carries from one training to the next);
+        ``snapshot_every`` (ticks, 0: never) keeps a copy of the heights in ``snapshots``
+        as (tick, a) after every tick that is a multiple of it (the map's history
+        without recording N x P columns)."""
         self.params = params
         n = params.n_dof
+        self.initial_a = None if initial_a is None else np.array(initial_a, float)
+        self.snapshot_every = int(snapshot_every)
         self.axes = tuple(params.axis_names[:n])
         self.inputs: tuple[str, ...] = tuple(f"pos_{a}" for a in self.axes) + tuple(
             f"ref_{a}" for a in self.axes)
@@ -231,12 +254,18 @@ class AdaptiveComplianceController:
             self._cx = [g.lo[j] + (np.arange(m) + 0.5) * g.cell_m[j] for j in range(2)]
             self._h = [-0.5 * g._inv_var[j] for j in range(2)]
             self._phys = params.damping_form == "physical"
+        if self.initial_a is not None and self.initial_a.shape != (n, self.grid.P):
+            raise ValueError(f"initial_a must have shape {(n, self.grid.P)}, "
+                             f"got {self.initial_a.shape}")
         self.reset()
 
     # ------------------------------------------------------------------ state
     def reset(self) -> None:
         p = self.params
-        self.a = np.full((p.n_dof, self.grid.P), float(p.alpha0_N_per_m))   # eq. 70
+        self.a = (np.full((p.n_dof, self.grid.P), float(p.alpha0_N_per_m))  # eq. 70
+                  if self.initial_a is None else self.initial_a.copy())
+        self._tick = 0
+        self.snapshots: list[tuple[int, np.ndarray]] = []
         self.err_prev: np.ndarray | None = None
         self.motors_on = p.motors_on
         self.kp = np.zeros(p.n_dof)
@@ -263,8 +292,13 @@ class AdaptiveComplianceController:
         """One 1 ms sample (eq. 62-74): the fast 2-D form for N = 2, else
         :meth:`step_reference`. Both realise the same equations (tested to 1e-12)."""
         if self.params.n_dof == 2:
-            return self._step_2d(measurements)
-        return self.step_reference(measurements)
+            out = self._step_2d(measurements)
+        else:
+            out = self.step_reference(measurements)
+        if self.snapshot_every and self._tick % self.snapshot_every == 0:
+            self.snapshots.append((self._tick, self.a.copy()))
+        self._tick += 1
+        return out
 
     def _step_2d(self, measurements: Mapping[str, float]) -> dict[str, float]:
         """eq. 62-74 for N = 2 on Python floats and 1-D Gaussian factors (about 1.5x
@@ -289,7 +323,8 @@ class AdaptiveComplianceController:
         else:
             coef = Ts * p.k_N_per_m2s * np.array((abs(ex), abs(ey)))
         a += np.multiply.outer(coef, g)
-        np.maximum(a, p.a_min_N_per_m, out=a)                     # eq. 78 lower bound
+        if p.clamp_weights:                                       # extension: per-weight clamp
+            np.maximum(a, p.a_min_N_per_m, out=a)
         kp = a @ g                                                # eq. 72
         self.kp = kp
         kpx, kpy = float(kp[0]), float(kp[1])
@@ -318,9 +353,16 @@ class AdaptiveComplianceController:
     def c_kernel(self, ticks: int | None = None) -> CKernel | None:
         """The compiled step ``adaptive_compliance`` of the 2-axis controller (None for
         N = 1); equal to :meth:`_step_2d` within 1e-12 (libm exp and left-to-right sums
-        where numpy has its own exp and blocked dot products). ``ticks``: unused here
-        (the trials' AssistController sizes its snapshot buffer with it)."""
-        return self._c_kernel(0, 0)
+        where numpy has its own exp and blocked dot products), snapshots included: their
+        buffer holds those of ``ticks`` more steps, so with snapshots ``ticks`` is
+        needed (None: no compiled step)."""
+        if not self.snapshot_every:
+            return self._c_kernel(0, 0)
+        if ticks is None:
+            return None
+        due = range(-(-self._tick // self.snapshot_every) * self.snapshot_every,
+                    self._tick + ticks, self.snapshot_every)
+        return self._c_kernel(self.snapshot_every, len(due))
 
     def _c_kernel(self, snapshot_every: int, room: int) -> CKernel | None:
         p = self.params
@@ -333,7 +375,8 @@ class AdaptiveComplianceController:
               *(float(v) for v in self.kd), float(getattr(self, "_tick", 0)), 0.0]
         return CKernel(
             name="adaptive_compliance",
-            params=(p.Ts_s, p.k_N_per_m2s, p.tau_s, p.a_min_N_per_m, p.xi,
+            params=(p.Ts_s, p.k_N_per_m2s, p.tau_s,
+                    p.a_min_N_per_m if p.clamp_weights else -math.inf, p.xi,
                     float(self._phys), float(self.masses[0]), float(self.masses[1]),
                     float(self.grid.prefactor), float(self._h[0]), float(self._h[1]),
                     float(p.cells_per_axis), *self._cx[0].tolist(), *self._cx[1].tolist(),
@@ -342,8 +385,10 @@ class AdaptiveComplianceController:
             inputs=self.inputs, outputs=self.outputs)
 
     def c_kernel_sync(self, state) -> None:
-        """Write the state of a compiled run back (heights, last error, kp, kd)."""
-        self._c_kernel_sync(state)
+        """Write the state of a compiled run back (heights, last error, kp, kd, the tick
+        count and the snapshots taken)."""
+        self._tick, snaps = self._c_kernel_sync(state)
+        self.snapshots.extend(snaps)
 
     def _c_kernel_sync(self, state) -> tuple[int, list]:
         """... and return (ticks stepped, [(tick, a) snapshots taken by the kernel])."""
@@ -378,7 +423,8 @@ class AdaptiveComplianceController:
         kp_prev = self.a @ g                                     # Y a_{k-1}, (N,)
         forget = np.outer(kp_prev / g2, g) / p.tau_s if g2 > 1e-300 else 0.0
         self.a = self.a + p.Ts_s * (-forget + p.k_N_per_m2s * np.outer(np.abs(err), g))
-        np.maximum(self.a, p.a_min_N_per_m, out=self.a)          # eq. 78 lower bound
+        if p.clamp_weights:                                      # extension: per-weight clamp
+            np.maximum(self.a, p.a_min_N_per_m, out=self.a)
         # eq. 72: k_p(x_k, k) = Y(x_k) a_k ; eq. 60 (or physical form): k_d
         self.kp = self.a @ g
         self.kd = np.array([self.kd_of(self.kp[j], j) for j in range(p.n_dof)])

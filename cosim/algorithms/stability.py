@@ -97,6 +97,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
+from pathlib import Path
+
 import numpy as np
 
 from .adaptive_compliance import AdaptiveComplianceController, AdaptiveComplianceParams
@@ -273,7 +275,8 @@ class SimulationResult:
 def simulate_1dof(params: AdaptiveComplianceParams, human: HumanImpedance, m_r_kg: float,
                   target: Callable[[float], tuple[float, float]], duration_s: float, *,
                   x0_m: float = 0.0, v0_m_per_s: float = 0.0, substeps: int = 10,
-                  blowup_m: float = 1.0, growth_tolerance: float = 2.0) -> SimulationResult:
+                  blowup_m: float = 1.0, growth_tolerance: float = 2.0,
+                  compiled: bool = False) -> SimulationResult:
     """Direct simulation of the 1-DOF closed loop of eq. 80.
 
     Plant (continuous, RK4 with ``substeps`` steps per sample)::
@@ -283,9 +286,16 @@ def simulate_1dof(params: AdaptiveComplianceParams, human: HumanImpedance, m_r_k
     f_c is the output of :class:`AdaptiveComplianceController` (n_dof = 1, the given
     params), computed at each tick from the sampled x and r and held (ZOH) for one
     sample. ``target(t) -> (r, r')`` [m, m/s].
+
+    ``compiled=True`` runs the same loop in its C twin (``c/stability_1dof.c``, tested
+    equal to this Python loop): the target is evaluated at every RK4 stage time first,
+    through ``target.vectorized(t_array) -> (r, r')`` when the target has it.
     """
     if params.n_dof != 1:
         raise ValueError("simulate_1dof needs n_dof = 1")
+    if compiled:
+        return _simulate_1dof_compiled(params, human, m_r_kg, target, duration_s, x0_m,
+                                       v0_m_per_s, substeps, blowup_m, growth_tolerance)
     ctrl = AdaptiveComplianceController(params)
     ax = ctrl.axes[0]
     Ts = params.Ts_s
@@ -318,6 +328,12 @@ def simulate_1dof(params: AdaptiveComplianceParams, human: HumanImpedance, m_r_k
             k4x, k4v = v + h * k3v, acc(ts + h, x + h * k3x, v + h * k3v, f)
             x += h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x)
             v += h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
+    return _verdict(t_arr, xs, rs, es, kps, fs, diverged, growth_tolerance)
+
+
+def _verdict(t_arr, xs, rs, es, kps, fs, diverged, growth_tolerance) -> SimulationResult:
+    """Growth ratio (peak |x~| last quarter / first quarter) and stability verdict."""
+    n = len(t_arr)
     q = max(n // 4, 1)
     e = np.abs(es)
     first = np.nanmax(e[:q]) if np.any(np.isfinite(e[:q])) else np.nan
@@ -327,3 +343,89 @@ def simulate_1dof(params: AdaptiveComplianceParams, human: HumanImpedance, m_r_k
         growth = float("inf")
     stable = (not diverged) and growth <= growth_tolerance
     return SimulationResult(t_arr, xs, rs, es, kps, fs, diverged, growth, stable)
+
+
+_LIB: dict = {}
+
+
+def _stability_lib():
+    """``c/stability_1dof.c`` compiled into the cache on first use (named by the hash of
+    its source and flags: an edited source is recompiled; atomic against a concurrent
+    build), loaded once per process."""
+    import ctypes
+    import hashlib
+    import os
+    import tempfile
+
+    from ..paths import cache_dir
+    from .ckernel import CFLAGS, compile_shared, kernel_source
+    src = kernel_source("stability_1dof")
+    key = hashlib.sha256(src.read_bytes() + " ".join(CFLAGS).encode()).hexdigest()[:16]
+    so = cache_dir() / "kernels" / f"stability_1dof_{key}.so"
+    if so in _LIB:
+        return _LIB[so]
+    if not so.is_file():
+        so.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
+            out = compile_shared([src], Path(tmp) / so.name)
+            os.replace(out, so)
+    lib = ctypes.CDLL(str(so))
+    f = lib.cosim_stability_1dof_run
+    f.restype = ctypes.c_long
+    D = ctypes.POINTER(ctypes.c_double)
+    f.argtypes = [D, D, D, D, ctypes.c_long, ctypes.c_double]
+    _LIB[so] = f
+    return f
+
+
+def _simulate_1dof_compiled(params, human, m_r_kg, target, duration_s, x0_m, v0_m_per_s,
+                            substeps, blowup_m, growth_tolerance) -> SimulationResult:
+    """:func:`simulate_1dof` in its C twin (same arguments, same result to ~1e-12)."""
+    import ctypes
+    ctrl = AdaptiveComplianceController(params)
+    p, g = params, ctrl.grid
+    if g.P > 64:
+        raise ValueError("simulate_1dof(compiled=True): at most 64 cells")
+    Ts = p.Ts_s
+    n = int(round(duration_s / Ts))
+    h = Ts / substeps
+    t_arr = np.arange(n) * Ts
+    # stage times exactly as the Python loop forms them: t, then per substep j
+    # ts = t + j h and ts, ts + 0.5 h, ts + h
+    # (the same IEEE operations element by element: the same times)
+    tt = np.empty((n, 1 + 3 * substeps))
+    t = np.arange(n) * Ts
+    tt[:, 0] = t
+    for j in range(substeps):
+        ts = t + j * h
+        tt[:, 1 + 3 * j], tt[:, 2 + 3 * j], tt[:, 3 + 3 * j] = ts, ts + 0.5 * h, ts + h
+    vec = getattr(target, "vectorized", None)
+    if vec is not None:
+        r, rd = (np.asarray(v, float) for v in vec(tt.ravel()))
+    else:
+        r, rd = np.array([target(float(t)) for t in tt.ravel()], float).T
+    r, rd = r.reshape(tt.shape), rd.reshape(tt.shape)
+    inp = np.empty((n, 1 + 6 * substeps))
+    inp[:, 0] = r[:, 0]
+    inp[:, 1::2] = r[:, 1:]
+    inp[:, 2::2] = rd[:, 1:]
+    mass = 1.0 if p.damping_mass_kg is None else float(p.damping_mass_kg[0])
+    prm = np.array([Ts, p.k_N_per_m2s, p.tau_s,
+                    p.a_min_N_per_m if p.clamp_weights else -np.inf, p.xi,
+                    float(p.damping_form == "physical"), mass, g.prefactor,
+                    float(g._inv_var[0]), m_r_kg + human.M_h_kg, human.K_h_N_per_m,
+                    human.b_h_Ns_per_m, float(substeps), float(g.P),
+                    *g.centres[:, 0].tolist()])
+    st = np.array([*ctrl.a[0].tolist(), 0.0, 0.0, float(ctrl.motors_on), float(x0_m),
+                   float(v0_m_per_s)])
+    out = np.full((n, 5), np.nan)
+    D = ctypes.POINTER(ctypes.c_double)
+    inp = np.ascontiguousarray(inp)
+    rows = _stability_lib()(prm.ctypes.data_as(D), st.ctypes.data_as(D), inp.ctypes.data_as(D),
+                            out.ctypes.data_as(D), n, float(blowup_m))
+    if rows < 0:
+        raise RuntimeError("compiled 1-DOF simulation: more cells than the kernel holds")
+    last = out[rows - 1] if rows > 0 else None
+    diverged = last is not None and (not np.isfinite(last[0]) or abs(last[2]) > blowup_m)
+    return _verdict(t_arr, out[:, 0], out[:, 1], out[:, 2], out[:, 3], out[:, 4], diverged,
+                    growth_tolerance)

@@ -26,7 +26,8 @@ Values per run, per axis ``a`` in (x, y): ``coh_a`` (mean coherence in the band)
 ``M75_a``, ``b75_a``, ``K75_a``, ``fit75_a`` (eq. 75 fit, FIT %); ``M_a``, ``b_a``,
 ``K_a``, ``kg_a``, ``bg_a``, ``fitAG_a`` (arm + grasp fit); ``{M,b,K,kg,bg}_err_a``
 (relative to the FMU); ``arm_err_a`` (worst |error| of M, b, K); ``Zgm_a``
-(geometric-mean |Z| in the band, model-free); and over both axes ``arm_err``,
+(geometric-mean |Z| in the band, model-free); ``{M,b,K}75_err_a`` and ``arm75_err_a``
+(the eq. 75 fit against the arm's own M, b, K); and over both axes ``arm_err``, ``arm75_err``,
 ``fit75_min``, ``fitAG_min``, ``coh_min``.
 """
 from __future__ import annotations
@@ -218,6 +219,8 @@ def arm_identification(run, build, ctx):
         truth = _truth(system, s, axis, i0)
         for k, val in f75.params.items():
             v[f"{SHORT[k]}75_{axis}"] = val
+            if k in truth:                  # eq. 75 against the arm's own M, b, K
+                v[f"{SHORT[k]}75_err_{axis}"] = val / truth[k] - 1.0
         v[f"fit75_{axis}"] = f75.fit_percent
         v[f"identifiable75_{axis}"] = float(f75.identifiable)
         for k, val in fag.params.items():
@@ -229,11 +232,13 @@ def arm_identification(run, build, ctx):
         v[f"fitAG_{axis}"] = fag.fit_percent
         v[f"identifiableAG_{axis}"] = float(fag.identifiable)
         v[f"arm_err_{axis}"] = max(abs(v[f"{n}_err_{axis}"]) for n in ("M", "b", "K"))
+        v[f"arm75_err_{axis}"] = max(abs(v[f"{n}75_err_{axis}"]) for n in ("M", "b", "K"))
         sel = (fr > 0) & (fr <= 2 * cfg.band_hz[1])      # the band and an octave above
         art[axis] = {"f_hz": fr[sel].tolist(), "Z_re": Z[sel].real.tolist(),
                      "Z_im": Z[sel].imag.tolist(), "coh": coh[sel].tolist(),
                      "eq75": f75.params, "arm_grasp": fag.params, "truth": truth}
     v["arm_err"] = max(v["arm_err_x"], v["arm_err_y"])
+    v["arm75_err"] = max(v["arm75_err_x"], v["arm75_err_y"])
     v["fit75_min"] = min(v["fit75_x"], v["fit75_y"])
     v["fitAG_min"] = min(v["fitAG_x"], v["fitAG_y"])
     v["coh_min"] = min(v["coh_x"], v["coh_y"])

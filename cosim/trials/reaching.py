@@ -9,8 +9,9 @@ session is 5 trainings with the motor drivers OFF/ON/ON/ON/OFF (Table 6). Output
 MAE and SDE per axis per training (Tables 7-8), the stiffness map at the end of every
 training (Fig. 49) and its ON/OFF contrast (Fig. 50), pre/post total MAE over four
 weekly sessions (Fig. 51), and the eq. 90-91 check of (k, tau) per axis (Sec. 3.3.2.2).
-The scenario runs the effective k = 1500 (3x the printed 500, calibrated on Table 7:
-cosim/devices/assumptions.py); the functions here take k as a parameter.
+The scenario judges the thesis's claims with the printed k = 500 and the package's
+effective k = 1500 (3x, calibrated on Table 7: cosim/devices/assumptions.py) as an
+extension case; the functions here take k as a parameter.
 
 Decisions (the thesis does not give these; each is a modelling choice)
 -----------------------------------------------------------------------
@@ -54,12 +55,11 @@ Decisions (the thesis does not give these; each is a modelling choice)
   per-axis 1-DOF loop (:func:`cosim.algorithms.stability.simulate_1dof`) is reported
   next to them.
 
-The speed-up :class:`AssistController` computes the same eq. 62-74 step as
-:class:`~cosim.algorithms.adaptive_compliance.AdaptiveComplianceController` using the
-separability of the axis-aligned Gaussians (g_ij = c' e_i(x) e_j(y): 12 exponentials
-instead of 36) and can start from a given map (carry-over between trainings, since
-the master calls ``reset()`` before every run). ``tests/test_trial_reaching.py``
-checks it against the reference class step by step.
+The controller is the algorithm's own
+:class:`~cosim.algorithms.adaptive_compliance.AdaptiveComplianceController` (and its
+compiled twin ``c/adaptive_compliance.c``); the trials use its ``initial_a`` (the map
+carried between trainings, since the master calls ``reset()`` before every run) and
+``snapshot_every`` (the map's history) options.
 """
 from __future__ import annotations
 
@@ -84,56 +84,6 @@ XY_TABLE_KF_N_PER_A = 33.0
 
 
 # =========================================================================== controller
-class AssistController(AdaptiveComplianceController):
-    """The adaptive compliance controller (eq. 57-74) with what the trials add: an
-    optional initial map and snapshots of the map.
-
-    ``initial_a`` (N x P) [N/m], if given, replaces a(0) = alpha0 (eq. 70) at every
-    ``reset()``: the map a session carries from one training to the next.
-    ``snapshot_every`` (ticks, 0: never) keeps a copy of the heights in ``snapshots``
-    as (tick, a): the map's history without recording 72 columns.
-    """
-
-    def __init__(self, params: AdaptiveComplianceParams = AdaptiveComplianceParams(),
-                 initial_a: np.ndarray | None = None, snapshot_every: int = 0):
-        self.initial_a = None if initial_a is None else np.array(initial_a, float)
-        self.snapshot_every = int(snapshot_every)
-        super().__init__(params)
-        if self.initial_a is not None and self.initial_a.shape != (params.n_dof, self.grid.P):
-            raise ValueError(f"initial_a must have shape {(params.n_dof, self.grid.P)}, "
-                             f"got {self.initial_a.shape}")
-
-    def reset(self) -> None:
-        super().reset()
-        if getattr(self, "initial_a", None) is not None:
-            self.a = self.initial_a.copy()
-        self._tick = 0
-        self.snapshots: list[tuple[int, np.ndarray]] = []
-
-    def step(self, measurements: Mapping[str, float]) -> dict[str, float]:
-        out = super().step(measurements)
-        if self.snapshot_every and self._tick % self.snapshot_every == 0:
-            self.snapshots.append((self._tick, self.a.copy()))
-        self._tick += 1
-        return out
-
-    def c_kernel(self, ticks: int | None = None):
-        """The compiled step of the base class, taking the snapshots too: their buffer
-        holds those of ``ticks`` more steps, so with snapshots ``ticks`` is needed
-        (None: no compiled step)."""
-        if not self.snapshot_every:
-            return self._c_kernel(0, 0)
-        if ticks is None:
-            return None
-        due = range(-(-self._tick // self.snapshot_every) * self.snapshot_every,
-                    self._tick + ticks, self.snapshot_every)
-        return self._c_kernel(self.snapshot_every, len(due))
-
-    def c_kernel_sync(self, state) -> None:
-        self._tick, snaps = self._c_kernel_sync(state)
-        self.snapshots.extend(snaps)
-
-
 def compliance_params(k: float, tau: float, alpha0: float = 10.0, **kw) -> AdaptiveComplianceParams:
     """Controller parameters of the trials: 6 x 6 cells over the 0.4 m x 0.4 m table
     (Sec. 3.4), physical damping with the axis masses of the XYTable."""
@@ -210,7 +160,7 @@ class ReachingPath:
 
         # the same four functions on an array of times, value for value the same
         # floating-point operations (the compiled master evaluates stimuli for every
-        # tick before the run: cosim.master.engine; tests/test_trial_reaching.py)
+        # tick before the run: cosim.master.fast.engine; tests/test_trial_reaching.py)
         ux = np.array([u[0] for u in units])
         uy = np.array([u[1] for u in units])
 
@@ -386,7 +336,8 @@ def run_training(human_params: Mapping[str, float], params: AdaptiveCompliancePa
     """Run one training of ``path.duration_s`` (rounded up to whole ms)."""
     from ..master import Master
     # motors_on in the params: the master's reset() restores it (Table 6)
-    ctrl = AssistController(dataclasses.replace(params, motors_on=motors_on), initial_a=initial_a)
+    ctrl = AdaptiveComplianceController(dataclasses.replace(params, motors_on=motors_on),
+                                        initial_a=initial_a)
     fo = dict(fmu_overrides or {})
     tgt = path.functions()
     s = build_table_system(human_params, ctrl, tgt, fmus_dir=fmus_dir, start_m=path.start_m,
@@ -524,6 +475,14 @@ def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str,
                 return amp - 4 * amp * (ph - 0.25), -r_dot_max
             return -amp + 4 * amp * (ph - 0.75), r_dot_max
 
+        def tri_vectorized(t):            # the same operations on an array of times
+            ph = (np.asarray(t, float) / period) % 1.0
+            r = np.where(ph < 0.25, 4 * amp * ph,
+                         np.where(ph < 0.75, amp - 4 * amp * (ph - 0.25),
+                                  -amp + 4 * amp * (ph - 0.75)))
+            return r, np.where((ph < 0.25) | (ph >= 0.75), r_dot_max, -r_dot_max)
+        tri.vectorized = tri_vectorized
+
         sims = []
         out["simulation_changes"] = ch
         for j, h in enumerate(sim_humans):
@@ -533,7 +492,7 @@ def stability_check(params: AdaptiveComplianceParams, human_params: Mapping[str,
                                      damping_mass_kg=(None if params.damping_mass_kg is None
                                                       else (params.damping_mass_kg[j],)),
                                      motors_on=True)
-            r = simulate_1dof(p1, h, TABLE_AXIS_MASS_KG[j], tri, sim_s, substeps=2)
+            r = simulate_1dof(p1, h, TABLE_AXIS_MASS_KG[j], tri, sim_s, substeps=2, compiled=True)
             sims.append({"axis": "xy"[j], "stable": bool(r.stable), "sim_s": sim_s,
                          "growth_ratio": float(r.growth_ratio),
                          "max_abs_err_m": float(np.nanmax(np.abs(r.err_m)))})
@@ -556,7 +515,9 @@ class XYComplianceParams:
     """YAML parameters of the ``adaptive_compliance_xy`` controller (eq. 57-74).
 
     k_N_per_m2s, tau_s, alpha0_N_per_m: update law eq. 69-71 (Sec. 3.5: 1000, 5 s, 10;
-    Sec. 3.6: 500, 20 s, 10); a_min_N_per_m: eq. 78 clamp; xi: damping factor;
+    Sec. 3.6: 500, 20 s, 10); a_min_N_per_m: a_min of eq. 78; clamp_weights: the
+    package's per-weight clamp at a_min (an extension; False: the law as printed);
+    xi: damping factor;
     damping_form: 'physical' (digest) or 'printed' (eq. 58); cells_per_axis: 6 (P = 36,
     Sec. 3.4); sigma_over_cell: Gaussian width / cell; motors_on: drivers (Table 6);
     carry_map: start from the map the previous phase left (ctx.state['a']);
@@ -567,6 +528,7 @@ class XYComplianceParams:
     tau_s: float = 20.0
     alpha0_N_per_m: float = 10.0
     a_min_N_per_m: float = 1.0
+    clamp_weights: bool = False
     xi: float = 0.7
     damping_form: str = "physical"
     cells_per_axis: int = 6
@@ -585,7 +547,8 @@ class XYComplianceParams:
 
     def controller_params(self, Ts: float = 1e-3) -> AdaptiveComplianceParams:
         return compliance_params(self.k_N_per_m2s, self.tau_s, self.alpha0_N_per_m,
-                                 a_min_N_per_m=self.a_min_N_per_m, xi=self.xi,
+                                 a_min_N_per_m=self.a_min_N_per_m,
+                                 clamp_weights=bool(self.clamp_weights), xi=self.xi,
                                  damping_form=self.damping_form,
                                  cells_per_axis=self.cells_per_axis,
                                  sigma_over_cell=self.sigma_over_cell, motors_on=self.motors_on,
@@ -598,8 +561,8 @@ def _make_xy_compliance(params, ctx):
     p = XYComplianceParams(**params)
     cp = p.controller_params(ctx.step_s)
     a0 = ctx.state.get("a") if p.carry_map else None
-    block = AssistController(cp, initial_a=a0,
-                             snapshot_every=int(round(p.snapshot_s / cp.Ts_s)) if p.snapshot_s else 0)
+    block = AdaptiveComplianceController(cp, initial_a=a0,
+                                         snapshot_every=int(round(p.snapshot_s / cp.Ts_s)) if p.snapshot_s else 0)
     ctx.state["controller"] = block
     return block
 
@@ -856,13 +819,14 @@ def _session_value(params, ctx):
 
 
 # ---------------------------------------------------------------- scenario-scope metrics
-def _sessions(ctx):
+def _sessions(ctx, cases=()):
     """(subject, week) -> values of one session (prefix removed), from the course runs
-    (one view per run: the values are the run's, whatever the phase)."""
+    (one view per run: the values are the run's, whatever the phase) of ``cases`` (all
+    when empty)."""
     out = {}
     seen = set()
     for r in ctx.runs:
-        if r.label in seen:
+        if r.label in seen or (cases and r.case not in cases):
             continue
         seen.add(r.label)
         a = r.artifacts or {}
@@ -877,15 +841,18 @@ def _sessions(ctx):
 
 @dataclasses.dataclass(frozen=True)
 class TrendParams:
-    """``subjects``: restrict to these subjects (empty: all)."""
+    """``subjects``: restrict to these subjects (empty: all); ``cases``: to the runs of
+    these cases (empty: all; two cases of one subject, e.g. another gain, would share
+    its sessions)."""
     subjects: tuple = ()
+    cases: tuple = ()
 
 
 @metric("post_better_fraction", params=TrendParams, scope="scenario")
 def _post_better_fraction(params, ctx):
     """Fraction of sessions whose post assessment (trial 5) total MAE is below the pre
     assessment (trial 1) (Fig. 51: "red squares are typically below blue dots")."""
-    ss = {k: v for k, v in _sessions(ctx).items()
+    ss = {k: v for k, v in _sessions(ctx, tuple(params.get("cases") or ())).items()
           if not params.get("subjects") or k[0] in params["subjects"]}
     return float(np.mean([v["post_total_MAE_mm"] < v["pre_total_MAE_mm"] for v in ss.values()]))
 
@@ -901,7 +868,7 @@ def _slope(x, y) -> float:
 def _worst_weekly_slope(params, ctx):
     """Largest (least negative) least-squares slope of the pre-assessment total MAE over
     the weeks among the subjects [mm/week] (Fig. 51: overall improving trend)."""
-    ss = _sessions(ctx)
+    ss = _sessions(ctx, tuple(params.get("cases") or ()))
     subs = sorted({k[0] for k in ss if not params.get("subjects") or k[0] in params["subjects"]})
     slopes = []
     weeks = {s: sorted(w for (k, w) in ss if k == s) for s in subs}

@@ -8,7 +8,8 @@
  * exp is libm's and the sums run left to right. Tested to 1e-12 relative
  * (tests/test_kernels.py), not bit-identical.
  *
- * p: [0] Ts [s]  [1] k [N/(m^2 s)]  [2] tau [s]  [3] a_min [N/m]  [4] xi
+ * p: [0] Ts [s]  [1] k [N/(m^2 s)]  [2] tau [s]  [3] clamp of every height [N/m]
+ *    (a_min with clamp_weights, the package's extension; -inf: the law as printed)  [4] xi
  *    [5] 1 = physical damping form  [6] m_x [kg]  [7] m_y [kg]  [8] c/((2 pi) sqrt(det S))
  *    [9] -1/(2 sigma_x^2)  [10] -1/(2 sigma_y^2) [1/m^2]  [11] cells per axis m
  *    [12 .. 12+m) centres along x [m], [12+m .. 12+2m) centres along y [m]
@@ -17,7 +18,7 @@
  *    [2P] has x~_k-1  [2P+1] x~_x,k-1  [2P+2] x~_y,k-1  [2P+3] motors on
  *    [2P+4] kp_x  [2P+5] kp_y  [2P+6] kd_x  [2P+7] kd_y  [2P+8] ticks stepped
  *    [2P+9] snapshots taken, then that many (tick, a (2P)) records (the trials'
- *    AssistController.snapshots: the map after each tick that is a multiple of n)
+ *    AdaptiveComplianceController.snapshots: the map after each tick that is a multiple of n)
  * Returns 2 when a snapshot is due and there is no room left (state unchanged).
  * in: pos_x, pos_y, ref_x, ref_y [m]
  * out: f_x, f_y [N], kp_x, kp_y [N/m], kd_x, kd_y [N s/m], err_x, err_y [m]
@@ -74,7 +75,7 @@ int cosim_kernel_adaptive_compliance(const double *p, double *s, const double *i
     kpx = kpy = 0.0;
     for (i = 0; i < P; i++) {
         double a = ax[i] + cxo * g[i];
-        ax[i] = a < p[3] ? p[3] : a;                        /* eq. 78 lower bound */
+        ax[i] = a < p[3] ? p[3] : a;            /* per-weight clamp (-inf: none, eq. 71) */
         a = ay[i] + cyo * g[i];
         ay[i] = a < p[3] ? p[3] : a;
         kpx += ax[i] * g[i];                                /* eq. 72: k_p = Y(x_k) a_k */
