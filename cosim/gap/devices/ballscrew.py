@@ -565,6 +565,10 @@ class BallscrewDevice:
                         best = self._search(logs, params, best, e, kt_free)
                 cfg = best[1]
         g, cfg, coef = best
+        settled = self._settle(logs, cfg)
+        if settled != cfg:
+            cfg = settled
+            g, coef = self._fit_cfg(logs, params, cfg, kt_free)
         phys = self._to_physical(coef, kt_free, params["Kt"])
         out = {}
         for e in effects:
@@ -573,6 +577,16 @@ class BallscrewDevice:
                 o[NOMINAL_PREFIX + k] = phys[k]
             out[e] = o
         return out, g
+
+    def _settle(self, logs, cfg: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, float]]:
+        """Each effect's fitted nonlinear parameters through its form's ``settle`` (what the
+        fit logs can tell, see :class:`cosim.gap.effects.base.BallscrewForm`)."""
+        preps = [self._prep(lg) for lg in logs]
+        out = {}
+        for e, nl in cfg.items():
+            st = CATALOGUE[e].ballscrew.settle
+            out[e] = st(nl, preps) if (st is not None and nl) else dict(nl)
+        return out
 
     def fit_effects_quick(self, logs: Sequence[TrialLog], params: Mapping[str, float],
                           effects: Sequence[str]) -> float:
