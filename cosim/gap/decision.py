@@ -83,6 +83,21 @@ def _passes(g_base: Sequence[float], g_eff: Sequence[float], margin: float,
     return bool(pooled >= margin and min(red) >= fold_factor * margin), pooled
 
 
+def _by_importance(pair: Mapping[str, Any], singles: Mapping[str, Any]) -> list[str]:
+    """The two effects of a selected pair, the one whose removal would raise the held-out
+    gap energy more first (``selected[0]`` is the main finding). The pair was found by adding
+    ``b`` to ``a``; removing ``b`` leaves ``a`` alone (the pair's base), removing ``a`` leaves
+    ``b`` alone (its own validation, when it has one on the same folds)."""
+    a, b = pair["effects"]
+    sb = singles.get(b)
+    if sb is None or len(sb["ge"]) != len(pair["ge"]):
+        return [a, b]
+    e_ab = sum(x * x for x in pair["ge"])
+    cost_without_b = sum(x * x for x in pair["gb"]) - e_ab
+    cost_without_a = sum(x * x for x in sb["ge"]) - e_ab
+    return [b, a] if cost_without_b > cost_without_a else [a, b]
+
+
 def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
     """The decision stage: ``selected`` (and ``ambiguous``) from the evidence of
     :func:`collect_evidence` and the thresholds ``th``. Pure and cheap: the
@@ -142,7 +157,8 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
             if ok and (best is None or pooled > best[0]):
                 best = (pooled, pr)
         if best is not None:
-            selected, entry = list(best[1]["effects"]), best[1]
+            entry = best[1]
+            selected = _by_importance(entry, singles)
         elif a not in ev.get("pair_firsts", []):
             notes.append(f"no pair evidence with {a} (not among the best single effects): one effect at most")
     nf = ev.get("noise_floor")
@@ -167,7 +183,9 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
             else:
                 selected = selected + ["unknown"]
     res["selected"] = selected
-    res["effects_after"] = effective
+    # the evidence entry's own order (its key), whatever the order of ``selected``
+    res["effects_after"] = list(entry["effects"]) if (entry is not None and effective and "effects" in entry) \
+        else effective
     res["test_after"] = float(entry["test_after"]) if (entry is not None and effective) else float(ev["test_before"])
     # ---- look-alikes the logs do not separate
     amb = None

@@ -231,15 +231,17 @@ def _halves(logs: Sequence[TrialLog]) -> tuple[list[TrialLog], list[TrialLog]]:
     return a, b
 
 
-def _fit_many(device: GapDevice, logs, params, effects: Sequence[str]):
-    """Fit one or several effects; returns (effects dict with 'nominal.' keys, fit gap)."""
+def _fit_many(device: GapDevice, logs, params, effects: Sequence[str], descend: bool = True):
+    """Fit one or several effects; returns (effects dict with 'nominal.' keys, fit gap).
+    ``descend=False``: several effects keep the shapes of their fits alone (only the
+    linear coefficients joint), for the held-out folds of a pair (cost)."""
     if len(effects) == 1:
         prm, g = device.fit_effect(logs, params, effects[0])
         return {effects[0]: prm}, g
     fm = getattr(device, "fit_effects", None)
     if fm is None:
         return None, math.nan
-    return fm(logs, params, list(effects))
+    return fm(logs, params, list(effects)) if descend else fm(logs, params, list(effects), descend=False)
 
 
 def _apply(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]):
@@ -321,22 +323,24 @@ def _cv(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] |
     return g_base, g_eff
 
 
-def _fold_fits(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None):
+def _fold_fits(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None,
+               descend: bool = True):
     """Per fold that validates ``basis`` (default ``effects``): (held-out part, the fit
     part's recalibration, (nominal, effect params) of ``effects`` fitted on the fit part,
     or None when the device cannot fit them together)."""
     for fit_part, val_part, _ in _folds_for(device, folds, effects if basis is None else basis):
         rec = device.recalibrate(fit_part)
-        eff, _ = _fit_many(device, fit_part, rec, effects)
+        eff, _ = _fit_many(device, fit_part, rec, effects, descend)
         yield val_part, rec, (None if eff is None else _apply(rec, eff))
 
 
-def _cv_z(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None):
+def _cv_z(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None,
+          descend: bool = True):
     """:func:`_cv` plus, per comparison signal, the held-out residual over its noise floor
     (``signal_z``, root mean square over the folds) with ``effects`` fitted on the fit part."""
     g_base, g_eff, zs = [], [], {}
     sz = getattr(device, "signal_z", None)
-    for val_part, rec, fitted in _fold_fits(device, folds, effects, basis):
+    for val_part, rec, fitted in _fold_fits(device, folds, effects, basis, descend):
         g_base.append(device.gap(val_part, rec))
         g_eff.append(math.nan if fitted is None else device.gap(val_part, *fitted))
         if sz is not None and fitted is not None:
@@ -418,7 +422,8 @@ def collect_evidence(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[
                 ranked.sort(key=lambda gc: gc[0])
                 for _, b in ranked[:n_pair]:
                     pair = [a, b]
-                    _, ge_pair, z = _cv_z(device, folds, pair)
+                    # folds: shapes at their fits alone (cost); the fit behind test_after descends
+                    _, ge_pair, z = _cv_z(device, folds, pair, descend=False)
                     same = [id(fd) for fd in _folds_for(device, folds, pair)] == \
                         [id(fd) for fd in _folds_for(device, folds, [a])]
                     base = ev["singles"][a]["ge"] if same else _cv(device, folds, [a], basis=pair)[1]
