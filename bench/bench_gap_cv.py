@@ -179,12 +179,25 @@ def grid_points() -> list[Thresholds]:
     return [DEFAULTS.with_(**dict(zip(keys, vals))) for vals in itertools.product(*(GRID[k] for k in keys))]
 
 
-def score_matrix(names, labels, recs, points):
+def _score_row(args) -> tuple[list[float], list[float]]:
+    label, rec = args
+    row = [score(label, rec, th)[:2] for th in grid_points()]
+    return [r[0] for r in row], [r[1] for r in row]
+
+
+def score_matrix(names, labels, recs, points, workers: int = 1):
+    """top-1 and shrink of every device (columns) at every grid point (rows)."""
     top = np.zeros((len(points), len(names)))
     shr = np.ones((len(points), len(names)))
-    for j, n in enumerate(names):
-        for i, th in enumerate(points):
-            top[i, j], shr[i, j], _, _ = score(labels[n], recs[n], th)
+    jobs = [(labels[n], recs[n]) for n in names]
+    if workers <= 1:
+        rows = map(_score_row, jobs)
+        for j, (t, s) in enumerate(rows):
+            top[:, j], shr[:, j] = t, s
+    else:
+        with get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+            for j, (t, s) in enumerate(pool.imap(_score_row, jobs)):
+                top[:, j], shr[:, j] = t, s
     return top, shr
 
 
@@ -246,6 +259,8 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--only", nargs="*")
     ap.add_argument("--no-final", action="store_true")
+    ap.add_argument("--cached-only", action="store_true",
+                    help="only the devices whose evidence of the current code is cached (a partial run)")
     ap.add_argument("--write", action="store_true", help="store the chosen thresholds in cosim/gap/thresholds.json")
     a = ap.parse_args(argv)
     workers = max(1, min(2, a.workers))
@@ -257,13 +272,18 @@ def main(argv=None) -> int:
     labels = json.loads((data / "labels.json").read_text())
     names = [n for n in sorted(labels) if not a.only or n in a.only]
     cache = Path(a.cache)
+    if a.cached_only:
+        version = code_version()
+        names = [n for n in names if (cache / f"gap-dev2-{n}-{case_key(data / 'cases' / n, labels[n], version)}.json"
+                                      ).is_file()]
+        print(f"--cached-only: {len(names)} of {len(labels)} devices have cached evidence of code version {version}")
     recs = gather(data, names, labels, cache, workers, "gap-dev2")
     secs = [recs[n]["seconds"] for n in names]
     ev_s = [recs[n]["evidence"]["evidence_s"] for n in names if "evidence" in recs[n]]
 
     points = grid_points()
     t0 = time.perf_counter()
-    top, shr = score_matrix(names, labels, recs, points)
+    top, shr = score_matrix(names, labels, recs, points, workers)
     t_grid = time.perf_counter() - t0
     effect_cols = np.array([j for j, n in enumerate(names)
                             if labels[n]["effects"] and labels[n]["effects"] != ["unknown"]])
@@ -308,7 +328,7 @@ def main(argv=None) -> int:
     print()
     print(f"previous thresholds {DEFAULTS.as_dict()}:")
     print(f"  gap-dev2 {summary(names, labels, [s[0] for s in d_sc], [s[1] for s in d_sc])}")
-    print(f"IN-SAMPLE (chosen on and scored on the same 48): "
+    print(f"IN-SAMPLE (chosen on and scored on the same {len(names)}): "
           f"{summary(names, labels, list(top[i_all]), list(shr[i_all]))}")
     print(f"CROSS-VALIDATED (leave one device out):          {summary(names, labels, cv_top, cv_shr)}")
     fails = [n for n in names if "error" in recs[n]]
@@ -377,10 +397,11 @@ def main(argv=None) -> int:
     print(f"\nwall {wall:.0f} s (evidence cached in {cache})")
     result["wall_s"] = wall
     if a.write and not a.only:
+        partial = "" if len(names) == len(labels) else f" (PARTIAL: {len(names)} of {len(labels)} devices, {', '.join(names)})"
         table = json.loads(THRESHOLDS_JSON.read_text()) if THRESHOLDS_JSON.is_file() else {}
         table[DEVICE] = {
             "values": th_all.as_dict(),
-            "chosen_by": (f"bench/bench_gap_cv.py: grid of {len(points)} points over gap-dev2 (48 devices of the "
+            "chosen_by": (f"bench/bench_gap_cv.py: grid of {len(points)} points over gap-dev2{partial} (devices of the "
                           f"independent simulator), most top-1 then plateau then median shrink; "
                           f"leave-one-device-out score {sum(cv_top):g}/{len(names)}, median shrink "
                           f"{result['cross_validated']['median_shrink']:.3f}; in-sample "

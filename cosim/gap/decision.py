@@ -116,7 +116,9 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
     5. ``ambiguous``: a look-alike (:data:`LOOK_ALIKE`) of the first selected effect that
        also passes and whose held-out residual energy is within ``ambiguity_ratio`` of it,
        or compliance against ``unknown`` when the compliance fit passed but left the
-       accelerometer unexplained. ``selected`` keeps the better one (what is scored).
+       accelerometer unexplained, or when nothing passed but compliance or backlash
+       explains ``ambiguity_min_explained`` of the fit logs' gap in-sample. ``selected``
+       keeps the better one (what is scored).
     """
     singles = ev.get("singles", {})
     pairs = ev.get("pairs", {})
@@ -213,6 +215,19 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
                                     "heldout_signal_z": res.get("heldout_signal_z"),
                                     "signal_z_limit": th.signal_z_limit,
                                     f"pooled_reduction_{e}": verdicts[e]["pooled_reduction"]}}
+                break
+    if amb is None and selected == ["unknown"] and not res.get("selected_before_signal_check"):
+        # nothing passed the held-out rule: a catalogue effect that looks like "something
+        # else" (a resonance, a play) but explains much of the fit logs' gap is named
+        expl = ev.get("explained", {})
+        for e in sorted(expl, key=lambda k: -expl[k])[:3]:
+            trial = _separating_trial(e, "unknown")
+            if trial is not None and expl[e] >= th.ambiguity_min_explained:
+                amb = {"effects": [e, "unknown"], "separating_trial": trial,
+                       "evidence": {f"explained_{e}": expl[e],
+                                    f"heldout_pooled_reduction_{e}": verdicts.get(e, {}).get("pooled_reduction"),
+                                    f"heldout_reduction_per_fold_{e}": singles.get(e, {}).get("reduction"),
+                                    "base_signal_z": ev.get("base_z")}}
                 break
     if amb is not None:
         res["ambiguous"] = amb["effects"]

@@ -12,24 +12,26 @@
    sum to 1. The energy of a sample is ``sum over signals of r_s^2 / E_s`` with
    ``E_s`` the signal's total measured variance, so that signals in different units
    are comparable and the signal shares are the ``nrmse_s^2`` fractions;
-4. **attribution**: every applicable catalogue effect is fitted on all fit logs
-   (``explained`` = 1 - gap_with^2 / gap_without^2, the fraction of the recalibrated
-   gap energy it removes) and, for the best ``n_validate`` ones, validated on held-out
-   data INSIDE the fit logs (:func:`_folds`): one fit log left out at a time
-   (recalibration and effect fitted on the others, the gap measured on it), or the two
-   halves of a single fit log. An effect is selected only if it lowers the held-out
-   gap energy by at least ``margin`` pooled over the folds and ``margin / 2`` in every
-   fold (:func:`_passes`). Then further effects are added greedily by the same rule,
-   fitted jointly with the selection, if the device can fit several at once
-   (``fit_effects``). ``selected = []`` when no effect passes and the held-out
-   residual is at the noise floor; ``["unknown"]`` when none passes but the residual
-   is above it. The floor is the device's ``noise_floor(logs)["gap"]`` (the gap that
-   sensor noise alone gives, estimated from the held-out parts themselves) times
-   :data:`UNKNOWN_FACTOR`, or, for a device without that method, its constant
-   ``gap_floor`` (none: never ``unknown``). With a selection, each comparison signal's
-   held-out residual is checked against its own floor (``signal_z``,
-   :data:`SIGNAL_Z_LIMIT`): ``unknown`` replaces the selection when the unexplained
-   signal is one no selected effect acts on, and is added to it otherwise;
+4. **attribution**, in two stages. *Evidence* (:func:`collect_evidence`, no threshold):
+   every applicable catalogue effect is fitted on all fit logs (``explained`` = 1 -
+   gap_with^2 / gap_without^2, the fraction of the recalibrated gap energy it removes);
+   the best ``n_validate`` are validated on held-out data INSIDE the fit logs
+   (:func:`_folds`: one fit log left out at a time, recalibration and effect fitted on the
+   others, the gap measured on it; or the two halves of a single fit log), and so are
+   pairs made of one of the two best single effects and one of the two effects that fit
+   best jointly with it (``fit_effects``); for each, the held-out gap per fold, each
+   comparison signal's held-out residual over its noise floor (``signal_z``) and the
+   ``--test`` gap once it is added. *Decision* (:func:`cosim.gap.decision.decide`): an
+   effect is selected if it lowers the held-out gap energy by ``margin`` pooled and by
+   ``fold_factor x margin`` in every fold; a second one if the pair lowers it further by
+   ``pair_margin``; ``[]`` when nothing passes and the held-out residual is within
+   ``unknown_factor`` x the noise floor (the device's ``noise_floor`` estimated from the
+   held-out parts, or its constant ``gap_floor``), else ``["unknown"]``; a signal left
+   above ``signal_z_limit`` x its floor makes the answer ``unknown`` (no selected effect
+   acts on it) or adds ``unknown`` (partial); look-alikes the logs do not separate are
+   reported as ``ambiguous`` with the trial that would. The thresholds are
+   :mod:`cosim.gap.thresholds` (chosen by cross-validation over devices,
+   ``bench/bench_gap_cv.py``);
 5. **confirmation** of the top candidates with the device's FMU replay
    (``confirm``), when the device has one;
 6. **shrinkage** on the ``--test`` logs: ``gap.test_before`` with the recalibrated

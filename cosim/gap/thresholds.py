@@ -49,6 +49,10 @@ class Thresholds:
     #: two look-alike candidates whose held-out residual energies are within this factor are
     #: reported as ``ambiguous`` (``selected`` keeps the better one: what is scored)
     ambiguity_ratio: float = 1.15
+    #: with ``unknown`` selected because nothing passed, a catalogue look-alike of ``unknown``
+    #: (compliance, backlash) explaining at least this fraction of the fit logs' gap in-sample
+    #: is reported as ``ambiguous`` with it (not scored: ``selected`` stays ``unknown``)
+    ambiguity_min_explained: float = 0.10
 
     def with_(self, **kw: float) -> "Thresholds":
         return replace(self, **kw)
@@ -61,8 +65,8 @@ class Thresholds:
 #: per-fold half, UNKNOWN_FACTOR 2, SIGNAL_Z_LIMIT 4 from gap-dev): the EMPS device keeps them
 DEFAULTS = Thresholds()
 
-#: the grid the cross-validation searches (bench/bench_gap_cv.py); the ambiguity ratio does
-#: not change ``selected`` (what is scored) and is not searched
+#: the grid the cross-validation searches (bench/bench_gap_cv.py); the two ambiguity
+#: thresholds do not change ``selected`` (what is scored) and are not searched (a priori)
 GRID: dict[str, tuple[float, ...]] = {
     "margin": (0.02, 0.04, 0.07, 0.10, 0.15, 0.20),
     "fold_factor": (-0.1, 0.0, 0.25, 0.5, 0.75),
