@@ -103,8 +103,9 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
     :func:`collect_evidence` and the thresholds ``th``. Pure and cheap: the
     cross-validation calls it for every point of its grid.
 
-    1. the single effect with the largest pooled held-out reduction among those that pass
-       (``margin`` pooled, ``fold_factor * margin`` in every fold);
+    1. among the single effects that pass (``margin`` pooled, ``fold_factor * margin`` in
+       every fold), the one with the largest pooled held-out reduction, or with
+       ``rank_by_explained`` the largest in-sample ``explained``;
     2. a second effect, fitted jointly with it, when the pair lowers the held-out gap
        further by ``pair_margin`` pooled (and ``fold_factor * pair_margin`` per fold);
        An effect passes only if a signal it acts on is, without it, above ``min_base_z``
@@ -141,7 +142,8 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
                          f"{th.min_base_z:g} x its noise floor without it")
         verdicts[e] = {"passes": ok, "pooled_reduction": pooled}
         if ok:
-            passing.append((pooled, e))
+            key = ev.get("explained", {}).get(e, pooled) if th.rank_by_explained else pooled
+            passing.append((key, e))
     passing.sort(key=lambda pe: -pe[0])
     selected: list[str] = []
     entry: Mapping[str, Any] | None = None

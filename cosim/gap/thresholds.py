@@ -46,6 +46,10 @@ class Thresholds:
     #: above this many times that signal's noise floor (0: no such requirement): an effect
     #: that only "explains" signals already at their floor is fitting sensor nuisances
     min_base_z: float = 0.0
+    #: which passing effect is the first pick: 0 = the largest pooled held-out reduction, 1 = the
+    #: largest in-sample ``explained`` (the held-out reductions of effects validated on different
+    #: folds, e.g. a shape along the travel on the folds inside its range, do not compare)
+    rank_by_explained: float = 0.0
     #: two look-alike candidates whose held-out residual energies are within this factor are
     #: reported as ``ambiguous`` (``selected`` keeps the better one: what is scored)
     ambiguity_ratio: float = 1.15
@@ -74,6 +78,7 @@ GRID: dict[str, tuple[float, ...]] = {
     "unknown_factor": (1.5, 2.0, 3.0, 4.0, 6.0),
     "signal_z_limit": (3.0, 4.0, 6.0, 8.0, 12.0, 1e9),
     "min_base_z": (0.0, 1.5, 2.0, 3.0),
+    "rank_by_explained": (0.0, 1.0),
 }
 
 
