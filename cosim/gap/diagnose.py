@@ -424,8 +424,7 @@ def collect_evidence(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[
                 ranked.sort(key=lambda gc: gc[0])
                 for _, b in ranked[:n_pair]:
                     pair = [a, b]
-                    # folds: shapes at their fits alone (cost); the fit behind test_after descends
-                    _, ge_pair, z = _cv_z(device, folds, pair, descend=False)
+                    _, ge_pair, z = _cv_z(device, folds, pair)
                     same = [id(fd) for fd in _folds_for(device, folds, pair)] == \
                         [id(fd) for fd in _folds_for(device, folds, [a])]
                     base = ev["singles"][a]["ge"] if same else _cv(device, folds, [a], basis=pair)[1]
