@@ -51,7 +51,7 @@ def add_commands(subparsers: Any) -> None:
     d.add_argument("--fit", nargs="+", required=True, metavar="LOG", help="trial logs to fit on (.csv or stem)")
     d.add_argument("--test", nargs="+", required=True, metavar="LOG", help="held-out trial logs")
     d.add_argument("--out", required=True, metavar="DIR", help="output directory")
-    d.add_argument("--margin", type=float, default=0.10,
-                   help="minimum held-out reduction of the gap energy to select an effect (default 0.10)")
+    d.add_argument("--margin", type=float, default=None,
+                   help="minimum held-out reduction of the gap energy to select an effect (default: the device's chosen value, cosim/gap/thresholds.json)")
     d.add_argument("--no-report", action="store_true", help="skip report.html")
     d.set_defaults(func=_cmd_diagnose, heartbeat=True)

@@ -12,24 +12,26 @@
    sum to 1. The energy of a sample is ``sum over signals of r_s^2 / E_s`` with
    ``E_s`` the signal's total measured variance, so that signals in different units
    are comparable and the signal shares are the ``nrmse_s^2`` fractions;
-4. **attribution**: every applicable catalogue effect is fitted on all fit logs
-   (``explained`` = 1 - gap_with^2 / gap_without^2, the fraction of the recalibrated
-   gap energy it removes) and, for the best ``n_validate`` ones, validated on held-out
-   data INSIDE the fit logs (:func:`_folds`): one fit log left out at a time
-   (recalibration and effect fitted on the others, the gap measured on it), or the two
-   halves of a single fit log. An effect is selected only if it lowers the held-out
-   gap energy by at least ``margin`` pooled over the folds and ``margin / 2`` in every
-   fold (:func:`_passes`). Then further effects are added greedily by the same rule,
-   fitted jointly with the selection, if the device can fit several at once
-   (``fit_effects``). ``selected = []`` when no effect passes and the held-out
-   residual is at the noise floor; ``["unknown"]`` when none passes but the residual
-   is above it. The floor is the device's ``noise_floor(logs)["gap"]`` (the gap that
-   sensor noise alone gives, estimated from the held-out parts themselves) times
-   :data:`UNKNOWN_FACTOR`, or, for a device without that method, its constant
-   ``gap_floor`` (none: never ``unknown``). With a selection, each comparison signal's
-   held-out residual is checked against its own floor (``signal_z``,
-   :data:`SIGNAL_Z_LIMIT`): ``unknown`` replaces the selection when the unexplained
-   signal is one no selected effect acts on, and is added to it otherwise;
+4. **attribution**, in two stages. *Evidence* (:func:`collect_evidence`, no threshold):
+   every applicable catalogue effect is fitted on all fit logs (``explained`` = 1 -
+   gap_with^2 / gap_without^2, the fraction of the recalibrated gap energy it removes);
+   the best ``n_validate`` are validated on held-out data INSIDE the fit logs
+   (:func:`_folds`: one fit log left out at a time, recalibration and effect fitted on the
+   others, the gap measured on it; or the two halves of a single fit log), and so are
+   pairs made of one of the two best single effects and one of the two effects that fit
+   best jointly with it (``fit_effects``); for each, the held-out gap per fold, each
+   comparison signal's held-out residual over its noise floor (``signal_z``) and the
+   ``--test`` gap once it is added. *Decision* (:func:`cosim.gap.decision.decide`): an
+   effect is selected if it lowers the held-out gap energy by ``margin`` pooled and by
+   ``fold_factor x margin`` in every fold; a second one if the pair lowers it further by
+   ``pair_margin``; ``[]`` when nothing passes and the held-out residual is within
+   ``unknown_factor`` x the noise floor (the device's ``noise_floor`` estimated from the
+   held-out parts, or its constant ``gap_floor``), else ``["unknown"]``; a signal left
+   above ``signal_z_limit`` x its floor makes the answer ``unknown`` (no selected effect
+   acts on it) or adds ``unknown`` (partial); look-alikes the logs do not separate are
+   reported as ``ambiguous`` with the trial that would. The thresholds are
+   :mod:`cosim.gap.thresholds` (chosen by cross-validation over devices,
+   ``bench/bench_gap_cv.py``);
 5. **confirmation** of the top candidates with the device's FMU replay
    (``confirm``), when the device has one;
 6. **shrinkage** on the ``--test`` logs: ``gap.test_before`` with the recalibrated
@@ -50,19 +52,15 @@ from ..logs.fileio import atomic_write_text, jsonable
 from ..logs.trial_log import TrialLog, TrialLogError, read_trial_log
 from . import plausibility
 from .device import CannotDiagnose, GapDevice, GapInputError, get_device, slice_log, split_params
+from .decision import LOOK_ALIKE, _passes, _pooled, _reduction, decide
+from .thresholds import DEFAULTS, Thresholds, provenance_for, thresholds_for
 
-__all__ = ["diagnose", "localize", "run_diagnosis", "DEFAULT_MARGIN"]
+__all__ = ["diagnose", "localize", "run_diagnosis", "collect_evidence", "decide", "DEFAULT_MARGIN"]
 
-#: minimum held-out reduction of the gap energy (fraction) for an effect to count
-DEFAULT_MARGIN = 0.10
-#: ``unknown`` when no effect is selected and the held-out gap exceeds this many times the
-#: sensor-noise floor estimated from the data (a gap ratio of 2 is a noise-energy ratio
-#: of 4; a correct model leaves its model-form residue (sensor pole, ZOH timing,
-#: recalibration error) on top of the noise, measured 1.2-1.5 x on no-effect logs)
-UNKNOWN_FACTOR = 2.0
-#: a comparison signal whose held-out residual after the selection stays above this many
-#: times its own noise floor holds a gap the selection does not explain (see run_diagnosis)
-SIGNAL_Z_LIMIT = 4.0
+#: the thresholds of the method before issue 21 (the chosen ones: :mod:`cosim.gap.thresholds`)
+DEFAULT_MARGIN = DEFAULTS.margin
+UNKNOWN_FACTOR = DEFAULTS.unknown_factor
+SIGNAL_Z_LIMIT = DEFAULTS.signal_z_limit
 BANDS_HZ = (0.0, 1.0, 5.0, 20.0, 50.0, 100.0, math.inf)
 WINDOW_S = 1.0
 
@@ -236,15 +234,17 @@ def _halves(logs: Sequence[TrialLog]) -> tuple[list[TrialLog], list[TrialLog]]:
     return a, b
 
 
-def _fit_many(device: GapDevice, logs, params, effects: Sequence[str]):
-    """Fit one or several effects; returns (effects dict with 'nominal.' keys, fit gap)."""
+def _fit_many(device: GapDevice, logs, params, effects: Sequence[str], descend: bool = True):
+    """Fit one or several effects; returns (effects dict with 'nominal.' keys, fit gap).
+    ``descend=False``: several effects keep the shapes of their fits alone (only the
+    linear coefficients joint), for the held-out folds of a pair (cost)."""
     if len(effects) == 1:
         prm, g = device.fit_effect(logs, params, effects[0])
         return {effects[0]: prm}, g
     fm = getattr(device, "fit_effects", None)
     if fm is None:
         return None, math.nan
-    return fm(logs, params, list(effects))
+    return fm(logs, params, list(effects)) if descend else fm(logs, params, list(effects), descend=False)
 
 
 def _apply(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]):
@@ -315,18 +315,6 @@ def _folds_for(device: GapDevice, folds, effects: Sequence[str]):
     return inside or folds
 
 
-def _passes(g_base: Sequence[float], g_eff: Sequence[float], margin: float) -> tuple[bool, float]:
-    """(passes, pooled reduction): the held-out gap energy pooled over the folds falls by
-    at least ``margin``, and in every held-out fold by at least ``margin / 2`` (an effect
-    must help on every trial held out, not on average: one that helps two trials and
-    leaves a third as it was is fitting what those two share)."""
-    red = _reduction(g_base, g_eff)
-    if not g_eff or not all(math.isfinite(e) for e in g_eff):
-        return False, -math.inf
-    pooled = 1.0 - sum(e * e for e in g_eff) / max(sum(b * b for b in g_base), 1e-300)
-    return bool(pooled >= margin and min(red) >= 0.5 * margin), pooled
-
-
 def _cv(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None
         ) -> tuple[list[float], list[float]]:
     """Held-out gap per fold with and without ``effects`` (recalibrated on the fit part),
@@ -338,35 +326,51 @@ def _cv(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] |
     return g_base, g_eff
 
 
-def _fold_fits(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None):
+def _fold_fits(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None,
+               descend: bool = True):
     """Per fold that validates ``basis`` (default ``effects``): (held-out part, the fit
     part's recalibration, (nominal, effect params) of ``effects`` fitted on the fit part,
     or None when the device cannot fit them together)."""
     for fit_part, val_part, _ in _folds_for(device, folds, effects if basis is None else basis):
         rec = device.recalibrate(fit_part)
-        eff, _ = _fit_many(device, fit_part, rec, effects)
+        eff, _ = _fit_many(device, fit_part, rec, effects, descend)
         yield val_part, rec, (None if eff is None else _apply(rec, eff))
 
 
-def _reduction(g_base: Sequence[float], g_eff: Sequence[float]) -> list[float]:
-    return [1.0 - (e / b) ** 2 if b > 0 and math.isfinite(e) else -math.inf for b, e in zip(g_base, g_eff)]
+def _cv_z(device: GapDevice, folds, effects: Sequence[str], basis: Sequence[str] | None = None,
+          descend: bool = True):
+    """:func:`_cv` plus, per comparison signal, the held-out residual over its noise floor
+    (``signal_z``, root mean square over the folds) with ``effects`` fitted on the fit part."""
+    g_base, g_eff, zs = [], [], {}
+    sz = getattr(device, "signal_z", None)
+    for val_part, rec, fitted in _fold_fits(device, folds, effects, basis, descend):
+        g_base.append(device.gap(val_part, rec))
+        g_eff.append(math.nan if fitted is None else device.gap(val_part, *fitted))
+        if sz is not None and fitted is not None:
+            for k, z in sz(val_part, *fitted).items():
+                zs.setdefault(k, []).append(z)
+    z_rms = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in zs.items()}
+    return g_base, g_eff, z_rms
 
 
-def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[TrialLog], *,
-                  margin: float = DEFAULT_MARGIN, n_validate: int = 4, max_effects: int = 2,
-                  confirm_top: int = 3) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The diagnosis on loaded logs. Returns (diagnosis dict, extras for the report)."""
+def collect_evidence(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[TrialLog], *,
+                     n_validate: int = 4, n_first: int = 2, n_pair: int = 2, max_effects: int = 2
+                     ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """Everything the decision needs that does not depend on a threshold.
+
+    Returns ``(diagnosis so far, evidence, context)``. The evidence (JSON-able) holds the
+    held-out gap per fold without any effect, with each of the ``n_validate`` best
+    screened effects, and with each pair made of one of the ``n_first`` best single
+    effects (by pooled held-out reduction, among those that lower every fold) and one of
+    the ``n_pair`` effects that fit best jointly with it; per selection, the held-out
+    ``signal_z`` and the ``--test`` gap once it is added. :func:`decide` turns it into
+    ``selected`` for any :class:`~cosim.gap.thresholds.Thresholds`; ``bench/bench_gap_cv.py``
+    caches it per device and chooses the thresholds by cross-validation over devices.
+    """
     t0 = time.perf_counter()
     out: dict[str, Any] = {"device": device.name}
     out["fit_logs"] = [str(lg.csv_path) for lg in fit]
     out["test_logs"] = [str(lg.csv_path) for lg in test]
-    try:
-        device.check_logs(fit, test)
-    except CannotDiagnose as e:
-        out.update({"cannot_diagnose": e.reason, "recalibrated": None, "localization": None,
-                    "candidates": [], "selected": [], "gap": {"metric": "nrmse", "test_before": None,
-                                                             "test_after": None}})
-        return out, {}
     rec = device.recalibrate(fit)
     plausibility.check_recalibrated(device, fit, rec)  # before any effect is fitted
     out["recalibrated"] = {k: float(rec[k]) for k in device.param_names}
@@ -387,112 +391,128 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
                       "refit_nominal": {k: v for k, v in nom.items() if k in device.param_names},
                       "screen_s": time.perf_counter() - ts0})
     cands.sort(key=lambda c: -c["explained"])
+    by_name = {c["effect"]: c for c in cands}
 
-    # ---- held-out selection inside the fit logs (leave one log out, or halves)
+    before = float(device.gap(test, rec))
+    acts = ({e: sorted(device.acts_on(e)) for e in device.effects} if hasattr(device, "acts_on") else None)
+    ev: dict[str, Any] = {"device": device.name, "test_before": before, "singles": {}, "pairs": {},
+                          "pair_firsts": [], "acts_on": acts, "gap_floor": getattr(device, "gap_floor", None),
+                          "explained": {c["effect"]: c["explained"] for c in cands}}
     fold_kind, folds = _folds(device, fit, rec)
-    out["heldout_folds"] = fold_kind
+    ev["fold_kind"] = fold_kind
     try:
         for c in cands[:n_validate]:
-            gb, ge = _cv(device, folds, [c["effect"]])
-            ok, pooled = _passes(gb, ge, margin)
-            c["heldout"] = {"gap_without": gb, "gap_with": ge, "reduction": _reduction(gb, ge),
-                            "pooled_reduction": pooled, "passes": ok}
+            gb, ge, z = _cv_z(device, folds, [c["effect"]])
+            after = float(device.gap(test, c["refit_nominal"], {c["effect"]: c["params"]}))
+            ev["singles"][c["effect"]] = {"gb": gb, "ge": ge, "z": z, "pooled": _pooled(gb, ge),
+                                          "reduction": _reduction(gb, ge), "test_after": after}
+        # pairs: effects mask each other (on EMPS the half-sample drive lag only shows once
+        # the friction asymmetry is modelled), so the second effect is looked for among all
+        # candidates, ranked by an in-sample joint fit, validated jointly on the folds
+        if max_effects > 1 and hasattr(device, "fit_effects"):
+            firsts = sorted((e for e, s in ev["singles"].items()
+                             if s["pooled"] > 0 and min(s["reduction"]) >= 0), key=lambda e: -ev["singles"][e]["pooled"])
+            quick = getattr(device, "fit_effects_quick", None)
+            for a in firsts[:n_first]:
+                ev["pair_firsts"].append(a)
+                ranked = []
+                for c in cands:
+                    if c["effect"] == a:
+                        continue
+                    g_joint = quick(fit, rec, [a, c["effect"]]) if quick is not None else \
+                        _fit_many(device, fit, rec, [a, c["effect"]])[1]
+                    if math.isfinite(g_joint):
+                        ranked.append((g_joint, c["effect"]))
+                ranked.sort(key=lambda gc: gc[0])
+                for _, b in ranked[:n_pair]:
+                    pair = [a, b]
+                    _, ge_pair, z = _cv_z(device, folds, pair)
+                    same = [id(fd) for fd in _folds_for(device, folds, pair)] == \
+                        [id(fd) for fd in _folds_for(device, folds, [a])]
+                    base = ev["singles"][a]["ge"] if same else _cv(device, folds, [a], basis=pair)[1]
+                    effs, _ = _fit_many(device, fit, rec, pair)
+                    if effs is None:
+                        continue
+                    nom_after, own_after = _apply(rec, effs)
+                    ev["pairs"][f"{a}+{b}"] = {
+                        "effects": pair, "gb": base, "ge": ge_pair, "z": z, "pooled": _pooled(base, ge_pair),
+                        "reduction": _reduction(base, ge_pair),
+                        "test_after": float(device.gap(test, nom_after, own_after)),
+                        "nominal_after": {k: float(v) for k, v in nom_after.items()}, "effects_after": own_after}
     except CannotDiagnose as e:          # halves too short: fall back to no selection
         out["heldout_note"] = f"held-out split impossible: {e.reason}"
-    selected: list[str] = []
-    passing = [c for c in cands if c.get("heldout", {}).get("passes")]
-    passing.sort(key=lambda c: -c["heldout"]["pooled_reduction"])
-    if passing:
-        selected.append(passing[0]["effect"])
-        # greedy: add another effect when, fitted jointly with the selection, it lowers
-        # the held-out gap further by the same margin. Every remaining candidate is
-        # tried, not only those that pass alone: effects mask each other (on EMPS the
-        # half-sample drive lag only shows once the friction asymmetry is modelled).
-        if max_effects > 1 and hasattr(device, "fit_effects"):
-            _, ge_sel = _cv(device, folds, selected)
-            while len(selected) < max_effects:
-                # in-sample joint fit of every remaining effect with the selection ranks
-                # them; the best n_validate are validated on the held-out folds
-                ranked = []
-                quick = getattr(device, "fit_effects_quick", None)
-                for c in cands:
-                    if c["effect"] in selected:
-                        continue
-                    if quick is not None:     # shapes held at their single fits: ranking only
-                        g_joint = quick(fit, rec, selected + [c["effect"]])
-                    else:
-                        _, g_joint = _fit_many(device, fit, rec, selected + [c["effect"]])
-                    if math.isfinite(g_joint):
-                        ranked.append((g_joint, c))
-                ranked.sort(key=lambda gc: gc[0])
-                best = None
-                for _, c in ranked[:n_validate]:
-                    pair = selected + [c["effect"]]
-                    _, ge_pair = _cv(device, folds, pair)
-                    same = [id(fd) for fd in _folds_for(device, folds, pair)] == \
-                        [id(fd) for fd in _folds_for(device, folds, selected)]
-                    base = ge_sel if same else _cv(device, folds, selected, basis=pair)[1]
-                    ok, pooled = _passes(base, ge_pair, margin)
-                    c.setdefault("heldout", {})["added_to_selection"] = _reduction(base, ge_pair)
-                    c["heldout"]["added_pooled_reduction"] = pooled
-                    if ok and (best is None or pooled > best[0]):
-                        best = (pooled, c, ge_pair)
-                if best is None:
-                    break
-                selected.append(best[1]["effect"])
-                ge_sel = best[2]
-    # held-out residual after the selection vs the device's noise floor: estimated from
-    # the held-out data themselves when the device can (``noise_floor``), else a constant
-    floor = getattr(device, "gap_floor", None)
+    ev["base_heldout"] = [float(device.gap(v, device.recalibrate(f))) for f, v, _ in folds]
+    sz = getattr(device, "signal_z", None)
+    if sz is not None:          # per signal, the held-out residual over its floor without any effect
+        zs: dict[str, list[float]] = {}
+        for f, v, _ in folds:
+            for k, z in sz(v, device.recalibrate(f)).items():
+                zs.setdefault(k, []).append(z)
+        ev["base_z"] = {k: float(np.sqrt(np.mean(np.square(z)))) for k, z in zs.items()}
     nf = getattr(device, "noise_floor", None)
     if nf is not None:
         fl = [float(nf(v)["gap"]) for _, v, _ in folds]
-        out["noise_floor"] = float(np.sqrt(np.mean(np.square(fl))))
-        out["unknown_factor"] = UNKNOWN_FACTOR
-        floor = UNKNOWN_FACTOR * out["noise_floor"]
-    if len(selected) == 1:
-        ge = passing[0]["heldout"]["gap_with"]
-    elif selected:
-        _, ge = _cv(device, folds, selected)
-    else:
-        ge = [device.gap(v, device.recalibrate(f)) for f, v, _ in folds]
-    resid_heldout = float(np.sqrt(np.mean(np.square(ge))))
-    out["heldout_residual_gap"] = resid_heldout
-    out["gap_floor"] = floor
-    if not selected and floor is not None and resid_heldout > floor:
-        selected = ["unknown"]
-    # per-signal check of the selection on the held-out folds: a comparison signal
-    # left far above its own noise floor holds a gap the selection does not explain.
-    # If none of the selected effects acts on that signal, the catalogue explanation
-    # is contradicted there (one cause should explain the gap in every signal where
-    # it lies, and no further catalogue effect passed): ``unknown``. If a selected
-    # effect acts on it, the selection is kept and ``unknown`` is added (partial).
-    sz = getattr(device, "signal_z", None)
-    if sz is not None and selected and selected != ["unknown"]:
-        zs: dict[str, list[float]] = {}
-        for v, r, fitted in _fold_fits(device, folds, selected):
-            for k, z in sz(v, *(fitted or (r, {}))).items():
-                zs.setdefault(k, []).append(z)
-        z_sel = {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in zs.items()}
-        out["heldout_signal_z"] = z_sel
-        out["signal_z_limit"] = SIGNAL_Z_LIMIT
-        acts = set().union(*[device.acts_on(e) for e in selected]) if hasattr(device, "acts_on") else None
-        left = [k for k, z in z_sel.items() if z > SIGNAL_Z_LIMIT]
-        if left:
-            out["unexplained_signals"] = left
-            if acts is not None and not set(left) & acts:
-                out["selected_before_signal_check"] = list(selected)
-                selected = ["unknown"]
-            else:
-                selected = selected + ["unknown"]
+        ev["noise_floor"] = float(np.sqrt(np.mean(np.square(fl))))
+    ev["evidence_s"] = time.perf_counter() - t0
+    ctx = {"rec": rec, "cands": cands, "by_name": by_name, "folds": folds, "g_fit": g_fit, "t0": t0}
+    return out, ev, ctx
+
+
+def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[TrialLog], *,
+                  margin: float | None = None, thresholds: Thresholds | None = None, n_validate: int = 4,
+                  max_effects: int = 2, confirm_top: int = 3) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The diagnosis on loaded logs: :func:`collect_evidence`, :func:`decide` with the
+    device's chosen thresholds (:func:`cosim.gap.thresholds.thresholds_for`; ``margin``
+    overrides that one value), FMU confirmation, the test gap.
+    Returns (diagnosis dict, extras for the report)."""
+    th = thresholds or thresholds_for(device.name)
+    if margin is not None:
+        th = th.with_(margin=float(margin))
+    try:
+        device.check_logs(fit, test)
+    except CannotDiagnose as e:
+        out = {"device": device.name, "fit_logs": [str(lg.csv_path) for lg in fit],
+               "test_logs": [str(lg.csv_path) for lg in test]}
+        out.update({"cannot_diagnose": e.reason, "recalibrated": None, "localization": None,
+                    "candidates": [], "selected": [], "gap": {"metric": "nrmse", "test_before": None,
+                                                             "test_after": None}})
+        return out, {}
+    out, ev, ctx = collect_evidence(device, fit, test, n_validate=n_validate, max_effects=max_effects)
+    rec, cands, by_name, folds, g_fit, t0 = (ctx[k] for k in ("rec", "cands", "by_name", "folds", "g_fit", "t0"))
+    out["heldout_folds"] = ev["fold_kind"]
+    dec = decide(ev, th)
+    for e, s in ev["singles"].items():
+        by_name[e]["heldout"] = {"gap_without": s["gb"], "gap_with": s["ge"], "reduction": s["reduction"],
+                                 "pooled_reduction": s["pooled"], "passes": dec["verdicts"][e]["passes"]}
+    for e, v in dec["verdicts"].items():
+        if "added_to_selection" in v:
+            by_name[e].setdefault("heldout", {}).update(
+                {"added_to_selection": v["added_to_selection"], "added_pooled_reduction": v["added_pooled_reduction"]})
+    nf = ev.get("noise_floor")
+    if nf is not None:
+        out["noise_floor"] = nf
+        out["unknown_factor"] = th.unknown_factor
+    out["heldout_residual_gap"] = dec["heldout_residual_gap"]
+    out["gap_floor"] = dec["gap_floor"]
+    for k in ("heldout_signal_z", "unexplained_signals", "selected_before_signal_check", "ambiguous",
+              "ambiguity", "decision_notes"):
+        if k in dec:
+            out[k] = dec[k]
+    if "heldout_signal_z" in dec:
+        out["signal_z_limit"] = th.signal_z_limit
+    selected = dec["selected"]
     out["selected"] = selected
-    out["selection_rule"] = (f"an effect is selected when fitting it on part of the fit logs lowers the "
-                             f"gap energy on the held-out parts ({fold_kind}) by >= {margin:.0%} pooled over the folds and "
-                             f"by >= {margin / 2:.0%} in every fold; 'unknown' when "
-                             f"none does and the held-out gap exceeds "
-                             + (f"{UNKNOWN_FACTOR:g} x the sensor-noise floor estimated from the held-out "
-                                f"parts ({floor:.4f})" if nf is not None else
-                                f"the device's noise floor ({floor if floor is not None else 'none declared'})"))
+    out["thresholds"] = {"values": th.as_dict(), "chosen_by": provenance_for(device.name)}
+    floor = dec["gap_floor"]
+    out["selection_rule"] = (
+        f"an effect is selected when fitting it on part of the fit logs lowers the gap energy on the held-out "
+        f"parts ({ev['fold_kind']}) by >= {th.margin:.0%} pooled over the folds and by >= "
+        f"{th.fold_factor * th.margin:.0%} in every fold; a second one when, fitted jointly, it lowers it further "
+        f"by >= {th.pair_margin:.0%}; 'unknown' when none does and the held-out gap exceeds "
+        + (f"{th.unknown_factor:g} x the sensor-noise floor estimated from the held-out parts ({floor:.4f})"
+           if nf is not None else f"the device's noise floor ({floor if floor is not None else 'none declared'})")
+        + f", or when a signal stays above {th.signal_z_limit:g} x its floor; thresholds: "
+        + provenance_for(device.name))
 
     # ---- FMU confirmation of the top candidates (same replay without the effect as reference)
     try:
@@ -509,19 +529,18 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
         c["confirm_gap"] = cg
     out["candidates"] = cands
 
-    # ---- shrinkage on the test logs
-    eff_sel = {c["effect"]: c for c in cands if c["effect"] in selected}
-    if eff_sel:
-        if len(eff_sel) == 1:
-            c = next(iter(eff_sel.values()))
-            nom_after, effects_after = dict(c["refit_nominal"]), {c["effect"]: c["params"]}
-        else:
-            effs, _ = _fit_many(device, fit, rec, list(eff_sel))
-            nom_after, effects_after = _apply(rec, effs)
+    # ---- shrinkage on the test logs (the evidence holds the fits of every possible selection)
+    eff = dec["effects_after"]
+    if len(eff) == 1:
+        c = by_name[eff[0]]
+        nom_after, effects_after = dict(c["refit_nominal"]), {c["effect"]: c["params"]}
+    elif eff:
+        pr = ev["pairs"]["+".join(eff)]
+        nom_after, effects_after = dict(pr["nominal_after"]), dict(pr["effects_after"])
     else:
         nom_after, effects_after = dict(rec), {}
-    before = device.gap(test, rec)
-    after = device.gap(test, nom_after, effects_after) if effects_after else before
+    before = ev["test_before"]
+    after = dec["test_after"]
     out["gap"] = {"metric": "nrmse", "fit": float(g_fit), "test_before": float(before),
                   "test_after": float(after), "shrink": float(after / before) if before > 0 else None}
     gp = getattr(device, "gap_parts", None)
@@ -529,11 +548,12 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
         out["gap"]["signals_before"] = gp(test, rec)
         out["gap"]["signals_after"] = gp(test, nom_after, effects_after) if effects_after \
             else out["gap"]["signals_before"]
-    if nf is not None:
-        out["gap"]["test_noise_floor"] = nf(test)
+    nfun = getattr(device, "noise_floor", None)
+    if nfun is not None:
+        out["gap"]["test_noise_floor"] = nfun(test)
     out["runtime_s"] = time.perf_counter() - t0
     extras = {"device": device, "fit": fit, "test": test, "rec": rec, "nom_after": nom_after,
-              "effects_after": effects_after,
+              "effects_after": effects_after, "evidence": ev,
               "plot_data": _plot_data(device, fit, test, rec, nom_after, effects_after)}
     return out, extras
 

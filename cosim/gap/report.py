@@ -155,6 +155,12 @@ def render_report(result: Mapping[str, Any], extras: Mapping[str, Any]) -> str:
                          "FMU confirm gap": c.get("confirm_gap") if c.get("confirm_gap") is not None else "n/a"})
         parts.append(_table(rows, ["effect", "explained", "params", "held-out reduction", "passes", "FMU confirm gap"]))
         parts.append(f"<p>{html.escape(result.get('selection_rule', ''))}</p>")
+        if result.get("ambiguous"):
+            amb = result.get("ambiguity") or {}
+            parts.append("<h3>Not separated by these logs</h3><p>"
+                         + html.escape(f"ambiguous: {', '.join(result['ambiguous'])}. A trial that would tell "
+                                       f"them apart: {amb.get('separating_trial', '')}. Evidence: "
+                                       f"{json.dumps(amb.get('evidence', {}))}") + "</p>")
         if extras:
             try:
                 for title, img in _figures(result, extras):

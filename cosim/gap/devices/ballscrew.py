@@ -84,12 +84,12 @@ def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Least squares through the normal equations of the column-scaled problem (the
     regressions have a few columns and 10^4-10^5 rows: ~20x faster than an SVD of A);
     a (near-)singular Gram matrix falls back to its minimum-norm solution."""
-    nrm = np.linalg.norm(A, axis=0)
+    G = A.T @ A                     # the scaled Gram matrix from the unscaled one: no copy of A
+    nrm = np.sqrt(np.diag(G)).copy()
     nrm[nrm == 0] = 1.0
-    As = A / nrm
-    G = As.T @ As
-    r = As.T @ b
-    x, *_ = np.linalg.lstsq(G, r, rcond=1e-12)
+    Gs = G / np.outer(nrm, nrm)
+    r = (A.T @ b) / nrm
+    x, *_ = np.linalg.lstsq(Gs, r, rcond=1e-12)
     return x / nrm
 
 
@@ -541,14 +541,15 @@ class BallscrewDevice:
         out, g = self.fit_effects(logs, params, [effect])
         return out[effect], g
 
-    def fit_effects(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects: Sequence[str]
-                    ) -> tuple[dict[str, dict[str, float]], float]:
+    def fit_effects(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects: Sequence[str],
+                    descend: bool = True) -> tuple[dict[str, dict[str, float]], float]:
         """Fit several effects jointly, with J, b, fc (and Kt when free), on ``logs``.
 
         Each effect starts from its own best fit alone (grid, then Nelder-Mead on its
         nonlinear parameters); with several effects, two passes of coordinate descent
-        search one effect's nonlinear parameters with the others held; the linear
-        coefficients of all of them (and the nominal ones) are always solved jointly.
+        search one effect's nonlinear parameters with the others held (``descend=False``:
+        none, the shapes stay at their fits alone); the linear coefficients of all of them
+        (and the nominal ones) are always solved jointly.
         Returns ``({effect: params with the common "nominal.*" re-fit}, fit gap)``.
         """
         nom = self._nominal(logs[0])
@@ -558,13 +559,17 @@ class BallscrewDevice:
             cfg[e] = self._alone(logs, params, e, kt_free)[1][e]
         g, coef = self._fit_cfg(logs, params, cfg, kt_free)
         best = (g, cfg, coef)
-        if len(effects) > 1:
+        if len(effects) > 1 and descend:
             for _ in range(1):
                 for e in effects:
                     if cfg[e]:
                         best = self._search(logs, params, best, e, kt_free)
                 cfg = best[1]
         g, cfg, coef = best
+        settled = self._settle(logs, cfg)
+        if settled != cfg:
+            cfg = settled
+            g, coef = self._fit_cfg(logs, params, cfg, kt_free)
         phys = self._to_physical(coef, kt_free, params["Kt"])
         out = {}
         for e in effects:
@@ -573,6 +578,16 @@ class BallscrewDevice:
                 o[NOMINAL_PREFIX + k] = phys[k]
             out[e] = o
         return out, g
+
+    def _settle(self, logs, cfg: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, float]]:
+        """Each effect's fitted nonlinear parameters through its form's ``settle`` (what the
+        fit logs can tell, see :class:`cosim.gap.effects.base.BallscrewForm`)."""
+        preps = [self._prep(lg) for lg in logs]
+        out = {}
+        for e, nl in cfg.items():
+            st = CATALOGUE[e].ballscrew.settle
+            out[e] = st(nl, preps) if (st is not None and nl) else dict(nl)
+        return out
 
     def fit_effects_quick(self, logs: Sequence[TrialLog], params: Mapping[str, float],
                           effects: Sequence[str]) -> float:

@@ -302,13 +302,15 @@ class EmpsDevice:
         return p[effect], g
 
     def fit_effects(self, logs: Sequence[TrialLog], params: Mapping[str, float],
-                    effects: Sequence[str]) -> tuple[dict[str, dict[str, float]], float]:
+                    effects: Sequence[str], descend: bool = True) -> tuple[dict[str, dict[str, float]], float]:
         """Fit several effects jointly (with the nominal parameters) on ``logs``.
 
         Shape parameters by grid search, one effect at a time, two passes (coordinate
         descent); returns each effect's parameters (with the common ``nominal.*``
         re-fit in each) and the fit gap. (An addition to the protocol: the engine's
         ``fit_effect`` fits one; the joint fit is what a combination should use.)
+        ``descend`` is accepted for the engine and ignored: this fit is cheap, it always
+        descends.
         """
         _check_effects(effects)
         off0 = float(params["offset"])

@@ -70,7 +70,8 @@ class BallscrewForm:
     ``acc_only``: coefficients of, or shared with, the acceleration equation, which are
     not torques); ``acts_on``: the comparison signals it changes; ``driver_stage``: order
     along the driver for current-path effects; ``along_travel``: the shape varies along
-    the travel (held-out trials validate it only inside the fitted range).
+    the travel (held-out trials validate it only inside the fitted range); ``settle``:
+    see the field.
     ``to_report(nl, coefs, nom)`` and
     ``from_report(params)`` convert between the regression form and the reported
     (FMU-named) parameters, when they differ.
@@ -88,6 +89,10 @@ class BallscrewForm:
     to_report: Callable[[Mapping[str, float], Mapping[str, float], Mapping[str, float]],
                         dict[str, float]] | None = None
     from_report: Callable[[Mapping[str, float]], tuple[dict[str, float], dict[str, float]]] | None = None
+    #: ``settle(nl, preps)``: the fitted nonlinear parameters made what the fit logs can
+    #: tell (e.g. a clip limit above every fitted command is "no clip seen": off, not a
+    #: limit just above the fit part's peak that a faster held-out trial would hit)
+    settle: Callable[[Mapping[str, float], Sequence[Any]], dict[str, float]] | None = None
 
 
 def _no_shape(prm: Mapping[str, float]) -> dict[str, float]:

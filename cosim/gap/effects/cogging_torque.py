@@ -6,6 +6,11 @@ import numpy as np
 from .base import BALLSCREW, BallscrewForm, Effect, Terms, params, uniform
 
 
+#: ripple periods per revolution searched: slot x pole combinations of small BLDC motors reach
+#: 30-48 (the independent simulator's 30-per-revolution device was missed by a grid ending at 24)
+_N_MAX = 48
+
+
 def _terms(p, nl, nom):
     # the ripple tau_cog = A sin(n theta + phi) adds to the motor torque (sin/cos columns)
     n = nl["n_cog"]
@@ -27,7 +32,7 @@ EFFECT = Effect(
     params(A_cog=("N.m", 0.0, 0.0, 5e-3, "ripple amplitude"),
            n_cog=("1", 6.0, 1.0, 24.0, "ripple periods per motor revolution (irrelevant while A_cog = 0)"),
            phi_cog=("rad", 0.0, -math.pi, math.pi, "ripple phase at theta = 0")),
-    BallscrewForm(_terms, grid=lambda preps: [{"n_cog": float(k)} for k in range(1, 25)],
+    BallscrewForm(_terms, grid=lambda preps: [{"n_cog": float(k)} for k in range(1, _N_MAX + 1)],
                   linear=("A_cog_sin", "A_cog_cos"), to_report=_to_report, from_report=_from_report),
     # ripple amplitude 0.5-1 fc, 4-12 periods per revolution
     lambda r: {"amp": uniform(r, 0.5, 1.0) * 3e-3, "n": float(r.choice([4, 6, 8, 12])),

@@ -16,10 +16,19 @@ def _grid(preps):
                                                         0.99, 0.995, 0.999]) if 0 < q < amax]
 
 
+def _settle(nl, preps):
+    # a limit at or above every command of the fit logs clipped nothing there: the logs
+    # say "no clip up to their peak", not "a clip just above it" (the held-out fast trial
+    # would be clipped at a level no data chose); off (the FMU's 1000 A) instead
+    amax = max((float(np.max(np.abs(p.i))) for p in preps), default=0.0)
+    return {"i_lim": 1000.0} if nl.get("i_lim", 1000.0) >= amax else dict(nl)
+
+
 EFFECT = Effect(
     "current_saturation", "the driver clips the current at a limit", "CurrentSaturation", (BALLSCREW,),
     params(i_lim=("A", 1000.0, 0.01, 1000.0, "current limit (1000 A: never reached)")),
-    BallscrewForm(_terms, grid=_grid, refine=("i_lim",), bounds={"i_lim": (1e-3, 1e3)}, driver_stage=2),
+    BallscrewForm(_terms, grid=_grid, refine=("i_lim",), bounds={"i_lim": (1e-3, 1e3)}, driver_stage=2,
+                  settle=_settle),
     # clip at 1.1-1.5 x the command rms (0.15 A)
     lambda r: {"i_max_rms": uniform(r, 1.1, 1.5)},
 )
