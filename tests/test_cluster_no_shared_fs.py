@@ -13,7 +13,7 @@ What the test proves:
   client's folder nor its FMUs, and the path-based submission (``ship=False``) fails
   for every run;
 - with shipping (the default with ``--scheduler``), every run of
-  ``scenarios/zero_force.yaml`` (12 runs with the negative controls) runs on that
+  ``scenarios/zero_force.yaml`` (all its runs with the negative controls) runs on that
   worker and the client alone writes the output folder: the verdicts pass, the run
   folders are root's (written by this process), the provenance names the client's FMU
   paths, one Parquet file equals bit for bit a run made in this process, and the
@@ -35,6 +35,16 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def _count_runs(path) -> int:
+    from cosim.scenarios.schema import load
+    from cosim.scenarios.verdict import all_runs
+    return len(all_runs(load(path)))
+
+
+#: the thesis zero-force scenario's runs, its negative controls' included
+N_ZERO_FORCE_RUNS = _count_runs(REPO / "scenarios" / "zero_force.yaml")
 PYBASE = Path(sys.base_prefix)            # the interpreter the venv points to
 NOBODY = 65534
 
@@ -171,7 +181,7 @@ def test_path_based_runs_fail_on_that_worker(cluster, client_dir):
                   fmu_dir=client_dir / "fmus", progress=False, ship=False)
     assert s["status"] == "error"
     infos = [json.loads(f.read_text()) for f in out.glob("*/runs/*/run.json")]
-    assert len(infos) == s["runs_executed"] == 12
+    assert len(infos) == s["runs_executed"] == N_ZERO_FORCE_RUNS
     assert all(i["status"] == "error" for i in infos)
     assert any("Permission" in i["error"] or "cannot read" in i["error"] for i in infos)
 
@@ -191,9 +201,9 @@ def test_shipped_runs_on_worker_without_client_fs(cluster, client_dir):
     scen = client_dir / "scen" / "zero_force.yaml"
     s = run_suite([scen], out, scheduler=address, fmu_dir=client_dir / "fmus", progress=False)
     assert s["status"] == "pass", s["scenarios"][0]["errors"]
-    assert s["runs_executed"] == 12 and s["runs_cached"] == 0
+    assert s["runs_executed"] == N_ZERO_FORCE_RUNS and s["runs_cached"] == 0
     run_dirs = sorted(p.parent for p in out.glob("*/runs/*/run.json"))
-    assert len(run_dirs) == 12
+    assert len(run_dirs) == N_ZERO_FORCE_RUNS
     for d in run_dirs:
         assert d.stat().st_uid == 0 and all(f.stat().st_uid == 0 for f in d.iterdir())
         info = json.loads((d / "run.json").read_text())
@@ -222,7 +232,7 @@ def test_shipped_runs_on_worker_without_client_fs(cluster, client_dir):
             np.testing.assert_array_equal(a[k], b[k])
     # a rerun reuses every stored run (the cache keys are the client's)
     s2 = run_suite([scen], out, scheduler=address, fmu_dir=client_dir / "fmus", progress=False)
-    assert s2["runs_executed"] == 0 and s2["runs_cached"] == 12
+    assert s2["runs_executed"] == 0 and s2["runs_cached"] == N_ZERO_FORCE_RUNS
 
 
 def test_shipped_run_in_process_with_swap(tmp_path):

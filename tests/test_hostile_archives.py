@@ -221,5 +221,6 @@ def test_cache_is_per_user_and_version_and_printed_by_version(tmp_path, monkeypa
     with pytest.raises(SystemExit) as e:
         main(["--version"])
     out = capsys.readouterr().out
-    assert e.value.code == 0 and out.startswith(f"cosim {cosim.__version__} ")
+    assert e.value.code == 0 and out.startswith("cosim ")
+    assert f" {cosim.__version__} " in out.splitlines()[0]
     assert str(tmp_path / "xdg" / "rehab-cosim" / cosim.__version__) in out
