@@ -239,8 +239,8 @@ ASSUMPTIONS: tuple[Assumption, ...] = (
        "check of the effective gain"),
     _A("patient S3 (dementia, Table 5)", "attention cycle (lapse period = duration)", 30.0, "s",
        (f"{_PAT}[S3].overrides[lapse_period]", f"{_PAT}[S3].overrides[lapse_duration]"),
-       "calibrated", "calibrated with scale_K on the same Table 8 trial-1 total (28.67 mm; "
-       "session 3, with the former 1 N x friction and scale_K 0.3): attention follows a "
+       "calibrated", "calibrated with scale_K on the same Table 8 trial-1 total (28.67 mm, "
+       "with a 1 N x friction and scale_K 0.3): attention follows a "
        "raised cosine between 1 and att_min over 30 s; the earlier 10 s lapses every 20 s "
        "gave 7.5 mm, a quarter of Table 8"),
     _A("patient S3 (dementia, Table 5)", "attention at the middle of a lapse", 0.0, "1",

@@ -57,7 +57,8 @@ from .thresholds import DEFAULTS, Thresholds, provenance_for, thresholds_for
 
 __all__ = ["diagnose", "localize", "run_diagnosis", "collect_evidence", "decide", "DEFAULT_MARGIN"]
 
-#: the thresholds of the method before issue 21 (the chosen ones: :mod:`cosim.gap.thresholds`)
+#: the method's hand-set default thresholds, not cross-validated (the chosen ones:
+#: :mod:`cosim.gap.thresholds`)
 DEFAULT_MARGIN = DEFAULTS.margin
 UNKNOWN_FACTOR = DEFAULTS.unknown_factor
 SIGNAL_Z_LIMIT = DEFAULTS.signal_z_limit

@@ -12,8 +12,8 @@ The diagnosis (:mod:`cosim.gap.diagnose`) is split in two stages:
 The values used by ``cosim gap diagnose`` are read from ``thresholds.json`` beside this
 module, per device, with their provenance (which data chose them, by which procedure,
 the grid searched and the cross-validated score). ``bench/bench_gap_cv.py --write``
-writes that file; a device without an entry uses :data:`DEFAULTS` (the values of the
-method before issue 21, kept for EMPS whose recalibration is checked against the
+writes that file; a device without an entry uses :data:`DEFAULTS` (the hand-set values,
+not cross-validated; EMPS uses them, its recalibration is checked against the
 publication).
 """
 from __future__ import annotations
@@ -65,7 +65,7 @@ class Thresholds:
         return asdict(self)
 
 
-#: the method's values before issue 21 (margin from the project's blind seed 0, the
+#: the hand-set values (margin from the project's blind seed 0, the
 #: per-fold half, UNKNOWN_FACTOR 2, SIGNAL_Z_LIMIT 4 from gap-dev): the EMPS device keeps them
 DEFAULTS = Thresholds()
 
@@ -108,4 +108,4 @@ def thresholds_for(device: str) -> Thresholds:
 def provenance_for(device: str) -> str:
     """How the thresholds of ``device`` were chosen (one line)."""
     entry = _table().get(device)
-    return str(entry.get("chosen_by", "")) if entry else "defaults of the method before issue 21 (not cross-validated)"
+    return str(entry.get("chosen_by", "")) if entry else "the hand-set defaults (not cross-validated)"

@@ -1,4 +1,4 @@
-"""The parts of a page that make it a record a person signs (issue 22): who made the
+"""The parts of a page that make it a record a person signs: who made the
 results, when, where and with which package; a sign-off block; the configuration that
 actually ran; every sweep's requirement values against the swept value."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Scenario files, runs, suites on Dask and their verdicts (issue 4, issue 10).
+"""Scenario files, runs, suites on Dask and their verdicts.
 
 One module per job:
 

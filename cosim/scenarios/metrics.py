@@ -1,4 +1,4 @@
-"""Metrics a system engineer needs without writing code (issue 22).
+"""Metrics a system engineer needs without writing code.
 
 Step-response figures (rise time, settling time, overshoot, steady-state error),
 errors between two signals (RMS, peak), a bandwidth from a recorded response and

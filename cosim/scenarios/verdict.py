@@ -317,7 +317,7 @@ def evaluate(sc: Scenario, out_dir) -> dict:
 
 
 def summary_row(r: dict) -> dict:
-    """The per-requirement record of summary.json (issue 10): id, verdict, value, limit
+    """The per-requirement record of summary.json: id, verdict, value, limit
     and the negative control's what / value / held, plus the rest of the row."""
     nc = r.get("negative_control")
     out = {"id": r["id"], "verdict": r["verdict"], "value": r["value"], "limit": r["limit"],
