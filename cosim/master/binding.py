@@ -355,30 +355,13 @@ class BoundSlave(FMUSlave):
                 continue
             where = f"{cv!r}" + (f" (the FMU's {fname!r})" if fname != cv else "")
             declared, fu = b.units.get(cv), v.unit
-            unit = declared or fu
             if fname != cv:
                 self._renamed[fname] = cv
             if v.type != "Real":
                 bound[cv] = dataclasses.replace(v, name=cv)
                 continue        # the contract check says the type is wrong
-            if not unit:
-                diffs.append(f"{where} has no unit in the FMU and the binding declares none: "
-                             f"declare the unit of its values, units: {{{cv}: {cunit}}} if "
-                             f"they are in {cunit}")
-                reported.add(cv)
-                continue
-            if declared and fu and norm(declared) != norm(fu):
-                a, d = base_unit(fu, defs), base_unit(declared, defs)
-                if a is not None and d is not None and a != d:
-                    diffs.append(f"{where}: the binding declares unit {declared!r}, the FMU "
-                                 f"declares {fu!r}")
-                    reported.add(cv)
-                    continue
-            src = base_unit(unit, defs)      # a unit the FMU defines, else the syntax
-            msg = unit_problem(where, unit, src, cunit)
+            msg, src = _bound_unit(where, cv, declared, fu, cunit, defs, "its values")
             if msg:
-                if src is None and not declared:    # the FMU's own, unknown unit string
-                    msg += f" (declare what it means: units: {{{cv}: ...}})"
                 diffs.append(msg)
                 reported.add(cv)
                 continue
@@ -451,22 +434,7 @@ class BoundSlave(FMUSlave):
                 reported.add(cp)
                 continue
             declared, fu = b.units.get(cp), v.unit
-            unit = declared or fu
-            if not unit:
-                diffs.append(f"{where} has no unit in the FMU and the binding declares none: "
-                             f"declare the unit of its value, units: {{{cp}: {cunit}}} if it "
-                             f"is in {cunit}")
-                reported.add(cp)
-                continue
-            if declared and fu and norm(declared) != norm(fu):
-                a, d = base_unit(fu, defs), base_unit(declared, defs)
-                if a is not None and d is not None and a != d:
-                    diffs.append(f"{where}: the binding declares unit {declared!r}, the FMU "
-                                 f"declares {fu!r}")
-                    reported.add(cp)
-                    continue
-            src = base_unit(unit, defs)
-            msg = unit_problem(where, unit, src, cunit)
+            msg, src = _bound_unit(where, cp, declared, fu, cunit, defs, "its value")
             if msg:
                 diffs.append(msg)
                 reported.add(cp)
@@ -597,3 +565,28 @@ def _converting_set(set_, conv):
             tmp[i] = (tmp[i] - o) / g
         return set_(comp, vr, n, tmp, *rest)
     return set_converted
+
+
+def _bound_unit(where: str, name: str, declared: str | None, fu: str | None, cunit: str,
+                defs, what: str) -> tuple[str | None, object]:
+    """The unit a bound variable or parameter's values are in: ``(problem, base unit)``.
+
+    ``declared`` is the binding's unit, ``fu`` the FMU's, ``cunit`` the role's; a unit
+    the FMU defines (``defs``) is read through its definition, any other by its syntax.
+    ``problem`` is the message when the values' unit is missing, contradicts the FMU's,
+    or does not convert to the role's; ``what`` says what the unit is of."""
+    unit = declared or fu
+    if not unit:
+        verb = "they are" if what.endswith("values") else "it is"
+        return (f"{where} has no unit in the FMU and the binding declares none: declare the "
+                f"unit of {what}, units: {{{name}: {cunit}}} if {verb} in {cunit}"), None
+    if declared and fu and norm(declared) != norm(fu):
+        a, d = base_unit(fu, defs), base_unit(declared, defs)
+        if a is not None and d is not None and a != d:
+            return (f"{where}: the binding declares unit {declared!r}, the FMU declares "
+                    f"{fu!r}"), None
+    src = base_unit(unit, defs)
+    msg = unit_problem(where, unit, src, cunit)
+    if msg and src is None and not declared:      # the FMU's own, unknown unit string
+        msg += f" (declare what it means: units: {{{name}: ...}})"
+    return msg, src
