@@ -21,6 +21,7 @@ What the test proves:
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -87,9 +88,11 @@ def _worker_cmd(wdir: Path, address: str) -> list[str]:
     return ["unshare", "-m", "--propagation", "private", "sh", "-c", inner]
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    wdir = Path(tempfile.mkdtemp(prefix="cosim-worker-"))
+@contextlib.contextmanager
+def sandboxed_cluster(prefix: str = "cosim-worker-"):
+    """A ``dask scheduler`` and a ``dask worker`` running as nobody in its own mount
+    namespace, with its own copy of the package: yields (address, worker folder)."""
+    wdir = Path(tempfile.mkdtemp(prefix=prefix))
     procs = []
     try:
         os.chmod(wdir, 0o755)
@@ -132,6 +135,12 @@ def cluster():
                 except ProcessLookupError:
                     pass
         shutil.rmtree(wdir, ignore_errors=True)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with sandboxed_cluster() as c:
+        yield c
 
 
 @pytest.fixture(scope="module")

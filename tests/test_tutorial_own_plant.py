@@ -10,14 +10,11 @@ otherwise.
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -112,51 +109,12 @@ def test_local_run_passes_with_units_and_physics(local):
 def cluster():
     """A ``dask scheduler`` and a ``dask worker`` running as nobody in its own mount
     namespace, with its own copy of the package (tests/test_cluster_no_shared_fs.py)."""
-    from test_cluster_no_shared_fs import _can_sandbox, _worker_cmd
+    from test_cluster_no_shared_fs import _can_sandbox, sandboxed_cluster
     why = _can_sandbox()
     if why:
         pytest.skip(why)
-    wdir = Path(tempfile.mkdtemp(prefix="cosim-ps114-worker-"))
-    procs = []
-    try:
-        os.chmod(wdir, 0o755)
-        (wdir / "py").mkdir()
-        (wdir / "tmp").mkdir()
-        os.chown(wdir / "tmp", NOBODY, NOBODY)
-        shutil.copytree(REPO / "cosim", wdir / "pkg" / "cosim",
-                        ignore=shutil.ignore_patterns("__pycache__"))
-        subprocess.run(["chmod", "-R", "a+rX", str(wdir / "pkg")], check=True)
-        sfile = wdir / "scheduler.json"
-        procs.append(subprocess.Popen(
-            [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-             "--port", "0", "--no-dashboard", "--scheduler-file", str(sfile)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
-        t0 = time.time()
-        address = None               # the scheduler writes its file after creating it
-        while address is None and time.time() - t0 < 60:
-            try:
-                address = json.loads(sfile.read_text())["address"]
-            except (OSError, ValueError, KeyError):
-                time.sleep(0.1)
-        assert address, "the dask scheduler did not start within 60 s"
-        log = open(wdir / "worker.log", "wb")
-        procs.append(subprocess.Popen(_worker_cmd(wdir, address), stdout=log, stderr=log,
-                                      start_new_session=True))
-        from distributed import Client
-        with Client(address, timeout="10s") as c:
-            c.wait_for_workers(1, timeout=60)
-        yield address, wdir
-    finally:
-        for p in reversed(procs):
-            try:
-                os.killpg(p.pid, signal.SIGTERM)
-                p.wait(timeout=15)
-            except (ProcessLookupError, subprocess.TimeoutExpired):
-                try:
-                    os.killpg(p.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
-        shutil.rmtree(wdir, ignore_errors=True)
+    with sandboxed_cluster("cosim-ps114-worker-") as c:
+        yield c
 
 
 def _probe(path):
