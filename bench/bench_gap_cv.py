@@ -55,7 +55,7 @@ from cosim.paths import independent_dir  # noqa: E402
 
 DEVICE = "ballscrew-1dof"
 #: the source files whose change changes the evidence (the decision stage's are left out)
-_EVIDENCE_SOURCES = ("cosim/gap", "cosim/trial_log.py", "cosim/gap/effects", "cosim/gap/devices")
+_EVIDENCE_SOURCES = ("cosim/gap", "cosim/logs/trial_log.py", "cosim/gap/effects", "cosim/gap/devices")
 _NOT_EVIDENCE = {"thresholds.py", "decision.py", "report.py", "cli.py", "thresholds.json"}
 
 
