@@ -224,3 +224,26 @@ def test_cache_is_per_user_and_version_and_printed_by_version(tmp_path, monkeypa
     assert e.value.code == 0 and out.startswith("cosim ")
     assert f" {cosim.__version__} " in out.splitlines()[0]
     assert str(tmp_path / "xdg" / "rehab-cosim" / cosim.__version__) in out
+
+
+def test_a_member_listed_twice_with_the_same_bytes_is_extracted_once(tmp_path):
+    """Reference-FMUs' Roberts lists its extra/ files twice, byte for byte: that archive
+    unpacks; a second member of the same name with other bytes is refused, naming it."""
+    import warnings
+    same = tmp_path / "same.zip"
+    other = tmp_path / "other.zip"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)      # zipfile: "Duplicate name"
+        with zipfile.ZipFile(same, "w") as z:
+            z.writestr("extra/m.xml", b"<m/>")
+            z.writestr("extra/m.xml", b"<m/>")
+            z.writestr("a.txt", b"a")
+        with zipfile.ZipFile(other, "w") as z:
+            z.writestr("extra/m.xml", b"<m/>")
+            z.writestr("extra/m.xml", b"<evil/>")
+    dest = unpack.extract_archive(same, tmp_path / "d1")
+    assert (dest / "extra" / "m.xml").read_bytes() == b"<m/>"
+    assert (dest / "a.txt").read_bytes() == b"a"
+    with pytest.raises(unpack.UnsafeArchive, match="other content") as e:
+        unpack.extract_archive(other, tmp_path / "d2")
+    assert "extra/m.xml" in str(e.value) and not (tmp_path / "d2").exists()

@@ -184,6 +184,7 @@ def extract_archive(archive, dest, members=None, max_bytes: int = MAX_UNPACKED_B
             raise UnsafeArchive(archive, None, f"the extraction folder {dest} is not empty")
         try:
             budget = [max_bytes]
+            written: dict[str, tuple[int, int]] = {}    # name -> (CRC-32, size) written
             for info in infos:
                 parts = member_parts(archive, info.filename)
                 target = dest.joinpath(*parts)
@@ -200,10 +201,15 @@ def extract_archive(archive, dest, members=None, max_bytes: int = MAX_UNPACKED_B
                 try:
                     fd = os.open(target, flags, 0o600)
                 except FileExistsError:
+                    # some exporters list a file twice (Reference-FMUs' Roberts): the same
+                    # bytes again change nothing and are skipped; other bytes are refused
+                    if written.get(info.filename) == (info.CRC, info.file_size):
+                        continue
                     raise UnsafeArchive(archive, info.filename, "a second member of the same "
-                                        "name") from None
+                                        "name with other content") from None
                 with os.fdopen(fd, "wb") as fh:
                     copy_member(z, info, fh, archive, budget, max_ratio)
+                written[info.filename] = (info.CRC, info.file_size)
                 mode = (info.external_attr >> 16) & 0o777
                 if mode & 0o100:              # keep the executable bit (binaries)
                     os.chmod(target, 0o700)
