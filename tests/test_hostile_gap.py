@@ -132,3 +132,8 @@ def test_recalibration_far_from_nominal_or_not_positive_is_refused():
         assert "theta_enc (rad)" in str(e.value) and "i_cmd (A)" in str(e.value)
     # a negative Coulomb friction is left to the effects (an unmodelled delay gives one)
     check_recalibrated(dev, fit, {**rec, "fc": -rec["fc"]})
+    # viscous friction takes up unmodelled friction: gap-dev2 case-17 (a valid device
+    # with position-dependent friction) recalibrates b to 0.0597x nominal
+    check_recalibrated(dev, fit, {**rec, "b": 0.0597 * nom["b"]})
+    with pytest.raises(Implausible, match=r"1e\+03x its nominal .* within 100x"):
+        check_recalibrated(dev, fit, {**rec, "b": 1000 * nom["b"]})
