@@ -98,7 +98,7 @@ CONTRACTS: dict[str, RoleContract] = {c.name: c for c in [
     # Rigs: bodies joined by a stiff element (load cell, wall: 2e5 N/m) solved in one
     # FMU, because exchanging such a coupling explicitly at 1 ms is wrong or unstable.
     # Separate unit, load-cell and wall FMUs are solved the same way as a coupled group
-    # (cosim.master.coupled; scenarios/coupled/coupled/zero_force_separate.yaml, coupled/bilateral_separate.yaml).
+    # (cosim.master.coupled; scenarios/coupled/zero_force_separate.yaml, coupled/bilateral_separate.yaml).
     RoleContract("zero_force_rig", "zero-force bench (Fig. 27): unit under test and "
                  "partner unit joined by a load cell",
                  inputs={"i": "A", "i_p": "A"},
