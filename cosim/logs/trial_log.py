@@ -3,7 +3,10 @@
 The format is the contract in ``spec/trial-log.md``. In short: the CSV has one
 header row, ``time`` first (seconds, uniformly sampled), one column per signal in
 SI units; the JSON sidecar says what the columns are (``format``, ``device``,
-``sample_time`` and ``signals`` are required).
+``sample_time`` and ``signals`` are required). A device of :data:`DEVICES` has its
+columns' units fixed by the table; any other device is read in the units its sidecar
+declares, which must be units the package converts (:func:`unit_si`;
+``docs/gap-own-plant.md``, "Trial logs of a new device").
 
 Every problem is raised as one exception class, :class:`TrialLogError`, which
 names the file, the column and the row.
