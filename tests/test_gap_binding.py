@@ -87,8 +87,7 @@ VARS = [("current", "input", "A", "0"), ("F_ext", "input", "kN", "0"),
 def _model_description(fixed_step: float | None) -> str:
     rows = []
     for vr, (n, caus, unit, start) in enumerate(VARS):
-        extra = {"input": "", "output": ' initial="calculated"' if False else "",
-                 "parameter": ' variability="fixed" initial="exact"'}[caus]
+        extra = ' variability="fixed" initial="exact"' if caus == "parameter" else ""
         mn = ' min="0"' if n in ("M", "b", "Fc") else ""
         st = f' start="{start}"' if start is not None else ""
         rows.append(f'<ScalarVariable name="{n}" valueReference="{vr}" causality="{caus}"{extra}>'
@@ -299,6 +298,9 @@ def test_missing_files(tmp_path, fmus):
     assert e.file == str(tmp_path / "none.yaml")
     e = _err(load_binding, _binding(tmp_path), tmp_path / "none.fmu")
     assert e.file == str(tmp_path / "none.fmu") and "does not exist" in e.reason
+    (tmp_path / "text.fmu").write_text("not a zip")
+    e = _err(load_binding, _binding(tmp_path), tmp_path / "text.fmu")
+    assert e.file == str(tmp_path / "text.fmu") and "not a usable FMU: not a zip archive" in e.reason
 
 
 # ----------------------------------------------------------------------------- bad logs

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import math
 import os
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -333,10 +332,12 @@ def _read_fmu(fmu_path: Path) -> _Fmu:
     try:
         version = fmi_version(fmu_path)
     except FMUCheckError as exc:
-        raise GapInputError(f"not a usable FMU: {getattr(exc, 'reason', exc)}", fmu_path, None) from None
+        msg = str(exc)
+        msg = msg[len(f"{exc.path}: "):] if msg.startswith(f"{exc.path}: ") else msg
+        raise GapInputError(f"not a usable FMU: {msg}", fmu_path, None) from None
     try:
         md = fmpy.read_model_description(str(fmu_path), validate=False)
-    except (Exception, zipfile.BadZipFile) as exc:   # fmpy raises bare Exceptions
+    except Exception as exc:   # fmpy raises bare Exceptions (and lxml / zipfile ones)
         raise GapInputError(f"invalid modelDescription.xml: {exc}", fmu_path, None) from None
 
     def unit(v) -> str:
@@ -468,8 +469,10 @@ class _Ctx:
                                 "the binding drives and reads real variables", node, key)
             return v
         art = "an" if v.causality[:1] in "aeiou" else "a"
+        need = " or ".join(f"{'an' if r[:1] in 'aeiou' else 'a'} {r}" for r in roles) \
+            + (" or a continuous state" if states else "")
         raise self.fail(f"{where}.{key}", f"{name!r} is {art} {v.causality} of {fmu.path.name} "
-                        f"(variability {v.variability}); {where}.{key} needs {role_text[:-1] if role_text.endswith('s') else role_text} "
+                        f"(variability {v.variability}); {where}.{key} needs {need} "
                         f"({role_text} of the FMU: {', '.join(candidates) or 'none'})", node, key)
 
     def unit(self, node: _Map, key: str, where: str, required: bool = True) -> tuple[str, BaseUnit | None]:
