@@ -224,6 +224,14 @@ def test_logs_that_fit_pass(tmp_path, fmus):
     p2 = _log(tmp_path, "b", signals={"i_cmd": "mA", "x_enc": "mm", "acc_meas": "m/s2", "f_lc": "N",
                                       "f_ext_est": "N", "debug": "V"})
     check_logs(b, [p1, p2])
+    from cosim.logs.trial_log import read_trial_log
+    l1, l2 = read_trial_log(p1), read_trial_log(p2)
+    ext = b.external[0]
+    assert ext.column_in(l1) is None and ext.column_in(l2) == "f_ext_est"
+    enc = b.measurements[0]
+    assert enc.to_fmu(l1["x_enc"])[5] == pytest.approx(1e-3 * l1["x_enc"][5])
+    assert np.allclose(enc.to_log(enc.to_fmu(l1["x_enc"])), l1["x_enc"])
+    assert b.commands[0].to_fmu(np.array([250.0]))[0] == pytest.approx(0.25)
 
 
 # ----------------------------------------------------------------------------- bad bindings

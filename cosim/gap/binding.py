@@ -119,6 +119,10 @@ class Command:
     offset: float = 0.0
     unit: str = ""                # the log column's unit as the binding states it
 
+    def to_fmu(self, log_values):
+        """The log column's values in the FMU input's unit."""
+        return self.scale * log_values + self.offset
+
 
 @dataclass(frozen=True)
 class External:
@@ -129,6 +133,13 @@ class External:
     scale: float
     offset: float = 0.0
     unit: str = ""
+
+    def column_in(self, log: TrialLog) -> str | None:
+        """The column of ``log`` that drives the input (the first present), or None (0)."""
+        return next((c for c in self.columns if c in log.data), None)
+
+    def to_fmu(self, log_values):
+        return self.scale * log_values + self.offset
 
 
 @dataclass(frozen=True)
@@ -157,6 +168,14 @@ class Measurement:
     offset: float = 0.0
     unit: str = ""                # the log column's unit as the binding states it
     optional: bool = False        # a log may lack the column (e.g. a load cell fitted on some trials)
+
+    def to_fmu(self, log_values):
+        """The measured column in the FMU output's unit."""
+        return self.scale * log_values + self.offset
+
+    def to_log(self, fmu_values):
+        """FMU output values in the column's unit (to show a simulated signal in the user's terms)."""
+        return (fmu_values - self.offset) / self.scale
 
 
 @dataclass(frozen=True)
