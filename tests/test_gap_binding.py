@@ -209,6 +209,29 @@ def test_binding_is_converted_into_the_fmu_units(tmp_path, fmus):
     assert b.ignore == ("debug",) and b.controllers["identification"]["law"] == "i_cmd = i_exc - PD"
 
 
+def test_a_parameter_set_with_another(tmp_path, fmus):
+    text = BINDING.replace("ignore: [debug]", "  Fc: {nominal: 2000, unit: mN, same_as: b}\nignore: [debug]")
+    e = _err(load_binding, _binding(tmp_path, text), fmus[0])
+    assert e.column == "parameters.Fc.same_as" and "different dimensions" in e.reason
+    text = BINDING.replace("m_handle: {nominal: 0.15, unit: kg, recalibrate: false}",
+                           "m_handle: {nominal: 150, unit: g, same_as: m}")
+    e = _err(load_binding, _binding(tmp_path, text), fmus[0])
+    assert e.column == "parameters.m_handle.same_as" and "did you mean 'M'" in e.reason
+    b = load_binding(_binding(tmp_path, text.replace("same_as: m}", "same_as: M}")), fmus[0])
+    h = b.parameter("m_handle")
+    assert (h.same_as, h.same_scale, h.recalibrate) == ("M", 1.0, False)
+    assert h.nominal == pytest.approx(0.15)
+
+
+def test_numbers_written_without_a_dot(tmp_path, fmus):
+    # PyYAML reads 1e-3 as text (YAML 1.1); it is still the number the user wrote
+    b = load_binding(_binding(tmp_path, BINDING.replace("resolution: 0.001}", "resolution: 1e-3}")), fmus[0])
+    assert b.measurements[0].sensor.resolution == pytest.approx(1e-6)
+    e = _err(load_binding, _binding(tmp_path, BINDING.replace("resolution: 0.001}", "resolution: fine}")),
+             fmus[0])
+    assert e.column == "measurements[0].sensor.resolution" and "finite number" in e.reason
+
+
 def test_noise_density_without_bandwidth_needs_the_sample_time(tmp_path, fmus):
     text = BINDING.replace("noise_density: 2.0e-3, bandwidth_hz: 1000, ", "noise_density: 2.0e-3, ")
     b = load_binding(_binding(tmp_path, text), fmus[0])

@@ -190,6 +190,10 @@ class Parameter:
     recalibrate: bool
     binding_unit: str = ""        # the unit the binding wrote the values in
     to_fmu: float = 1.0           # fmu value = to_fmu * binding value
+    #: set with another parameter (``same_as: fc``: a static friction that equals the
+    #: Coulomb friction in the nominal model): value = same_scale * that parameter's value
+    same_as: str | None = None
+    same_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -453,7 +457,8 @@ class _Ctx:
                 raise self.fail(f"{where}.{key}", f"missing required key {key!r}", node)
             return None
         v = node[key]
-        x = _num(v) if not isinstance(v, bool) and isinstance(v, (int, float)) else None
+        # YAML 1.1 reads 1e-6 (no dot) as text: a number written so is still a number
+        x = _num(v) if not isinstance(v, bool) and isinstance(v, (int, float, str)) else None
         if x is None:
             raise self.fail(f"{where}.{key}", f"must be a finite number, got {v!r}", node, key)
         if positive and not x > 0:
@@ -658,6 +663,7 @@ def load_binding(binding_path: str | os.PathLike, fmu_path: str | os.PathLike) -
     for name, spec in (pnode or {}).items():
         w = f"parameters.{name}"
         parameters.append(_parameter(c, pnode, str(name), spec, w))
+    parameters = _tie(c, pnode, parameters) if parameters else parameters
 
     # ---------------------------------------------------------------- references, ignore
     references: list[Reference] = []
@@ -765,7 +771,7 @@ def _parameter(c: _Ctx, parent: _Map, name: str, spec: Any, w: str) -> Parameter
                      parent, name)
     if var.variability == "constant":
         raise c.fail(w, f"{name!r} is a constant of {fmu.path.name}: it cannot be set", parent, name)
-    s = c.mapping(spec, w, ("nominal", "unit", "low", "high", "recalibrate", "description"),
+    s = c.mapping(spec, w, ("nominal", "unit", "low", "high", "recalibrate", "same_as", "description"),
                   ("nominal", "unit"), parent, name)
     u, b = c.unit(s, "unit", w)
     g, o = c.conversion(s, "unit", w, u, b, var)
@@ -773,7 +779,11 @@ def _parameter(c: _Ctx, parent: _Map, name: str, spec: Any, w: str) -> Parameter
         raise c.fail(f"{w}.unit", f"unit {u!r} -> {var.unit!r} has an offset; give the value in "
                      f"{var.unit!r}", s, "unit")
     nominal = c.number(s, "nominal", w, required=True)
-    recal = c.boolean(s, "recalibrate", w, True)
+    same_as = c.string(s, "same_as", w, required=False)
+    recal = c.boolean(s, "recalibrate", w, same_as is None)
+    if same_as is not None and recal:
+        raise c.fail(f"{w}.recalibrate", f"a parameter set with {same_as!r} (same_as) is not "
+                     "recalibrated on its own", s, "recalibrate")
     low = c.number(s, "low", w, required=recal)
     high = c.number(s, "high", w, required=recal)
     if low is None:
@@ -801,7 +811,34 @@ def _parameter(c: _Ctx, parent: _Map, name: str, spec: Any, w: str) -> Parameter
         raise c.fail(f"{w}.low", f"below the FMU's min {var.min:g} {var.unit} of {name!r}", s, "low")
     if var.max is not None and fh > var.max + 1e-12 * max(1.0, abs(var.max)):
         raise c.fail(f"{w}.high", f"above the FMU's max {var.max:g} {var.unit} of {name!r}", s, "high")
-    return Parameter(name, fn, var.unit or u, fl, fh, recal, u, g)
+    return Parameter(name, fn, var.unit or u, fl, fh, recal, u, g, same_as)
+
+
+def _tie(c: _Ctx, pnode: _Map, parameters: list[Parameter]) -> list[Parameter]:
+    """Resolve ``same_as``: another parameter of the binding, of the same dimension."""
+    by_name = {p.name: p for p in parameters}
+    out = []
+    for p in parameters:
+        if p.same_as is None:
+            out.append(p)
+            continue
+        w = f"parameters.{p.name}.same_as"
+        node = pnode.get(p.name)
+        q = by_name.get(p.same_as)
+        if q is None or q.same_as is not None or q is p:
+            raise c.fail(w, f"{p.same_as!r} is not another parameter of this binding"
+                         + _did_you_mean(suggest(p.same_as, [n for n in by_name if n != p.name]))
+                         + " (same_as names a parameter listed under 'parameters' without same_as)",
+                         node, "same_as")
+        a = unit_si(q.unit, c.fmu.unit_defs) if q.unit else None
+        b = unit_si(p.unit, c.fmu.unit_defs) if p.unit else None
+        if a is not None and b is not None and a.exponents != b.exponents:
+            raise c.fail(w, f"{p.name!r} ({p.unit}) and {q.name!r} ({q.unit}) are of different "
+                         "dimensions", node, "same_as")
+        k = affine(a, b)[0] if a is not None and b is not None else 1.0
+        out.append(Parameter(p.name, p.nominal, p.unit, p.low, p.high, False, p.binding_unit,
+                             p.to_fmu, q.name, k))
+    return out
 
 
 # ============================================================================ logs
