@@ -349,6 +349,10 @@ def test_missing_bound_column(tmp_path, fmus):
     p = _log(tmp_path, signals={"i_cmd": "mA", "x_enc": "mm"})
     e = _err(check_logs, b, [p])
     assert e.file == str(p) and e.column == "acc_meas" and "measurements[1].column" in e.reason
+    assert "optional: true" in e.reason
+    p = _log(tmp_path, "nocmd", signals={"x_enc": "mm", "acc_meas": "m/s^2"})
+    e = _err(check_logs, b, [p])
+    assert e.column == "i_cmd" and "commands[0].column" in e.reason and "optional" not in e.reason
 
 
 def test_log_units_and_device(tmp_path, fmus):

@@ -910,8 +910,10 @@ def check_logs(binding: PlantBinding, logs: Iterable[TrialLog | str | os.PathLik
             declared[r.column] = (r.unit, f"references[{i}]")
         for col, where in required:
             if col not in log.signals:
+                hint = ("; a sensor fitted in some trials only is marked 'optional: true'"
+                        if where.startswith("measurements") else "")
                 raise GapInputError(f"missing column bound by {where} of {binding.path.name} (the log "
-                                    f"has: {', '.join(log.signals) or 'no signal'})", log.csv_path, col)
+                                    f"has: {', '.join(log.signals) or 'no signal'}){hint}", log.csv_path, col)
         known = set(binding.columns)
         for col, lu in log.signals.items():
             if col not in known:
