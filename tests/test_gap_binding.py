@@ -304,6 +304,8 @@ def test_wrong_causality(tmp_path, fmus):
     ("resolution: 0.001", "resolution: -1", "measurements[0].sensor.resolution", "positive"),
     ("ignore: [debug]", "ignore: [x_enc]", "ignore[0]", "already bound by measurements[0].column"),
     ("position: x", "position: F_lc", "disturbance.position", "not a position"),
+    ("columns: [f_ext, f_ext_est], input: F_ext", "columns: [f_ext, f_ext_est], input: current",
+     "external[0].input", "already driven by commands[0].input"),
     ("  input: F_ext\n  unit: N\n", "  input: F_ext\n  unit: A\n", "disturbance.unit", "not a force"),
 ])
 def test_bad_fields(tmp_path, fmus, old, new, column, words):

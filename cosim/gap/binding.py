@@ -571,6 +571,7 @@ def load_binding(binding_path: str | os.PathLike, fmu_path: str | os.PathLike) -
         raise c.fail("description", f"must be text, got {_what(description)}", doc, "description")
 
     used: dict[str, str] = {}          # log column -> field path that binds it
+    driven: dict[str, str] = {}        # FMU input -> the command / external field driving it
 
     def claim(column: str, where: str, node: _Map, key: str) -> None:
         if column == "time":
@@ -591,6 +592,10 @@ def load_binding(binding_path: str | os.PathLike, fmu_path: str | os.PathLike) -
         col = c.string(it, "column", w)
         claim(col, f"{w}.column", it, "column")
         var = c.variable(it, "input", w, ("input",), "inputs")
+        if var.name in driven:
+            raise c.fail(f"{w}.input", f"FMU input {var.name!r} is already driven by {driven[var.name]}",
+                         it, "input")
+        driven[var.name] = f"{w}.input"
         u, b = c.unit(it, "unit", w)
         g, o = c.conversion(it, "unit", w, u, b, var)
         lim = c.number(it, "limit", w, positive=True)
@@ -613,6 +618,10 @@ def load_binding(binding_path: str | os.PathLike, fmu_path: str | os.PathLike) -
         for x in cols:
             claim(x.strip(), f"{w}.{key}", it, key)
         var = c.variable(it, "input", w, ("input",), "inputs")
+        if var.name in driven:     # a known force adds to the disturbance, never to a command
+            raise c.fail(f"{w}.input", f"FMU input {var.name!r} is already driven by {driven[var.name]}",
+                         it, "input")
+        driven[var.name] = f"{w}.input"
         u, b = c.unit(it, "unit", w)
         _need_dim(c, it, "unit", w, b, (_FORCE, _TORQUE, _TORQUE_RAD), "a force or a torque", u)
         g, o = c.conversion(it, "unit", w, u, b, var)
