@@ -326,6 +326,17 @@ def test_malformed_yaml_names_the_line(tmp_path, fmus):
     assert "key 'device' is given twice" in e.reason and "first at line 2" in e.reason
 
 
+def test_only_the_model_description_is_read(tmp_path, fmus):
+    # an archive with the modelDescription.xml and no binary: the binding is checked
+    # from the XML alone (nothing is loaded or instantiated)
+    import zipfile
+    p = tmp_path / "MassAxis.fmu"
+    with zipfile.ZipFile(p, "w") as z:
+        z.writestr("modelDescription.xml", _model_description(None))
+    b = load_binding(_binding(tmp_path), p)
+    assert b.commands[0].scale == pytest.approx(1e-3) and b.interfaces == ("cs",)
+
+
 def test_missing_files(tmp_path, fmus):
     e = _err(load_binding, tmp_path / "none.yaml", fmus[0])
     assert e.file == str(tmp_path / "none.yaml")
