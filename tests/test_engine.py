@@ -25,7 +25,7 @@ from cosim.algorithms.zero_force import (PositionController, PositionControllerP
                                          SineReference, SineReferenceParams)
 from cosim.master.fast import engine as engine_mod
 from cosim.master.faults import Bias, BiasParams
-from cosim.master.fmu import FMUError
+from cosim.fmi.fmu import FMUError
 from cosim.master.system import ControllerError, Master, System, SystemError_
 
 REPO = Path(__file__).resolve().parent.parent

@@ -12,7 +12,7 @@ member in the role order.
 """
 from __future__ import annotations
 
-from .fmu import FMUError
+from ..fmi.fmu import FMUError
 
 
 def group_of(system, role: str):

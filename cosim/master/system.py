@@ -109,7 +109,7 @@ from . import coupled as _coupled
 from . import loop as _loop
 from .fast import engine as _engine
 from .faults import Fault, FaultKind
-from .fmu import INT_RANGE, STATUS, FMUError, FMUSlave, suggest
+from ..fmi.fmu import INT_RANGE, STATUS, FMUError, FMUSlave, suggest
 from .loop import ControllerError, Terminated, convert as _convert, finite as _finite
 from .loop import call_groups as _groups
 from .roles import CONTRACTS, RoleContract, check_contract

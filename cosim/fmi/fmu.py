@@ -24,8 +24,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from ..fmi import unpack
-from ..fmi.unpack import sha256_file  # noqa: F401  (re-exported: scenarios.store)
+from . import unpack
+from .unpack import sha256_file
 
 _ELEMENT = re.compile(r"^(.+)\[\s*(\d+(?:\s*,\s*\d+)*)\s*\]$")
 
@@ -215,7 +215,7 @@ class FMUSlave:
 
     def __init__(self, path, role: str = "fmu", kind: str = "auto", rtol: float = 1e-6):
         import fmpy
-        from ..fmi.check import fmi_version
+        from .check import fmi_version
 
         self.path = Path(path)
         self.role = role
@@ -238,7 +238,7 @@ class FMUSlave:
         except Exception as exc:
             raise FMUError(f"role {role}: {self.path}: invalid modelDescription.xml: {exc}") from None
         self.md = md
-        from ..fmi.check import model_warnings, warn_once
+        from .check import model_warnings, warn_once
         #: deviations from the standard the FMU runs with (``cosim fmus check``'s warnings)
         self.warnings = warn_once(self.path, role, model_warnings(md))
         if kind not in ("auto", "cs", "me"):
@@ -295,7 +295,7 @@ class FMUSlave:
                 from fmpy.fmi3 import FMU3Model, FMU3Slave
                 self._fmu = FMU3Slave(**args) if kind == "cs" else FMU3Model(**args)
             elif self.fmi1:     # FMI 1.0 behind the FMI 2.0 calls (cosim.fmi.fmi1)
-                from ..fmi.fmi1 import FMI1Adapter
+                from .fmi1 import FMI1Adapter
                 self._fmu = FMI1Adapter(kind, lambda *m: self._log(*m), **args)
             else:
                 from fmpy.fmi2 import FMU2Model, FMU2Slave
@@ -513,10 +513,6 @@ class FMUSlave:
                                f"instantiated in this process (role {other})")
         self._me = None
         _LIVE[self._id] = self
-        tol = self.tolerance
-        if tol is None and self.md.defaultExperiment is not None and \
-                self.md.defaultExperiment.tolerance:
-            tol = float(self.md.defaultExperiment.tolerance)
         logging_on = bool(self.debug_logging)
         try:
             if self.fmi3:
@@ -533,17 +529,50 @@ class FMUSlave:
             if logging_on:
                 cats = [] if self.debug_logging is True else list(self.debug_logging)
                 f.setDebugLogging(True, cats)
-            if self.fmi3:
-                self.set_parameters(parameters or {})
-                f.enterInitializationMode(tolerance=tol, startTime=start_time, stopTime=stop_time)
-            else:
-                f.setupExperiment(tolerance=tol, startTime=start_time, stopTime=stop_time)
-                self.set_parameters(parameters or {})
-                f.enterInitializationMode()
+            self._enter_initialization(parameters, start_time, stop_time)
         except FMUError:
             raise
         except Exception as exc:
             raise self.error(f"instantiation failed ({exc})", getattr(exc, "status", None)) from None
+
+    def restart(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0,
+                stop_time: float | None = None):
+        """Run the live instance again from the start: fmi2Reset / fmi3Reset (FMI 2.0
+        section 2.1.6, FMI 3.0 section 2.3.1), then as :meth:`instantiate` (parameters,
+        tolerance, start and stop time, into initialisation mode). Cheaper than a new
+        instance; instantiates when there is no live instance (and for FMI 1.0, which
+        has no reset: terminate and instantiate)."""
+        if not self._instantiated or self.fmi1 or self.worst_status >= 3:
+            self.terminate()
+            return self.instantiate(parameters, start_time, stop_time)
+        self.messages.clear()
+        self.worst_status = 0
+        self.time = start_time
+        self._me = None
+        try:
+            self._fmu.reset()
+            self._enter_initialization(parameters, start_time, stop_time)
+        except FMUError:
+            raise
+        except Exception as exc:
+            raise self.error(f"reset failed ({exc})", getattr(exc, "status", None)) from None
+
+    def _enter_initialization(self, parameters, start_time, stop_time):
+        """Parameters and the experiment (tolerance, start and stop time) as the standard
+        says (FMI 2 in fmi2SetupExperiment, FMI 3 in fmi3EnterInitializationMode), then
+        initialisation mode."""
+        f = self._fmu
+        tol = self.tolerance
+        if tol is None and self.md.defaultExperiment is not None and \
+                self.md.defaultExperiment.tolerance:
+            tol = float(self.md.defaultExperiment.tolerance)
+        if self.fmi3:
+            self.set_parameters(parameters or {})
+            f.enterInitializationMode(tolerance=tol, startTime=start_time, stopTime=stop_time)
+        else:
+            f.setupExperiment(tolerance=tol, startTime=start_time, stopTime=stop_time)
+            self.set_parameters(parameters or {})
+            f.enterInitializationMode()
 
     def set_parameters(self, parameters: Mapping[str, float]):
         for name, value in parameters.items():
@@ -613,7 +642,7 @@ class FMUSlave:
         try:
             f.exitInitializationMode()
             if self.kind == "me":
-                from ..fmi.me import MEIntegrator
+                from .me import MEIntegrator
                 self._me = MEIntegrator(f, self.md, self.fmi3, self.error, self.time,
                                         rtol=self.rtol, error_type=FMUError)
                 self._me.start()
