@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Sequence
 
 __all__ = ["CKernel", "KernelStruct", "KERNEL_DIR", "CFLAGS", "kernel_source",
-           "kernel_sources", "compile_shared", "KernelLibrary"]
+           "kernel_sources", "compile_shared", "cached_library", "KernelLibrary"]
 
 #: the kernels' C sources (package data of an installed wheel as well)
 KERNEL_DIR = Path(__file__).resolve().parent / "c"
@@ -144,6 +144,34 @@ def compile_shared(sources: Sequence[Path], out: Path, extra: Sequence[str] = ()
         raise RuntimeError(f"compiling {', '.join(Path(s).name for s in sources)} failed:\n"
                            f"{' '.join(cmd)}\n{r.stderr}")
     return out
+
+
+_CACHED: dict[Path, ctypes.CDLL] = {}
+
+
+def cached_library(names: Sequence[str]) -> ctypes.CDLL:
+    """The kernels ``names`` compiled into one shared library in the cache, loaded once
+    per process. The file is named by the hash of the sources, the ABI header and
+    :data:`CFLAGS` (an edited source is recompiled) and written atomically (two
+    processes may build it at once)."""
+    import hashlib
+    import tempfile
+
+    from ..paths import cache_dir
+    srcs = [kernel_source(n) for n in names]
+    h = hashlib.sha256(" ".join(CFLAGS).encode())
+    for src in [*srcs, KERNEL_DIR / "cosim_kernel.h"]:
+        h.update(src.read_bytes())
+    so = cache_dir() / "kernels" / f"{'+'.join(names)}_{h.hexdigest()[:16]}.so"
+    lib = _CACHED.get(so)
+    if lib is not None:
+        return lib
+    if not so.is_file():
+        so.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
+            os.replace(compile_shared(srcs, Path(tmp) / so.name), so)
+    lib = _CACHED[so] = ctypes.CDLL(str(so))
+    return lib
 
 
 class KernelLibrary:
