@@ -521,7 +521,5 @@ def test_every_kernel_struct_has_the_same_fields_on_both_sides():
             assert c_fields == py_fields, f"{src.name}: {cname} vs {twin}"
             assert all(f"{n};" in body or f"{n}[" in body for n, _ in py_fields)
             seen.add(cname)
-    # every kernel but aakf has named parameters and state (aakf: issue 20, still packed)
-    for src in kernel_sources():
-        if src.stem != "aakf":
-            assert {f"{src.stem}_params", f"{src.stem}_state"} <= seen, src.name
+    for src in kernel_sources():          # every kernel has named parameters and state
+        assert {f"{src.stem}_params", f"{src.stem}_state"} <= seen, src.name

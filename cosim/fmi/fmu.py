@@ -194,6 +194,10 @@ class RawIO:
     last_time: object = None     # FMI 3: the c_double lastSuccessfulTime out-argument
 
 
+#: (resolved path, size, mtime) -> (FMI version, sha256, model description): an FMU
+#: file is read and parsed once per process (the model description is not modified)
+_PARSED: dict[tuple, tuple] = {}
+
 #: FMUs declaring canBeInstantiatedOnlyOncePerProcess that have a live instance:
 #: (model identifier, instantiation token) -> role
 _ONCE: dict[tuple, str] = {}
@@ -221,11 +225,19 @@ class FMUSlave:
         self.role = role
         if not self.path.is_file():
             raise FMUError(f"role {role}: FMU file {self.path} does not exist")
-        try:
-            version = fmi_version(self.path)
-        except Exception as exc:
-            raise FMUError(f"role {role}: {exc}") from None
-        sha = sha256_file(self.path)
+        # the file's FMI version, hash and model description, read once per process
+        # and file version (a course loads the same two FMUs for each of its trainings)
+        st = self.path.stat()
+        key = (str(self.path.resolve()), st.st_size, st.st_mtime_ns)
+        parsed = _PARSED.get(key)
+        if parsed is None:
+            try:
+                version = fmi_version(self.path)
+            except Exception as exc:
+                raise FMUError(f"role {role}: {exc}") from None
+            sha = sha256_file(self.path)
+        else:
+            version, sha, md = parsed
         try:    # one extraction per process and FMU hash, shared (cosim.fmi.unpack)
             self._hold = unpack.acquire(self.path, sha)
         except Exception as exc:
@@ -233,10 +245,13 @@ class FMUSlave:
         # frees what this instance opened when it is dropped (the hold, not self)
         self._free = weakref.finalize(self, self._hold.release)
         unzip = self._hold.dir
-        try:
-            md = fmpy.read_model_description(str(unzip), validate=False)
-        except Exception as exc:
-            raise FMUError(f"role {role}: {self.path}: invalid modelDescription.xml: {exc}") from None
+        if parsed is None:
+            try:
+                md = fmpy.read_model_description(str(unzip), validate=False)
+            except Exception as exc:
+                raise FMUError(f"role {role}: {self.path}: invalid modelDescription.xml: "
+                               f"{exc}") from None
+            _PARSED[key] = (version, sha, md)
         self.md = md
         from .check import model_warnings, warn_once
         #: deviations from the standard the FMU runs with (``cosim fmus check``'s warnings)

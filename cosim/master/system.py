@@ -1142,7 +1142,7 @@ class Master:
 
     def _result(self, rows, Ts, error, timing) -> RunResult:
         columns, num_cols, text_cols, dtypes = self._cols
-        data = rows.numeric()
+        data = rows.numeric(copy=False)     # each column is copied out below
         n = data.shape[0]
         signals = {}
         for name in columns:

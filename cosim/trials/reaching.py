@@ -164,17 +164,22 @@ class ReachingPath:
         ux = np.array([u[0] for u in units])
         uy = np.array([u[1] for u in units])
 
+        last: list = [None, None]        # (times, phases): the four functions share them
+
         def phases(t):
-            t = np.asarray(t, dtype=float)
-            i = np.floor_divide(t, T)                  # Python's float // (floor)
-            ok = (t >= 0) & (i < nseg)
+            if last[0] is t:                           # the master passes one time array
+                return last[1]
+            ta = np.asarray(t, dtype=float)
+            i = np.floor_divide(ta, T)                 # Python's float // (floor)
+            ok = (ta >= 0) & (i < nseg)
             ii = np.where(ok, i, 0).astype(np.int64)
             j = (ii // 2) % nd
-            tau = t - ii * T
+            tau = ta - ii * T
             out = ii % 2 == 0
             dist = np.where(out, v * tau, v * (T - tau))
             sign = np.where(out, 1.0, -1.0)
-            return ok, ux[j], uy[j], dist, sign
+            last[:] = [t, (ok, ux[j], uy[j], dist, sign)]
+            return last[1]
 
         def _vec(fn, which):
             def f(t):
