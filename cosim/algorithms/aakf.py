@@ -131,6 +131,7 @@ import numpy as np
 from scipy.linalg import expm
 
 from .ckernel import CKernel, KernelStruct, fields
+from ..devices.ballscrew import ENCODER_COUNTS_PER_REV
 
 
 class EncoderDiffParamsC(KernelStruct):
@@ -141,7 +142,6 @@ class EncoderDiffParamsC(KernelStruct):
 class EncoderDiffStateC(KernelStruct):
     """``encoder_diff_state`` of ``c/encoder_diff.c``."""
     _fields_ = fields("theta_prev_rad", "has_theta_prev", "omega_prev_rad_s", "has_omega_prev")
-from ..devices.ballscrew import ENCODER_COUNTS_PER_REV
 
 __all__ = [
     "AakfParams",

@@ -59,6 +59,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 from .ckernel import CKernel, KernelStruct, fields
+from .zero_force import BallscrewDrive, _saturate
 
 
 class BilateralParamsC(KernelStruct):
@@ -70,7 +71,6 @@ class BilateralParamsC(KernelStruct):
 class BilateralStateC(KernelStruct):
     """``bilateral_state`` of ``c/bilateral.c``: the last outputs in ``outputs``' order."""
     _fields_ = fields("has_last", ("last", 6))
-from .zero_force import BallscrewDrive, _saturate
 
 
 @dataclass(frozen=True)

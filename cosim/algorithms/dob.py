@@ -95,6 +95,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 from .ckernel import CKernel, KernelStruct, fields
+from ..devices.ballscrew import J_KG_M2, KT_NM_PER_A
 
 
 class DOBParamsC(KernelStruct):
@@ -118,7 +119,6 @@ class RFOBStateC(KernelStruct):
     """``rfob_state`` of ``c/rfob.c``: :class:`RFOB`'s state."""
     _fields_ = fields("tau_hat_Nm", "tau_raw_Nm", "w_prev_rad_s", "has_w_prev",
                       "i_prev_A", "has_i_prev")
-from ..devices.ballscrew import J_KG_M2, KT_NM_PER_A
 
 
 def _lpf_pole(g_rad_s: float, Ts_s: float) -> float:

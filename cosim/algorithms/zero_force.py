@@ -52,6 +52,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 from .ckernel import CKernel, KernelStruct, fields
+from ..devices.ballscrew import J_KG_M2, KT_NM_PER_A
 
 
 class ZeroForceParamsC(KernelStruct):
@@ -85,7 +86,6 @@ class PositionControllerParamsC(KernelStruct):
 class PositionControllerStateC(KernelStruct):
     """``position_controller_state`` of ``c/position_controller.c``."""
     _fields_ = fields("integral_ms", "x_prev_m", "has_x_prev")
-from ..devices.ballscrew import J_KG_M2, KT_NM_PER_A
 
 
 # --------------------------------------------------------------------------- drive
