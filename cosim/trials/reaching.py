@@ -64,6 +64,7 @@ carried between trainings, since the master calls ``reset()`` before every run) 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from pathlib import Path
@@ -599,7 +600,15 @@ def _reaching_target(params, ctx):
     """Target of the reaching task: out and back along three directions (Fig. 48)."""
     p = ReachingTargetParams(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in params.items()})
     ctx.state["reaching_path"] = p.path()          # for the procedure's map/stability figures
-    return p.path().functions()[p.component]
+    return _path_functions(p.path())[p.component]
+
+
+@functools.lru_cache(maxsize=16)
+def _path_functions(path: ReachingPath) -> dict:
+    """``path.functions()`` once per path: the four components of one path share their
+    evaluation over the run's time array (``phases`` in :meth:`ReachingPath.functions`),
+    and a course builds the same path for each training."""
+    return path.functions()
 
 
 def _decimated(res, n: int):
