@@ -853,3 +853,15 @@ class FMUSlave:
     @property
     def closed(self) -> bool:
         return self._closed
+
+    @property
+    def once_per_process(self) -> tuple | None:
+        """(model identifier, instantiation token) when the FMU declares
+        canBeInstantiatedOnlyOncePerProcess, else None."""
+        return self._once_key
+
+    @property
+    def me_integrator(self):
+        """The :class:`~cosim.fmi.me.MEIntegrator` of a Model Exchange run (after
+        :meth:`exit_initialization`), else None: what a coupled group solves together."""
+        return self._me

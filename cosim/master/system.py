@@ -247,9 +247,9 @@ class System:
             slave.step_mult = slave.step_multiple(self.Ts, step_multiple)
         except FMUError as exc:
             raise SystemError_(str(exc)) from None
-        if slave._once_key is not None:
+        if slave.once_per_process is not None:
             for r, other in self.roles.items():
-                if other._once_key == slave._once_key and r != role:
+                if other.once_per_process == slave.once_per_process and r != role:
                     raise SystemError_(
                         f"role {role!r}: {slave.path.name} declares "
                         f"canBeInstantiatedOnlyOncePerProcess and role {r!r} already uses it")
