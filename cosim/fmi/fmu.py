@@ -700,6 +700,13 @@ class FMUSlave:
             io.set = self._me.input_setter(io.get, io.set)
         return io
 
+    def call_name(self, what: str) -> str:
+        """The C function behind :meth:`raw`'s ``get``, ``set`` or ``step`` for this FMU's
+        version, for error text: fmi2GetReal, fmi3GetFloat64, fmiDoStep (FMI 1.0), ..."""
+        prefix = "fmi3" if self.fmi3 else ("fmi" if self.fmi1 else "fmi2")
+        value = "Float64" if self.fmi3 else "Real"
+        return prefix + {"get": f"Get{value}", "set": f"Set{value}", "step": "DoStep"}[what]
+
     def typed_io(self, v: VarInfo, direction: str):
         """(raw ctypes function fmi2{Get,Set}<T> / fmi3{Get,Set}<T>, C element type,
         numpy dtype) of the variable's own FMI call, e.g. fmi3GetFloat32 and c_float

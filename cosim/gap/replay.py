@@ -220,16 +220,9 @@ class Replayer:
         s = self.slave
         p = dict(params)
         p.update(theta0=float(theta0), w0=float(w0), i0=float(i_cmd[0]))
-        for k in p:
-            var = self.vars.get(k)
-            if var is None or var.causality != "parameter":
-                raise ValueError(f"{self.path.name}: {k!r} is not a parameter of the FMU")
-        s.restart({k: float(v) for k, v in p.items()}, start_time=float(t[0]))
+        s.restart(self._parameters(p), start_time=float(t[0]))
         io = s.raw()
-        fmi = "fmi3" if io.fmi3 else ("fmi" if s.fmi1 else "fmi2")
-        get_name, set_name = (f"{fmi}GetFloat64", f"{fmi}SetFloat64") if io.fmi3 else \
-            (f"{fmi}GetReal", f"{fmi}SetReal")
-        step_name = f"{fmi}DoStep"
+        get_name, set_name, step_name = (s.call_name(w) for w in ("get", "set", "step"))
         inb, inv = self._in_buf, self._in_vr
         two = ctypes.c_size_t(2)
         in_tail = (two,) if io.fmi3 else ()          # fmi3{Get,Set}Float64: nValues too
@@ -264,6 +257,14 @@ class Replayer:
             st = get(comp, ovr, on, P(base + (k + 1) * row), *out_tail)
             if st > 1:
                 raise s.error(get_name, st, tt[k + 1])
+
+    def _parameters(self, p: Mapping[str, float]) -> dict[str, float]:
+        """``p`` as floats, each checked to be a parameter of the FMU (ValueError)."""
+        for k in p:
+            var = self.vars.get(k)
+            if var is None or var.causality != "parameter":
+                raise ValueError(f"{self.path.name}: {k!r} is not a parameter of the FMU")
+        return {k: float(v) for k, v in p.items()}
 
     def close(self) -> None:
         """Free the instance, unload the library and (with the last user of this FMU in
