@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim.master import FMUError, Master, System, SystemError_
+from cosim.fmi.fmu import FMUError
+from cosim.master import Master, System, SystemError_
 
 from tests.probe_fmu import compile_fmu
 

@@ -25,7 +25,7 @@ from cosim.algorithms.zero_force import (PositionController, PositionControllerP
                                          SineReference, SineReferenceParams)
 from cosim.master.fast import engine as engine_mod
 from cosim.master.faults import Bias, BiasParams
-from cosim.master.fmu import FMUError
+from cosim.fmi.fmu import FMUError
 from cosim.master.system import ControllerError, Master, System, SystemError_
 
 REPO = Path(__file__).resolve().parent.parent
@@ -191,13 +191,18 @@ PROBE_KERNEL_C = r"""
 #include <math.h>
 #include "cosim_kernel.h"
 /* test-only twin of tests/test_engine.py ProbeGain */
-int cosim_kernel_probe_gain(const double *p, double *s, const double *in, double *out)
+typedef struct { double gain; double limit; } probe_gain_params;
+typedef struct { double n; } probe_gain_state;
+
+int cosim_kernel_probe_gain(const void *params, void *state, const double *in, double *out)
 {
+    const probe_gain_params *p = params;
+    probe_gain_state *s = state;
     const double u = in[0];
-    if (u > p[1]) return 1;
-    s[0] += 1.0;
-    out[0] = u > -p[1] ? p[0] * u : NAN;
-    out[1] = s[0];
+    if (u > p->limit) return 1;
+    s->n += 1.0;
+    out[0] = u > -p->limit ? p->gain * u : NAN;
+    out[1] = s->n;
     return 0;
 }
 """
@@ -373,8 +378,8 @@ def test_library_is_cached_by_the_sources_hash(tmp_path, monkeypatch):
     assert {"sine_reference", "position_controller"} <= set(mod.kernel_names())
     extra = tmp_path / "k" / "zz_none.c"
     extra.parent.mkdir()
-    extra.write_text('#include "cosim_kernel.h"\nint cosim_kernel_zz_none(const double *p, '
-                     'double *s, const double *i, double *o) { return 0; }\n')
+    extra.write_text('#include "cosim_kernel.h"\nint cosim_kernel_zz_none(const void *p, '
+                     'void *s, const double *i, double *o) { return 0; }\n')
     helper = tmp_path / "k" / "zz_helper.c"      # shared code, not a kernel itself
     helper.write_text("double zz_helper_twice(double x) { return 2.0 * x; }\n")
     real = engine_mod.kernel_sources

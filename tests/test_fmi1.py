@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from cosim.master import FMUError, Master, System, SystemError_
+from cosim.fmi.fmu import FMUError
+from cosim.master import Master, System, SystemError_
 from tests.probe_fmu import TRACE_C, compile_fmu, read_trace, traced
 
 fmpy = pytest.importorskip("fmpy")

@@ -23,7 +23,7 @@ from fmi_probes import build_probe2, build_probe3
 from probe_fmu import read_trace, traced
 
 from cosim.master import system as system_mod
-from cosim.master.fmu import FMUError, FMUSlave
+from cosim.fmi.fmu import FMUError, FMUSlave
 from cosim.master.system import Master, System, SystemError_
 
 
@@ -323,7 +323,7 @@ def test_can_be_instantiated_only_once_per_process(tmp_path):
 def test_a_stepper_raising_fmu_terminated_ends_the_run_normally(tmp_path, monkeypatch):
     """The hook for Model Exchange FMUs (their integrator raises FMUTerminated when
     the FMU sets terminateSimulation): a normal end, tick completed, reason kept."""
-    from cosim.master.fmu import FMUTerminated
+    from cosim.fmi.fmu import FMUTerminated
     fmu = build_probe2(tmp_path)
     orig = FMUSlave.stepper
 

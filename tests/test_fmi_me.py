@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim.master import FMUError, Master, System
+from cosim.fmi.fmu import FMUError
+from cosim.master import Master, System
 from tests.probe_fmu import TRACE_C, compile_fmu, read_trace, traced
 
 fmpy = pytest.importorskip("fmpy")

@@ -79,3 +79,24 @@ def test_simulate_runs_whole_steps_of_the_fmus_own(tmp_path):
     r = simulate_fmu(fmu, stop_time=0.01, step=1e-3)
     assert r.completed, r.error
     assert r.ticks == 13 and r["time"][-1] == pytest.approx(0.012)
+
+
+@pytest.mark.parametrize("fixed, default, expected", [
+    (0.003, None, (0.003, 4)),       # an FMI 3 fixed internal step: whole steps, >= 10 ms
+    (None, 0.002, (0.002, 5)),       # the DefaultExperiment step divides 10 ms
+    (None, 0.004, (0.004, 3)),       # 10 ms is 2.5 of its steps: rounded up, never cut
+    (None, 1e-4, (1e-4, 100)),       # a fine step: 100 of them
+    (None, None, (1e-3, 10)),        # no step declared: 1 ms
+    (None, "bad", (1e-3, 10))])
+def test_the_smoke_run_takes_whole_steps_of_the_fmus_own(fixed, default, expected):
+    """`cosim fmus check --simulate` steps each FMU at its own step for at least 10 ms
+    (issue 20: five FMI 3 FMUs were called invalid by a 10 ms run that is not a whole
+    number of their step)."""
+    from types import SimpleNamespace
+
+    from cosim.fmi.check import smoke_grid
+    md = SimpleNamespace(coSimulation=SimpleNamespace(fixedInternalStepSize=fixed),
+                         defaultExperiment=SimpleNamespace(stepSize=default))
+    h, n = smoke_grid(md)
+    assert (h, n) == expected
+    assert n * h >= 0.01 * (1 - 1e-12)

@@ -11,7 +11,8 @@ import pytest
 
 from cosim.cli import main
 from cosim.fmi.check import check_fmu
-from cosim.master import FMUError, Master, System, SystemError_
+from cosim.fmi.fmu import FMUError
+from cosim.master import Master, System, SystemError_
 from tests.probe_fmu import compile_fmu
 
 fmpy = pytest.importorskip("fmpy")

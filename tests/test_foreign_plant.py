@@ -18,7 +18,8 @@ import pytest
 
 from foreign_axis import AXIS_BINDING, build_axis
 
-from cosim.master import FMUSlave, Master, System
+from cosim.fmi.fmu import FMUSlave
+from cosim.master import Master, System
 from cosim.master.binding import BindingError, cli_bindings, load_binding_file
 from cosim.master.units import base_unit
 

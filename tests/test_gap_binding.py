@@ -396,7 +396,7 @@ def test_plant_that_cannot_be_stepped_at_the_sample_time(tmp_path, fmus):
     # the same plant with a variable communication step takes any sample time
     assert plant_kind(load_binding(_binding(tmp_path), fmus[0]), 1e-3) == "cs"
     # and the fixed-step FMU really refuses the 1 ms step: the error is not imagined
-    from cosim.master.fmu import FMUSlave
+    from cosim.fmi.fmu import FMUSlave
     s = FMUSlave(fixed, role="plant")
     try:
         s.instantiate({})

@@ -88,8 +88,8 @@ def mislabelled(tmp_path, fmus):
 
 def test_an_fmi_1_labelled_2_0_fmu_is_a_clear_error(mislabelled, tmp_path, capsys):
     from cosim.cli import main
-    from cosim.master import FMUSlave
-    from cosim.master.fmu import FMUError
+    from cosim.fmi.fmu import FMUSlave
+    from cosim.fmi.fmu import FMUError
     for argv in (["fmus", "check", str(mislabelled)],
                  ["fmus", "simulate", str(mislabelled), "--out", str(tmp_path / "x.csv")]):
         rc = main(argv)

@@ -327,7 +327,8 @@ def test_adaptive_compliance_kernel_none_when_not_2d_or_snapshots_unsized():
     c = AdaptiveComplianceController(compliance_params(1000.0, 5.0))
     c.step({"pos_x": 0.0, "pos_y": 0.0, "ref_x": 0.01, "ref_y": 0.0})
     k = c.c_kernel()
-    assert k is not None and k.state[2 * 36 + 8] == 1.0      # ticks stepped so far
+    from cosim.algorithms.adaptive_compliance import AdaptiveComplianceStateC
+    assert k is not None and AdaptiveComplianceStateC.from_values(k.state).ticks == 1.0
     c.c_kernel_sync(k.state)
     assert c._tick == 1
 
@@ -494,3 +495,31 @@ def test_stability_1dof_compiled_equals_python_loop(opts):
         assert np.max(np.abs(x[ok] - y[ok])) <= 1e-12 * np.max(np.abs(x[ok])), k
     assert (a.diverged, a.stable) == (b.diverged, b.stable)
     assert a.growth_ratio == pytest.approx(b.growth_ratio, rel=1e-9)
+
+
+def test_every_kernel_struct_has_the_same_fields_on_both_sides():
+    """Each C struct of a kernel (``typedef struct { /* module.Class */ ...}``) has the
+    fields of its ctypes twin, by name and in order (a flexible array member is the
+    twin's ``tail``), so that a value is read by name on both sides."""
+    import ctypes
+    import importlib
+    import re
+
+    from cosim.algorithms.ckernel import KernelStruct
+    struct = re.compile(r"typedef struct \{\s*/\* ([\w.]+) \*/(.*?)\} (\w+);", re.S)
+    member = re.compile(r"double (\w+)(\[(\d*)\])?;")
+    seen = set()
+    for src in kernel_sources():
+        for twin, body, cname in struct.findall(src.read_text()):
+            mod, cls = twin.rsplit(".", 1)
+            py = getattr(importlib.import_module(f"cosim.algorithms.{mod}"), cls)
+            assert issubclass(py, KernelStruct), twin
+            c_fields = [(n, int(d) if d else None) for n, arr, d in member.findall(body)
+                        if not (arr and not d)]        # a flexible array: the tail
+            py_fields = [(n, t._length_ if issubclass(t, ctypes.Array) else None)
+                         for n, t in py._fields_]
+            assert c_fields == py_fields, f"{src.name}: {cname} vs {twin}"
+            assert all(f"{n};" in body or f"{n}[" in body for n, _ in py_fields)
+            seen.add(cname)
+    for src in kernel_sources():          # every kernel has named parameters and state
+        assert {f"{src.stem}_params", f"{src.stem}_state"} <= seen, src.name

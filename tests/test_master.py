@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim.master.fmu import FMUError
+from cosim.fmi.fmu import FMUError
 from cosim.master.roles import RoleContract
 from cosim.master.system import ControllerError, Master, RunResult, System, SystemError_
 

@@ -63,7 +63,8 @@ def _ballscrew_system(fmus, roles=("plant",)):
 
 def test_one_extraction_and_one_mapping_per_fmu(fmus, tmpdir_):
     from cosim.fmi import unpack
-    from cosim.master import FMUSlave, Master
+    from cosim.fmi.fmu import FMUSlave
+    from cosim.master import Master
     before_libs = libs()
     a = FMUSlave(fmus["BallScrewUnit"], role="a")
     b = FMUSlave(fmus["BallScrewUnit"], role="b")
@@ -98,7 +99,8 @@ def test_one_extraction_and_one_mapping_per_fmu(fmus, tmpdir_):
 
 
 def test_failing_loads_and_runs_leave_nothing(fmus, tmpdir_):
-    from cosim.master import FMUError, Master
+    from cosim.fmi.fmu import FMUError
+    from cosim.master import Master
     from cosim.master.system import SystemError_
     before_libs = libs()
     s = _ballscrew_system(fmus)

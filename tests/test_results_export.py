@@ -85,7 +85,7 @@ def test_unit_rules_never_guess():
 
 
 def test_csv_export_values_units_provenance(suite, tmp_path):
-    from cosim.master.fmu import sha256_file
+    from cosim.fmi.unpack import sha256_file
     from cosim.master.system import RunResult
     out, _ = suite
     assert cli(["results", "export", str(out), "--format", "csv", "--out",

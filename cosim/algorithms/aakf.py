@@ -130,8 +130,18 @@ from typing import Mapping, NamedTuple, Sequence
 import numpy as np
 from scipy.linalg import expm
 
-from .ckernel import CKernel
+from .ckernel import CKernel, KernelStruct, fields
 from ..devices.ballscrew import ENCODER_COUNTS_PER_REV
+
+
+class EncoderDiffParamsC(KernelStruct):
+    """``encoder_diff_params`` of ``c/encoder_diff.c``."""
+    _fields_ = fields("Ts_s", "lead_m_per_rad")
+
+
+class EncoderDiffStateC(KernelStruct):
+    """``encoder_diff_state`` of ``c/encoder_diff.c``."""
+    _fields_ = fields("theta_prev_rad", "has_theta_prev", "omega_prev_rad_s", "has_omega_prev")
 
 __all__ = [
     "AakfParams",
@@ -709,15 +719,20 @@ class EncoderDifferentiator:
         """The compiled step ``encoder_diff`` (bit-identical to :meth:`step`; ``ticks`` unused)."""
         p = self.params
         tp, op = self._theta_prev, self._omega_prev
-        return CKernel(name="encoder_diff", params=(p.Ts, p.lead_m / (2.0 * math.pi)),
-                       state=[0.0 if tp is None else tp, float(tp is not None),
-                              0.0 if op is None else op, float(op is not None)],
+        return CKernel(name="encoder_diff",
+                       params=EncoderDiffParamsC(Ts_s=p.Ts,
+                                                 lead_m_per_rad=p.lead_m / (2.0 * math.pi)),
+                       state=EncoderDiffStateC(theta_prev_rad=0.0 if tp is None else tp,
+                                               has_theta_prev=float(tp is not None),
+                                               omega_prev_rad_s=0.0 if op is None else op,
+                                               has_omega_prev=float(op is not None)),
                        inputs=self.inputs, outputs=self.outputs)
 
     def c_kernel_sync(self, state: Sequence[float]) -> None:
         """Write the state of a compiled run back (the last angle and speed)."""
-        self._theta_prev = float(state[0]) if state[1] else None
-        self._omega_prev = float(state[2]) if state[3] else None
+        s = EncoderDiffStateC.from_values(state)
+        self._theta_prev = s.theta_prev_rad if s.has_theta_prev else None
+        self._omega_prev = s.omega_prev_rad_s if s.has_omega_prev else None
 
     def c_kernel_error(self, code: int) -> Exception:
         return RuntimeError(f"compiled encoder_diff step returned {code} (it has no error codes)")

@@ -83,7 +83,23 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from .ckernel import CKernel
+from .ckernel import CKernel, KernelStruct, fields
+
+
+class AdaptiveComplianceParamsC(KernelStruct):
+    """``adaptive_compliance_params`` of ``c/adaptive_compliance.c``; tail: the cell
+    centres along x, then along y [m]."""
+    _fields_ = fields("Ts_s", "k_N_per_m2s", "tau_s", "a_clamp_N_per_m", "xi",
+                      "physical_damping", "m_x_kg", "m_y_kg", "prefactor", "h_x_per_m2",
+                      "h_y_per_m2", "cells_per_axis", "snapshot_every", "snapshot_room")
+
+
+class AdaptiveComplianceStateC(KernelStruct):
+    """``adaptive_compliance_state`` of ``c/adaptive_compliance.c``; tail: the heights
+    (axis x, then y) [N/m], then the snapshot records (tick, heights)."""
+    _fields_ = fields("has_err_prev", "err_prev_x_m", "err_prev_y_m", "motors_on",
+                      "kp_x_N_per_m", "kp_y_N_per_m", "kd_x_Ns_per_m", "kd_y_Ns_per_m",
+                      "ticks", "snapshots")
 
 
 @dataclass(frozen=True)
@@ -369,20 +385,25 @@ class AdaptiveComplianceController:
         if p.n_dof != 2 or p.cells_per_axis > 64:
             return None
         prev = self.err_prev
-        st = [float(prev is not None), *((float(prev[0]), float(prev[1])) if prev is not None
-                                        else (0.0, 0.0)),
-              float(self.motors_on), *(float(v) for v in self.kp),
-              *(float(v) for v in self.kd), float(getattr(self, "_tick", 0)), 0.0]
+        ex, ey = (float(prev[0]), float(prev[1])) if prev is not None else (0.0, 0.0)
+        st = AdaptiveComplianceStateC(
+            has_err_prev=float(prev is not None), err_prev_x_m=ex, err_prev_y_m=ey,
+            motors_on=float(self.motors_on), kp_x_N_per_m=float(self.kp[0]),
+            kp_y_N_per_m=float(self.kp[1]), kd_x_Ns_per_m=float(self.kd[0]),
+            kd_y_Ns_per_m=float(self.kd[1]), ticks=float(getattr(self, "_tick", 0)),
+            snapshots=0.0, tail=[*self.a.ravel().tolist(), *[0.0] * (room * (1 + self.a.size))])
         return CKernel(
             name="adaptive_compliance",
-            params=(p.Ts_s, p.k_N_per_m2s, p.tau_s,
-                    p.a_min_N_per_m if p.clamp_weights else -math.inf, p.xi,
-                    float(self._phys), float(self.masses[0]), float(self.masses[1]),
-                    float(self.grid.prefactor), float(self._h[0]), float(self._h[1]),
-                    float(p.cells_per_axis), *self._cx[0].tolist(), *self._cx[1].tolist(),
-                    float(snapshot_every), float(room)),
-            state=[*self.a.ravel().tolist(), *st, *[0.0] * (room * (1 + self.a.size))],
-            inputs=self.inputs, outputs=self.outputs)
+            params=AdaptiveComplianceParamsC(
+                Ts_s=p.Ts_s, k_N_per_m2s=p.k_N_per_m2s, tau_s=p.tau_s,
+                a_clamp_N_per_m=p.a_min_N_per_m if p.clamp_weights else -math.inf, xi=p.xi,
+                physical_damping=float(self._phys), m_x_kg=float(self.masses[0]),
+                m_y_kg=float(self.masses[1]), prefactor=float(self.grid.prefactor),
+                h_x_per_m2=float(self._h[0]), h_y_per_m2=float(self._h[1]),
+                cells_per_axis=float(p.cells_per_axis), snapshot_every=float(snapshot_every),
+                snapshot_room=float(room),
+                tail=[*self._cx[0].tolist(), *self._cx[1].tolist()]),
+            state=st, inputs=self.inputs, outputs=self.outputs)
 
     def c_kernel_sync(self, state) -> None:
         """Write the state of a compiled run back (heights, last error, kp, kd, the tick
@@ -393,17 +414,17 @@ class AdaptiveComplianceController:
     def _c_kernel_sync(self, state) -> tuple[int, list]:
         """... and return (ticks stepped, [(tick, a) snapshots taken by the kernel])."""
         n = self.a.size
-        self.a = np.array(state[:n], float).reshape(self.a.shape)
-        st = [float(v) for v in state[n:n + 10]]
-        self.err_prev = (st[1], st[2]) if st[0] else None
-        self.kp = np.array(st[4:6])
-        self.kd = np.array(st[6:8])
-        snaps, at = [], n + 10
-        for _ in range(int(st[9])):
-            snaps.append((int(state[at]), np.array(state[at + 1:at + 1 + n], float)
+        st = AdaptiveComplianceStateC.from_values(state)
+        self.a = np.array(st.tail[:n], float).reshape(self.a.shape)
+        self.err_prev = (st.err_prev_x_m, st.err_prev_y_m) if st.has_err_prev else None
+        self.kp = np.array([st.kp_x_N_per_m, st.kp_y_N_per_m])
+        self.kd = np.array([st.kd_x_Ns_per_m, st.kd_y_Ns_per_m])
+        snaps, at = [], n
+        for _ in range(int(st.snapshots)):
+            snaps.append((int(st.tail[at]), np.array(st.tail[at + 1:at + 1 + n], float)
                           .reshape(self.a.shape)))
             at += 1 + n
-        return int(st[8]), snaps
+        return int(st.ticks), snaps
 
     def c_kernel_error(self, code: int) -> Exception:
         if code == 2:

@@ -54,11 +54,23 @@ contact with very stiff, undamped environments.
 """
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
-from .ckernel import CKernel
+from .ckernel import CKernel, KernelStruct, fields
 from .zero_force import BallscrewDrive, _saturate
+
+
+class BilateralParamsC(KernelStruct):
+    """``bilateral_params`` of ``c/bilateral.c``."""
+    _fields_ = fields("Kp_per_s2", "Kv_per_s", "Cf_N_per_N", "Dc_per_s", "m_n_kg",
+                      "Kf_N_per_A", "use_dob", "saturate", "i_max_A")
+
+
+class BilateralStateC(KernelStruct):
+    """``bilateral_state`` of ``c/bilateral.c``: the last outputs in ``outputs``' order."""
+    _fields_ = fields("has_last", ("last", 6))
 
 
 @dataclass(frozen=True)
@@ -152,17 +164,20 @@ class BilateralController:
         last = [float(self.last[k]) for k in self.outputs] if self.last else [0.0] * 6
         return CKernel(
             name="bilateral",
-            params=(p.Kp_per_s2, p.Kv_per_s, p.force_gain, p.common_mode_damping_per_s,
-                    p.drive.mass_equivalent_kg, p.drive.force_constant_N_per_A,
-                    float(p.use_dob), float(p.i_max_A is not None),
-                    0.0 if p.i_max_A is None else p.i_max_A),
-            state=[float(bool(self.last)), *last], inputs=self.inputs,
+            params=BilateralParamsC(
+                Kp_per_s2=p.Kp_per_s2, Kv_per_s=p.Kv_per_s, Cf_N_per_N=p.force_gain,
+                Dc_per_s=p.common_mode_damping_per_s, m_n_kg=p.drive.mass_equivalent_kg,
+                Kf_N_per_A=p.drive.force_constant_N_per_A, use_dob=float(p.use_dob),
+                saturate=float(p.i_max_A is not None),
+                i_max_A=0.0 if p.i_max_A is None else p.i_max_A),
+            state=BilateralStateC(has_last=float(bool(self.last)), last=(ctypes.c_double * 6)(*last)),
+            inputs=self.inputs,
             outputs=tuple(self.outputs))
 
     def c_kernel_sync(self, state: Sequence[float]) -> None:
         """Write the state of a compiled run back (``last``, the last outputs)."""
-        self.last = ({k: float(v) for k, v in zip(self.outputs, state[1:7])}
-                     if state[0] else {})
+        s = BilateralStateC.from_values(state)
+        self.last = {k: float(v) for k, v in zip(self.outputs, s.last)} if s.has_last else {}
 
     def c_kernel_error(self, code: int) -> Exception:
         return RuntimeError(f"compiled bilateral step returned {code} (it has no error codes)")

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
-__all__ = ["CKernel", "KERNEL_DIR", "CFLAGS", "kernel_source", "kernel_sources",
-           "compile_shared", "KernelLibrary"]
+__all__ = ["CKernel", "KernelStruct", "KERNEL_DIR", "CFLAGS", "kernel_source",
+           "kernel_sources", "compile_shared", "cached_library", "KernelLibrary"]
 
 #: the kernels' C sources (package data of an installed wheel as well)
 KERNEL_DIR = Path(__file__).resolve().parent / "c"
@@ -33,6 +33,54 @@ KERNEL_DIR = Path(__file__).resolve().parent / "c"
 #: no FMA contraction), so that a kernel can be bit-identical to its Python reference
 CFLAGS = ["-O2", "-fPIC", "-std=c99", "-ffp-contract=off", "-fno-fast-math",
           "-fvisibility=default"]
+
+
+class KernelStruct(ctypes.Structure):
+    """A kernel's parameters or state by name: the ctypes twin of a C struct
+    ``<name>_params`` / ``<name>_state`` in ``c/<name>.c`` (same field names, same
+    order, every field a double). Subclasses list their fields with units in the
+    names::
+
+        class DOBParamsC(KernelStruct):
+            _fields_ = fields("Ktn_Nm_per_A", "Jn_kg_m2", "Ts_s", ...)
+
+    ``tail``: the values of a trailing flexible array member (a map, a table), if any.
+    """
+    _fields_: list = []
+
+    def __init__(self, *args, tail=(), **kw):
+        super().__init__(*args, **kw)
+        self.tail = [float(x) for x in tail]
+
+    def values(self) -> list[float]:
+        """The fields in C order (an array field's elements in turn), then the tail:
+        the doubles the engine keeps."""
+        out: list[float] = []
+        for n, _ in self._fields_:
+            v = getattr(self, n)
+            if isinstance(v, ctypes.Array):
+                out.extend(v)
+            else:
+                out.append(float(v))
+        return out + list(self.tail)
+
+    @classmethod
+    def from_values(cls, values: Sequence[float]) -> "KernelStruct":
+        """The struct of a run's packed doubles (the fields, then the tail)."""
+        n = ctypes.sizeof(cls) // ctypes.sizeof(ctypes.c_double)
+        vals = [float(x) for x in values]
+        if len(vals) < n:
+            raise ValueError(f"{cls.__name__}: {len(vals)} values for {n} doubles")
+        s = cls.from_buffer_copy((ctypes.c_double * n)(*vals[:n]))
+        s.tail = vals[n:]
+        return s
+
+
+def fields(*names) -> list:
+    """``_fields_`` of a :class:`KernelStruct`: each name a C double, a pair
+    ``(name, n)`` an array of n doubles."""
+    return [(n[0], ctypes.c_double * n[1]) if isinstance(n, tuple) else (n, ctypes.c_double)
+            for n in names]
 
 
 @dataclass
@@ -43,10 +91,11 @@ class CKernel:
     ----------
     name : str
         The kernel's name: C function ``cosim_kernel_<name>`` in ``c/<name>.c``.
-    params : tuple of float
-        Packed parameters (read-only in C).
-    state : list of float
-        Packed state at the start of the compiled run (read/write in C).
+    params : KernelStruct (or its values)
+        Parameters by name (read-only in C); kept as the tuple of their values.
+    state : KernelStruct (or its values)
+        State at the start of the compiled run by name (read/write in C); kept as the
+        list of its values.
     inputs : tuple of str
         Input names (keys of ``step``'s measurements) in the order of ``in[]``.
     outputs : tuple of str
@@ -59,6 +108,13 @@ class CKernel:
     inputs: tuple
     outputs: tuple
     attributes: tuple = field(default=())   # names in ``outputs`` that are attributes
+
+    def __post_init__(self):
+        # the engine and KernelLibrary keep doubles: a struct's fields in C order
+        if isinstance(self.params, KernelStruct):
+            self.params = tuple(self.params.values())
+        if isinstance(self.state, KernelStruct):
+            self.state = self.state.values()
 
 
 def kernel_source(name: str) -> Path:
@@ -88,6 +144,34 @@ def compile_shared(sources: Sequence[Path], out: Path, extra: Sequence[str] = ()
         raise RuntimeError(f"compiling {', '.join(Path(s).name for s in sources)} failed:\n"
                            f"{' '.join(cmd)}\n{r.stderr}")
     return out
+
+
+_CACHED: dict[Path, ctypes.CDLL] = {}
+
+
+def cached_library(names: Sequence[str]) -> ctypes.CDLL:
+    """The kernels ``names`` compiled into one shared library in the cache, loaded once
+    per process. The file is named by the hash of the sources, the ABI header and
+    :data:`CFLAGS` (an edited source is recompiled) and written atomically (two
+    processes may build it at once)."""
+    import hashlib
+    import tempfile
+
+    from ..paths import cache_dir
+    srcs = [kernel_source(n) for n in names]
+    h = hashlib.sha256(" ".join(CFLAGS).encode())
+    for src in [*srcs, KERNEL_DIR / "cosim_kernel.h"]:
+        h.update(src.read_bytes())
+    so = cache_dir() / "kernels" / f"{'+'.join(names)}_{h.hexdigest()[:16]}.so"
+    lib = _CACHED.get(so)
+    if lib is not None:
+        return lib
+    if not so.is_file():
+        so.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
+            os.replace(compile_shared(srcs, Path(tmp) / so.name), so)
+    lib = _CACHED[so] = ctypes.CDLL(str(so))
+    return lib
 
 
 class KernelLibrary:

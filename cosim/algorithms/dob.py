@@ -94,8 +94,31 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
-from .ckernel import CKernel
+from .ckernel import CKernel, KernelStruct, fields
 from ..devices.ballscrew import J_KG_M2, KT_NM_PER_A
+
+
+class DOBParamsC(KernelStruct):
+    """``dob_params`` of ``c/dob.c``: :class:`DOB`'s parameters as its kernel reads them."""
+    _fields_ = fields("Ktn_Nm_per_A", "Jn_kg_m2", "Ts_s", "pole", "i_cmd_is_total_previous")
+
+
+class DOBStateC(KernelStruct):
+    """``dob_state`` of ``c/dob.c``: :class:`DOB`'s state (a "has" flag per optional value)."""
+    _fields_ = fields("tau_hat_Nm", "d_raw_Nm", "w_prev_rad_s", "has_w_prev",
+                      "i_tot_prev_A", "has_i_tot_prev")
+
+
+class RFOBParamsC(KernelStruct):
+    """``rfob_params`` of ``c/rfob.c``: :class:`RFOB`'s parameters in use."""
+    _fields_ = fields("Ts_s", "pole", "fc_Nm", "w_eps_rad_s", "a1", "b0_rad_s_per_Nm",
+                      "Kt_Nm_per_A", "tau_load_Nm", "lead_m", "i_cmd_is_previous")
+
+
+class RFOBStateC(KernelStruct):
+    """``rfob_state`` of ``c/rfob.c``: :class:`RFOB`'s state."""
+    _fields_ = fields("tau_hat_Nm", "tau_raw_Nm", "w_prev_rad_s", "has_w_prev",
+                      "i_prev_A", "has_i_prev")
 
 
 def _lpf_pole(g_rad_s: float, Ts_s: float) -> float:
@@ -179,19 +202,24 @@ class DOB:
         prm = self.params
         return CKernel(
             name="dob",
-            params=(prm.Ktn_Nm_per_A, prm.Jn_kg_m2, prm.Ts_s, self.p,
-                    float(prm.i_cmd_is_total_previous)),
-            state=[self.tau_hat, self.d_raw, _or0(self._w_prev), float(self._w_prev is not None),
-                   _or0(self._i_tot_prev), float(self._i_tot_prev is not None)],
+            params=DOBParamsC(Ktn_Nm_per_A=prm.Ktn_Nm_per_A, Jn_kg_m2=prm.Jn_kg_m2,
+                              Ts_s=prm.Ts_s, pole=self.p,
+                              i_cmd_is_total_previous=float(prm.i_cmd_is_total_previous)),
+            state=DOBStateC(tau_hat_Nm=self.tau_hat, d_raw_Nm=self.d_raw,
+                            w_prev_rad_s=_or0(self._w_prev),
+                            has_w_prev=float(self._w_prev is not None),
+                            i_tot_prev_A=_or0(self._i_tot_prev),
+                            has_i_tot_prev=float(self._i_tot_prev is not None)),
             inputs=("i_cmd", "w"), outputs=tuple(self.outputs) + ("d_raw",),
             attributes=("d_raw",))
 
     def c_kernel_sync(self, state: Sequence[float]) -> None:
         """Write the state of a compiled run back (later :meth:`step` calls continue
         as if every step had run in Python)."""
-        self.tau_hat, self.d_raw = float(state[0]), float(state[1])
-        self._w_prev = float(state[2]) if state[3] else None
-        self._i_tot_prev = float(state[4]) if state[5] else None
+        s = DOBStateC.from_values(state)
+        self.tau_hat, self.d_raw = s.tau_hat_Nm, s.d_raw_Nm
+        self._w_prev = s.w_prev_rad_s if s.has_w_prev else None
+        self._i_tot_prev = s.i_tot_prev_A if s.has_i_tot_prev else None
 
     def c_kernel_error(self, code: int) -> Exception:
         return RuntimeError(f"compiled DOB step returned {code} (it has no error codes)")
@@ -320,18 +348,25 @@ class RFOB:
         prm = self.params
         return CKernel(
             name="rfob",
-            params=(prm.Ts_s, self.p, self.fc, prm.w_eps_rad_s, self.a1, self.b0, self.Kt,
-                    prm.tau_load_Nm, prm.lead_m, float(prm.i_cmd_is_previous)),
-            state=[self.tau_hat, self.tau_raw, _or0(self._w_prev), float(self._w_prev is not None),
-                   _or0(self._i_prev), float(self._i_prev is not None)],
+            params=RFOBParamsC(Ts_s=prm.Ts_s, pole=self.p, fc_Nm=self.fc,
+                               w_eps_rad_s=prm.w_eps_rad_s, a1=self.a1, b0_rad_s_per_Nm=self.b0,
+                               Kt_Nm_per_A=self.Kt, tau_load_Nm=prm.tau_load_Nm,
+                               lead_m=prm.lead_m,
+                               i_cmd_is_previous=float(prm.i_cmd_is_previous)),
+            state=RFOBStateC(tau_hat_Nm=self.tau_hat, tau_raw_Nm=self.tau_raw,
+                             w_prev_rad_s=_or0(self._w_prev),
+                             has_w_prev=float(self._w_prev is not None),
+                             i_prev_A=_or0(self._i_prev),
+                             has_i_prev=float(self._i_prev is not None)),
             inputs=("i_cmd", "w"), outputs=tuple(self.outputs) + ("tau_raw",),
             attributes=("tau_raw",))
 
     def c_kernel_sync(self, state: Sequence[float]) -> None:
         """Write the state of a compiled run back (see :meth:`DOB.c_kernel_sync`)."""
-        self.tau_hat, self.tau_raw = float(state[0]), float(state[1])
-        self._w_prev = float(state[2]) if state[3] else None
-        self._i_prev = float(state[4]) if state[5] else None
+        s = RFOBStateC.from_values(state)
+        self.tau_hat, self.tau_raw = s.tau_hat_Nm, s.tau_raw_Nm
+        self._w_prev = s.w_prev_rad_s if s.has_w_prev else None
+        self._i_prev = s.i_prev_A if s.has_i_prev else None
 
     def c_kernel_error(self, code: int) -> Exception:
         return RuntimeError(f"compiled RFOB step returned {code} (it has no error codes)")

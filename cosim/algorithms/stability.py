@@ -92,16 +92,16 @@ numbers admits the thesis's own pairs:
 """
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
-from pathlib import Path
-
 import numpy as np
 
 from .adaptive_compliance import AdaptiveComplianceController, AdaptiveComplianceParams
+from .ckernel import KernelStruct, cached_library, fields
 
 
 @dataclass(frozen=True)
@@ -345,36 +345,25 @@ def _verdict(t_arr, xs, rs, es, kps, fs, diverged, growth_tolerance) -> Simulati
     return SimulationResult(t_arr, xs, rs, es, kps, fs, diverged, growth, stable)
 
 
-_LIB: dict = {}
+class Stability1DofParamsC(KernelStruct):
+    """``stability_1dof_params`` of ``c/stability_1dof.c``; tail: the P cell centres [m]."""
+    _fields_ = fields("Ts_s", "k_N_per_m2s", "tau_s", "a_clamp_N_per_m", "xi",
+                      "physical_damping", "damping_mass_kg", "prefactor", "inv_var_per_m2",
+                      "mass_kg", "K_h_N_per_m", "b_h_Ns_per_m", "substeps", "cells")
 
 
-def _stability_lib():
-    """``c/stability_1dof.c`` compiled into the cache on first use (named by the hash of
-    its source and flags: an edited source is recompiled; atomic against a concurrent
-    build), loaded once per process."""
-    import ctypes
-    import hashlib
-    import os
-    import tempfile
+class Stability1DofStateC(KernelStruct):
+    """``stability_1dof_state`` of ``c/stability_1dof.c``; tail: the P heights [N/m]."""
+    _fields_ = fields("has_err_prev", "err_prev_m", "motors_on", "x_m", "v_m_per_s")
 
-    from ..paths import cache_dir
-    from .ckernel import CFLAGS, compile_shared, kernel_source
-    src = kernel_source("stability_1dof")
-    key = hashlib.sha256(src.read_bytes() + " ".join(CFLAGS).encode()).hexdigest()[:16]
-    so = cache_dir() / "kernels" / f"stability_1dof_{key}.so"
-    if so in _LIB:
-        return _LIB[so]
-    if not so.is_file():
-        so.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
-            out = compile_shared([src], Path(tmp) / so.name)
-            os.replace(out, so)
-    lib = ctypes.CDLL(str(so))
-    f = lib.cosim_stability_1dof_run
+
+def _stability_run():
+    """``cosim_stability_1dof_run`` of ``c/stability_1dof.c`` (compiled once into the
+    cache, :func:`~cosim.algorithms.ckernel.cached_library`)."""
+    f = cached_library(["stability_1dof"]).cosim_stability_1dof_run
     f.restype = ctypes.c_long
     D = ctypes.POINTER(ctypes.c_double)
     f.argtypes = [D, D, D, D, ctypes.c_long, ctypes.c_double]
-    _LIB[so] = f
     return f
 
 
@@ -410,18 +399,21 @@ def _simulate_1dof_compiled(params, human, m_r_kg, target, duration_s, x0_m, v0_
     inp[:, 1::2] = r[:, 1:]
     inp[:, 2::2] = rd[:, 1:]
     mass = 1.0 if p.damping_mass_kg is None else float(p.damping_mass_kg[0])
-    prm = np.array([Ts, p.k_N_per_m2s, p.tau_s,
-                    p.a_min_N_per_m if p.clamp_weights else -np.inf, p.xi,
-                    float(p.damping_form == "physical"), mass, g.prefactor,
-                    float(g._inv_var[0]), m_r_kg + human.M_h_kg, human.K_h_N_per_m,
-                    human.b_h_Ns_per_m, float(substeps), float(g.P),
-                    *g.centres[:, 0].tolist()])
-    st = np.array([*ctrl.a[0].tolist(), 0.0, 0.0, float(ctrl.motors_on), float(x0_m),
-                   float(v0_m_per_s)])
+    prm = np.array(Stability1DofParamsC(
+        Ts_s=Ts, k_N_per_m2s=p.k_N_per_m2s, tau_s=p.tau_s,
+        a_clamp_N_per_m=p.a_min_N_per_m if p.clamp_weights else -np.inf, xi=p.xi,
+        physical_damping=float(p.damping_form == "physical"), damping_mass_kg=mass,
+        prefactor=g.prefactor, inv_var_per_m2=float(g._inv_var[0]),
+        mass_kg=m_r_kg + human.M_h_kg, K_h_N_per_m=human.K_h_N_per_m,
+        b_h_Ns_per_m=human.b_h_Ns_per_m, substeps=float(substeps), cells=float(g.P),
+        tail=g.centres[:, 0].tolist()).values())
+    st = np.array(Stability1DofStateC(
+        has_err_prev=0.0, err_prev_m=0.0, motors_on=float(ctrl.motors_on), x_m=float(x0_m),
+        v_m_per_s=float(v0_m_per_s), tail=ctrl.a[0].tolist()).values())
     out = np.full((n, 5), np.nan)
     D = ctypes.POINTER(ctypes.c_double)
     inp = np.ascontiguousarray(inp)
-    rows = _stability_lib()(prm.ctypes.data_as(D), st.ctypes.data_as(D), inp.ctypes.data_as(D),
+    rows = _stability_run()(prm.ctypes.data_as(D), st.ctypes.data_as(D), inp.ctypes.data_as(D),
                             out.ctypes.data_as(D), n, float(blowup_m))
     if rows < 0:
         raise RuntimeError("compiled 1-DOF simulation: more cells than the kernel holds")

@@ -51,8 +51,41 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
-from .ckernel import CKernel
+from .ckernel import CKernel, KernelStruct, fields
 from ..devices.ballscrew import J_KG_M2, KT_NM_PER_A
+
+
+class ZeroForceParamsC(KernelStruct):
+    """``zero_force_params`` of ``c/zero_force.c``."""
+    _fields_ = fields("Kf_p_N_per_N", "Kf_N_per_A", "enabled", "use_dob",
+                      "use_force_reference", "saturate", "i_max_A")
+
+
+class ZeroForceStateC(KernelStruct):
+    """``zero_force_state`` of ``c/zero_force.c``."""
+    _fields_ = fields("f_cntr_N")
+
+
+class SineReferenceParamsC(KernelStruct):
+    """``sine_reference_params`` of ``c/sine_reference.c``."""
+    _fields_ = fields("amplitude_m", "frequency_Hz", "offset_m", "Ts_s")
+
+
+class SineReferenceStateC(KernelStruct):
+    """``sine_reference_state`` of ``c/sine_reference.c`` (the tick counter)."""
+    _fields_ = fields("k")
+
+
+class PositionControllerParamsC(KernelStruct):
+    """``position_controller_params`` of ``c/position_controller.c``."""
+    _fields_ = fields("Kp_N_per_m", "Kd_Ns_per_m", "Ki_N_per_ms", "feedforward_mass_kg",
+                      "use_velocity_input", "derivative_on_error", "saturate", "i_max_A",
+                      "Ts_s", "Kf_N_per_A")
+
+
+class PositionControllerStateC(KernelStruct):
+    """``position_controller_state`` of ``c/position_controller.c``."""
+    _fields_ = fields("integral_ms", "x_prev_m", "has_x_prev")
 
 
 # --------------------------------------------------------------------------- drive
@@ -176,14 +209,18 @@ class ZeroForceController:
         p = self.params
         return CKernel(
             name="zero_force",
-            params=(p.force_gain, p.drive.force_constant_N_per_A, float(p.enabled),
-                    float(p.use_dob), float(p.use_force_reference),
-                    float(p.i_max_A is not None), 0.0 if p.i_max_A is None else p.i_max_A),
-            state=[self.f_cntr], inputs=self.inputs, outputs=tuple(self.outputs))
+            params=ZeroForceParamsC(
+                Kf_p_N_per_N=p.force_gain, Kf_N_per_A=p.drive.force_constant_N_per_A,
+                enabled=float(p.enabled), use_dob=float(p.use_dob),
+                use_force_reference=float(p.use_force_reference),
+                saturate=float(p.i_max_A is not None),
+                i_max_A=0.0 if p.i_max_A is None else p.i_max_A),
+            state=ZeroForceStateC(f_cntr_N=self.f_cntr), inputs=self.inputs,
+            outputs=tuple(self.outputs))
 
     def c_kernel_sync(self, state: Sequence[float]) -> None:
         """Write the state of a compiled run back (``f_cntr`` of the last step)."""
-        self.f_cntr = float(state[0])
+        self.f_cntr = ZeroForceStateC.from_values(state).f_cntr_N
 
     def c_kernel_error(self, code: int) -> Exception:
         return RuntimeError(f"compiled zero-force step returned {code} (it has no error codes)")
@@ -234,11 +271,14 @@ class SineReference:
     # compiled twin (c/sine_reference.c, cosim_kernel.h); step() above is the reference
     def c_kernel(self, ticks: int | None = None) -> CKernel:
         p = self.params
-        return CKernel("sine_reference", (p.amplitude_m, p.frequency_Hz, p.offset_m, p.Ts_s),
-                       [float(self.k)], (), self.outputs)
+        return CKernel("sine_reference",
+                       SineReferenceParamsC(amplitude_m=p.amplitude_m,
+                                            frequency_Hz=p.frequency_Hz,
+                                            offset_m=p.offset_m, Ts_s=p.Ts_s),
+                       SineReferenceStateC(k=float(self.k)), (), self.outputs)
 
     def c_kernel_sync(self, state) -> None:
-        self.k = int(state[0])
+        self.k = int(SineReferenceStateC.from_values(state).k)
 
     def c_kernel_error(self, code: int) -> Exception:
         return RuntimeError(f"sine_reference: unexpected error code {code}")
@@ -330,17 +370,22 @@ class PositionController:
     # compiled twin (c/position_controller.c, cosim_kernel.h); step() above is the reference
     def c_kernel(self, ticks: int | None = None) -> CKernel:
         p = self.params
-        params = (p.Kp_N_per_m, p.Kd_Ns_per_m, p.Ki_N_per_ms, p.feedforward_mass_kg,
-                  float(p.use_velocity_input), float(p.derivative_on_error),
-                  float(p.i_max_A is not None), p.i_max_A or 0.0, p.Ts_s,
-                  p.drive.force_constant_N_per_A)
-        state = [self.integral, 0.0 if self.x_prev is None else self.x_prev,
-                 0.0 if self.x_prev is None else 1.0]
+        params = PositionControllerParamsC(
+            Kp_N_per_m=p.Kp_N_per_m, Kd_Ns_per_m=p.Kd_Ns_per_m, Ki_N_per_ms=p.Ki_N_per_ms,
+            feedforward_mass_kg=p.feedforward_mass_kg,
+            use_velocity_input=float(p.use_velocity_input),
+            derivative_on_error=float(p.derivative_on_error),
+            saturate=float(p.i_max_A is not None), i_max_A=p.i_max_A or 0.0, Ts_s=p.Ts_s,
+            Kf_N_per_A=p.drive.force_constant_N_per_A)
+        state = PositionControllerStateC(
+            integral_ms=self.integral, x_prev_m=0.0 if self.x_prev is None else self.x_prev,
+            has_x_prev=0.0 if self.x_prev is None else 1.0)
         return CKernel("position_controller", params, state, self.inputs, self.outputs)
 
     def c_kernel_sync(self, state) -> None:
-        self.integral = state[0]
-        self.x_prev = state[1] if state[2] else None
+        s = PositionControllerStateC.from_values(state)
+        self.integral = s.integral_ms
+        self.x_prev = s.x_prev_m if s.has_x_prev else None
 
     def c_kernel_error(self, code: int) -> Exception:
         return RuntimeError(f"position_controller: unexpected error code {code}")

@@ -76,7 +76,8 @@ def _parse_start(items) -> dict:
 
 def _cmd_fmus_simulate(a) -> int:
     """Exit 0 when the run completed, 1 when the FMU failed (rows up to it written)."""
-    from ..master import FMUError, SystemError_
+    from ..fmi.fmu import FMUError
+    from ..master import SystemError_
     from ..master.simulate import SimulateError, simulate_fmu, write_result
     out = Path(a.out)
     if out.suffix.lower() not in (".csv", ".parquet"):

@@ -9,7 +9,7 @@ def _cmd_roles(a) -> int:
     """Print each role contract (or the one named): its variables, their causality,
     unit and meaning: what an FMU must offer, directly or through a role binding
     (docs/bring-your-own-fmu.md)."""
-    from ..master.fmu import suggest
+    from ..fmi.fmu import suggest
     from ..master.roles import CONTRACTS
     names = [a.name] if a.name else list(CONTRACTS)
     if a.name and a.name not in CONTRACTS:

@@ -99,7 +99,7 @@ def _guarded(a, cmd: str, work):
     """Run ``work(out, swaps)`` for ``cosim run``/``cosim suite``: the output folder
     checked, the package's FMUs built, bad input -> exit 2, Ctrl-C -> what was kept and
     exit 3. Returns (exit code or None, work's result)."""
-    from cosim.master.fmu import FMUError
+    from cosim.fmi.fmu import FMUError
     from cosim.master.system import SystemError_
     from cosim.scenarios.isolate import ISOLATION
     from cosim.scenarios.registry import RegistryError

@@ -17,7 +17,7 @@ exported by Dymola, 20-sim, Simulink FMI Kit and run with every importer. ``stri
 turns warnings into errors. Notes (no description, no unit) are never errors.
 
 :func:`model_warnings` is the same classification for an FMU bound to a role (the
-master calls it when it loads an FMU, see :class:`cosim.master.fmu.FMUSlave`).
+master calls it when it loads an FMU, see :class:`cosim.fmi.fmu.FMUSlave`).
 """
 from __future__ import annotations
 

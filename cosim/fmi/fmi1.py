@@ -2,7 +2,7 @@
 
 FMPy loads an FMI 1.0 binary (:class:`fmpy.fmi1.FMU1Slave` / ``FMU1Model``, functions
 ``<modelIdentifier>_fmi...``); :class:`FMI1Adapter` maps the FMI 2.0 lifecycle that
-:class:`~cosim.master.fmu.FMUSlave` drives onto the FMI 1.0 one (FMI 1.0 CS standard
+:class:`~cosim.fmi.fmu.FMUSlave` drives onto the FMI 1.0 one (FMI 1.0 CS standard
 section 3.3, ME standard section 3.2):
 
 =====================================  ==============================================

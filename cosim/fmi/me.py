@@ -145,7 +145,7 @@ class MEIntegrator:
     # ------------------------------------------------------------------ inputs
     def input_setter(self, raw_get, raw_set):
         """Wrap a raw Real setter ``(comp, vr, n, buf[, n]) -> status`` (see
-        :class:`~cosim.master.fmu.RawIO`) so that the master's input writes follow the
+        :class:`~cosim.fmi.fmu.RawIO`) so that the master's input writes follow the
         rules of the module docstring. Same signature and return value."""
         last = self._last
         discrete = self._discrete

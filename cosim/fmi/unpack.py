@@ -1,6 +1,6 @@
 """One extraction per process and FMU: shared folders, counted users, nothing left.
 
-Every user of an FMU's files (an :class:`~cosim.master.fmu.FMUSlave`, the gap
+Every user of an FMU's files (an :class:`~cosim.fmi.fmu.FMUSlave`, the gap
 replayer, the FMPy cross-check) takes a :class:`Hold` with :func:`acquire`. The
 archive is extracted once per process and FMU sha256 into
 ``<tmp>/cosim-<pid>-<sha256[:16]>/``; every hold on the same hash shares that

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from ..logs.trial_log import TrialLog, TrialLogError, read_trial_log, unit_si
-from ..master.fmu import suggest
+from ..fmi.fmu import suggest
 from ..master.units import BaseUnit, affine, dimension
 from .device import GapInputError
 

@@ -64,7 +64,6 @@ from __future__ import annotations
 
 import ctypes
 import math
-import weakref
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -186,67 +185,31 @@ def _finite(v: Any, what: str) -> float:
 class Replayer:
     """One loaded instance of a BallScrewDevice-like FMU, reused across runs.
 
-    :meth:`run_window` restarts the instance (``fmi2Reset``), sets parameters and the
-    initial angle/speed, and steps it through given input samples with the raw ctypes
-    calls (about 3 calls per 1 ms step); :meth:`close` frees it.
+    The FMU is an :class:`~cosim.fmi.fmu.FMUSlave` (loading, the FMU's messages, status
+    checks and error text are the FMI layer's); :meth:`run_window` restarts the
+    instance (:meth:`~cosim.fmi.fmu.FMUSlave.restart`, ``fmi2Reset``), sets parameters
+    and the initial angle/speed, and steps it through given input samples with the
+    layer's raw ctypes calls (:meth:`~cosim.fmi.fmu.FMUSlave.raw`, about 3 calls per
+    1 ms step); :meth:`close` frees it.
     """
 
     def __init__(self, fmu: Path):
-        import fmpy
-        from fmpy.fmi2 import FMU2Slave
+        from ..fmi.fmu import FMUSlave
         self.path = Path(fmu)
-        self.md = fmpy.read_model_description(str(self.path))
-        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.slave = FMUSlave(self.path, role="gap-replay", kind="cs")
+        self.vars = self.slave.variables
         for n in ("i_cmd", "f_ext", "theta0", "w0", "i0", *OUTPUTS):
             if n not in self.vars:
                 raise ValueError(f"{self.path}: not a BallScrewDevice FMU (no variable {n!r})")
-        from ..fmi import unpack
-        # the process's one extraction of this FMU, shared and removed with its last user
-        self._hold = unpack.acquire(self.path)
-        self._free = weakref.finalize(self, self._hold.release)
-        self._unzip = str(self._hold.dir)
-        self.messages: list[str] = []
-
-        def logger(env, name, status, category, message):  # keep the FMU's own words
-            if status > 1:
-                self.messages.append((message or b"").decode("utf-8", "replace"))
-        from fmpy.fmi2 import fmi2CallbackLoggerTYPE, fmi2CallbackFunctions, \
-            fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, calloc, free
-        self._cb = fmi2CallbackFunctions()
-        self._cb.logger = fmi2CallbackLoggerTYPE(logger)
-        self._cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        self._cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        try:   # formats the FMU's printf-style messages before they reach logger()
-            from fmpy.logging import addLoggerProxy
-            addLoggerProxy(ctypes.byref(self._cb))
-        except Exception:
-            pass
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzip,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier,
-                             instanceName="gap-replay")
-        self._hold.add_library(self.fmu.dll._handle)
-        self.fmu.instantiate(callbacks=self._cb, loggingOn=False)
-        self._fresh = True
-        dll = self.fmu.dll
-
-        def fn(name):
-            fp = dll._FuncPtr((name, dll))
-            fp.restype = ctypes.c_int
-            return fp
-        self._get, self._set, self._step = fn("fmi2GetReal"), fn("fmi2SetReal"), fn("fmi2DoStep")
-        self._comp = ctypes.c_void_p(self.fmu.component)
-        self._in_vr = (ctypes.c_uint32 * 2)(self.vars["i_cmd"].valueReference,
-                                            self.vars["f_ext"].valueReference)
+        self._in_vr = (ctypes.c_uint32 * 2)(self.vars["i_cmd"].vr, self.vars["f_ext"].vr)
         self._in_buf = (ctypes.c_double * 2)()
-        self._out_names = OUTPUTS
-        self._out_vr = (ctypes.c_uint32 * len(OUTPUTS))(*[self.vars[n].valueReference for n in OUTPUTS])
+        self._out_vr = (ctypes.c_uint32 * len(OUTPUTS))(*[self.vars[n].vr for n in OUTPUTS])
         self._out_n = ctypes.c_size_t(len(OUTPUTS))
 
-    def _status(self, st: int, what: str, t: float) -> None:
-        if st > 1:
-            msg = self.messages[-1] if self.messages else ""
-            raise RuntimeError(f"{self.path.name}: {what} returned status {st} at t = {t:.6f} s"
-                               + (f"; the FMU says: {msg}" if msg else ""))
+    @property
+    def messages(self) -> list[str]:
+        """The FMU's error messages of the current window."""
+        return [m for st, _, m in self.slave.messages if st > 1]
 
     def run_window(self, t: np.ndarray, i_cmd: np.ndarray, f_ext: np.ndarray,
                    params: Mapping[str, float], theta0: float, w0: float,
@@ -254,61 +217,63 @@ class Replayer:
         """Simulate from t[0] (state theta0, w0) through the samples ``t``; write the
         outputs at t[k] into ``out[k, :]`` (columns :data:`OUTPUTS`). ``i_cmd[k]``,
         ``f_ext[k]`` are held over [t[k], t[k+1])."""
-        f = self.fmu
-        if not self._fresh:
-            f.reset()
-        self._fresh = False
-        f.setupExperiment(startTime=float(t[0]))
+        s = self.slave
         p = dict(params)
         p.update(theta0=float(theta0), w0=float(w0), i0=float(i_cmd[0]))
-        vrs, vals = [], []
-        for k, v in p.items():
-            var = self.vars.get(k)
-            if var is None or var.causality != "parameter":
-                raise ValueError(f"{self.path.name}: {k!r} is not a parameter of the FMU")
-            vrs.append(var.valueReference); vals.append(float(v))
-        f.setReal(vrs, vals)
-        f.enterInitializationMode()
+        s.restart(self._parameters(p), start_time=float(t[0]))
+        io = s.raw()
+        get_name, set_name, step_name = (s.call_name(w) for w in ("get", "set", "step"))
         inb, inv = self._in_buf, self._in_vr
         two = ctypes.c_size_t(2)
+        in_tail = (two,) if io.fmi3 else ()          # fmi3{Get,Set}Float64: nValues too
+        out_tail = (self._out_n,) if io.fmi3 else ()
+        get, set_, step, comp = io.get, io.set, io.step, io.comp
+        flag = ctypes.c_bool(True) if io.fmi3 else ctypes.c_int(1)   # noSetFMUStatePriorToCurrentPoint
+        step_extra = io.step_extra
         inb[0] = float(i_cmd[0]); inb[1] = float(f_ext[0])
-        self._status(self._set(self._comp, inv, two, inb), "fmi2SetReal", float(t[0]))
-        f.exitInitializationMode()
+        st = set_(comp, inv, two, inb, *in_tail)
+        if st > 1:
+            raise s.error(set_name, st, float(t[0]))
+        s.exit_initialization()
         n = len(t)
         assert out.shape == (n, len(OUTPUTS)) and out.flags.c_contiguous
         base = out.ctypes.data
         row = out.strides[0]
-        get, set_, step, comp = self._get, self._set, self._step, self._comp
         ovr, on = self._out_vr, self._out_n
         D = ctypes.c_double
-        one = ctypes.c_int(1)
         P = ctypes.c_void_p
         tt = t.tolist(); ii = i_cmd.tolist(); ff = f_ext.tolist()
-        st = get(comp, ovr, on, P(base))
+        st = get(comp, ovr, on, P(base), *out_tail)
         if st > 1:
-            self._status(st, "fmi2GetReal", tt[0])
+            raise s.error(get_name, st, tt[0])
         for k in range(n - 1):
             inb[0] = ii[k]; inb[1] = ff[k]
-            st = set_(comp, inv, two, inb)
+            st = set_(comp, inv, two, inb, *in_tail)
             if st > 1:
-                self._status(st, "fmi2SetReal", tt[k])
-            st = step(comp, D(tt[k]), D(tt[k + 1] - tt[k]), one)
+                raise s.error(set_name, st, tt[k])
+            st = step(comp, D(tt[k]), D(tt[k + 1] - tt[k]), flag, *step_extra)
             if st > 1:
-                self._status(st, "fmi2DoStep", tt[k])
-            st = get(comp, ovr, on, P(base + (k + 1) * row))
+                raise s.error(step_name, st, tt[k])
+            st = get(comp, ovr, on, P(base + (k + 1) * row), *out_tail)
             if st > 1:
-                self._status(st, "fmi2GetReal", tt[k + 1])
-        f.terminate()
+                raise s.error(get_name, st, tt[k + 1])
+
+    def _parameters(self, p: Mapping[str, float]) -> dict[str, float]:
+        """``p`` as floats, each checked to be a parameter of the FMU (ValueError)."""
+        for k in p:
+            var = self.vars.get(k)
+            if var is None or var.causality != "parameter":
+                raise ValueError(f"{self.path.name}: {k!r} is not a parameter of the FMU")
+        return {k: float(v) for k, v in p.items()}
 
     def close(self) -> None:
         """Free the instance, unload the library and (with the last user of this FMU in
         the process) delete its extracted files."""
-        if self.fmu is not None:
-            try:       # not freeInstance(): the hold closes the library it opened
-                self.fmu.fmi2FreeInstance(self.fmu.component)
+        if self.slave is not None:
+            try:
+                self.slave.close()
             finally:
-                self.fmu = None
-                self._free()
+                self.slave = None
 
 
 _REPLAYERS: dict[str, Replayer] = {}

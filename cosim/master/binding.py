@@ -40,7 +40,7 @@ import ctypes
 import dataclasses
 from typing import Mapping
 
-from .fmu import FMUError, FMUSlave, VarInfo, suggest
+from ..fmi.fmu import FMUError, FMUSlave, VarInfo, suggest
 from .roles import RoleContract
 from .units import affine, base_unit, dimension, norm
 

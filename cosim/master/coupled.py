@@ -12,7 +12,7 @@ member in the role order.
 """
 from __future__ import annotations
 
-from .fmu import FMUError
+from ..fmi.fmu import FMUError
 
 
 def group_of(system, role: str):
@@ -86,7 +86,7 @@ def start(system, T0: float, error) -> list:
                               c.gain, c.unit_offset, f"{c.source} -> {c.dest}"))
         last = slaves[-1]
         try:
-            out.append(MEGroup([s._me for s in slaves], roles, links, last.error, T0,
+            out.append(MEGroup([s.me_integrator for s in slaves], roles, links, last.error, T0,
                                rtol=min(s.rtol for s in slaves), error_type=FMUError))
         except GroupError as exc:
             raise error(str(exc)) from None

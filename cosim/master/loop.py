@@ -28,7 +28,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from .fmu import _C2, _C3, INT_RANGE, FMUError, FMUTerminated
+from ..fmi.fmu import _C2, _C3, INT_RANGE, FMUError, FMUTerminated
 from .rows import CALL, GET, NO_CALL, ROLE, ROWS, SET, STEP
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 
 from ..devices.ballscrew import ENCODER_COUNTS_PER_REV
-from .fmu import FMUSlave, suggest
+from ..fmi.fmu import FMUSlave, suggest
 
 
 @dataclasses.dataclass(frozen=True)

@@ -102,13 +102,15 @@ class RowBuffer:
     def status_address(self) -> int:
         return ctypes.addressof(self.status)
 
-    def numeric(self) -> np.ndarray:
-        """A copy of the rows recorded so far (n x len(columns))."""
+    def numeric(self, copy: bool = True) -> np.ndarray:
+        """The rows recorded so far (n x len(columns)): a copy, or (``copy=False``) a
+        view of the buffer, valid while the buffer lives and is not written."""
         n, ncol = self.n, len(self.columns)
         if not n or not ncol:
             return np.empty((0, ncol))
-        return np.frombuffer(self.memory, dtype=np.float64, count=n * ncol,
-                             offset=HEADER_BYTES).reshape(n, ncol).copy()
+        rows = np.frombuffer(self.memory, dtype=np.float64, count=n * ncol,
+                             offset=HEADER_BYTES).reshape(n, ncol)
+        return rows.copy() if copy else rows
 
     def release(self) -> None:
         """Drop the ctypes views (a sink's mapped memory can then be closed)."""

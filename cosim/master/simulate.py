@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .fmu import FMUError
+from ..fmi.fmu import FMUError
 from .system import Master, RunResult, System, SystemError_
 
 
@@ -70,7 +70,7 @@ def read_input_csv(path, inputs: dict) -> dict:
     out = {}
     for j, c in enumerate(cols[1:], start=1):
         if c not in inputs:
-            from .fmu import suggest
+            from ..fmi.fmu import suggest
             close = suggest(c, inputs)
             raise SimulateError(f"input file {path}: column {c!r} is not an input of the FMU "
                                 f"(inputs: {sorted(inputs)}"

@@ -109,7 +109,7 @@ from . import coupled as _coupled
 from . import loop as _loop
 from .fast import engine as _engine
 from .faults import Fault, FaultKind
-from .fmu import INT_RANGE, STATUS, FMUError, FMUSlave, suggest
+from ..fmi.fmu import INT_RANGE, STATUS, FMUError, FMUSlave, suggest
 from .loop import ControllerError, Terminated, convert as _convert, finite as _finite
 from .loop import call_groups as _groups
 from .roles import CONTRACTS, RoleContract, check_contract
@@ -247,9 +247,9 @@ class System:
             slave.step_mult = slave.step_multiple(self.Ts, step_multiple)
         except FMUError as exc:
             raise SystemError_(str(exc)) from None
-        if slave._once_key is not None:
+        if slave.once_per_process is not None:
             for r, other in self.roles.items():
-                if other._once_key == slave._once_key and r != role:
+                if other.once_per_process == slave.once_per_process and r != role:
                     raise SystemError_(
                         f"role {role!r}: {slave.path.name} declares "
                         f"canBeInstantiatedOnlyOncePerProcess and role {r!r} already uses it")
@@ -1142,7 +1142,7 @@ class Master:
 
     def _result(self, rows, Ts, error, timing) -> RunResult:
         columns, num_cols, text_cols, dtypes = self._cols
-        data = rows.numeric()
+        data = rows.numeric(copy=False)     # each column is copied out below
         n = data.shape[0]
         signals = {}
         for name in columns:

@@ -163,7 +163,7 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
     :class:`MissingParameter` naming who sets it (``control``: the negative control
     this run belongs to; ``by_procedure``: role -> names the procedure's own overrides
     set)."""
-    from cosim.master.fmu import FMUError
+    from cosim.fmi.fmu import FMUError
     from cosim.master.system import System, SystemError_
     from cosim.devices.human_arm import human_parameters
     system = System(step_size=float(d.get("step", 1e-3)))

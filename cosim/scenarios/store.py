@@ -75,7 +75,7 @@ _FMU_HASHES: dict = {}
 
 
 def _fmu_sha(path: Path) -> str:
-    from cosim.master.fmu import sha256_file
+    from cosim.fmi.unpack import sha256_file
     key = (str(path), path.stat().st_mtime_ns, path.stat().st_size)
     if key not in _FMU_HASHES:
         _FMU_HASHES[key] = sha256_file(path)

@@ -64,6 +64,7 @@ carried between trainings, since the master calls ``reset()`` before every run) 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from pathlib import Path
@@ -164,17 +165,22 @@ class ReachingPath:
         ux = np.array([u[0] for u in units])
         uy = np.array([u[1] for u in units])
 
+        last: list = [None, None]        # (times, phases): the four functions share them
+
         def phases(t):
-            t = np.asarray(t, dtype=float)
-            i = np.floor_divide(t, T)                  # Python's float // (floor)
-            ok = (t >= 0) & (i < nseg)
+            if last[0] is t:                           # the master passes one time array
+                return last[1]
+            ta = np.asarray(t, dtype=float)
+            i = np.floor_divide(ta, T)                 # Python's float // (floor)
+            ok = (ta >= 0) & (i < nseg)
             ii = np.where(ok, i, 0).astype(np.int64)
             j = (ii // 2) % nd
-            tau = t - ii * T
+            tau = ta - ii * T
             out = ii % 2 == 0
             dist = np.where(out, v * tau, v * (T - tau))
             sign = np.where(out, 1.0, -1.0)
-            return ok, ux[j], uy[j], dist, sign
+            last[:] = [t, (ok, ux[j], uy[j], dist, sign)]
+            return last[1]
 
         def _vec(fn, which):
             def f(t):
@@ -594,7 +600,15 @@ def _reaching_target(params, ctx):
     """Target of the reaching task: out and back along three directions (Fig. 48)."""
     p = ReachingTargetParams(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in params.items()})
     ctx.state["reaching_path"] = p.path()          # for the procedure's map/stability figures
-    return p.path().functions()[p.component]
+    return _path_functions(p.path())[p.component]
+
+
+@functools.lru_cache(maxsize=16)
+def _path_functions(path: ReachingPath) -> dict:
+    """``path.functions()`` once per path: the four components of one path share their
+    evaluation over the run's time array (``phases`` in :meth:`ReachingPath.functions`),
+    and a course builds the same path for each training."""
+    return path.functions()
 
 
 def _decimated(res, n: int):

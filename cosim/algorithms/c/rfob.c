@@ -2,11 +2,6 @@
  * thesis eq. 10 with the identified ZOH model (eq. 39-40), see dob.py. Same arithmetic
  * in the same order as RFOB.step (bit-identical, tests/test_kernels.py).
  *
- * p: [0] Ts [s]  [1] pole exp(-g Ts)  [2] fc_hat [N m]  [3] w_eps [rad/s]  [4] a1
- *    [5] b0  [6] Kt_hat [N m/A]  [7] tau_l [N m]  [8] lead [m]
- *    [9] 1 = i_cmd is the current held over the last interval
- * s: [0] tau_hat [N m]  [1] tau_raw [N m]  [2] w_k-1  [3] has w_k-1  [4] i_k-1 [A]
- *    [5] has i_k-1
  * in: i_cmd [A], w [rad/s]
  * out: tau_ext_hat [N m], f_ext_hat [N], f_int_hat [N], tau_raw [N m]
  */
@@ -14,6 +9,28 @@
 #include "cosim_kernel.h"
 
 #define PI 3.141592653589793    /* math.pi, the same double */
+
+typedef struct {                 /* dob.RFOBParamsC */
+    double Ts_s;
+    double pole;                 /* exp(-g_RFOB Ts) */
+    double fc_Nm;                /* identified Coulomb friction */
+    double w_eps_rad_s;          /* half-width of the smoothed sign's linear zone */
+    double a1;                   /* exp(-Ts b/J), eq. 39 */
+    double b0_rad_s_per_Nm;      /* (1 - a1)/b, eq. 39 */
+    double Kt_Nm_per_A;          /* identified torque constant */
+    double tau_load_Nm;          /* known load torque */
+    double lead_m;               /* screw lead per revolution */
+    double i_cmd_is_previous;    /* 1: i_cmd is the current held over the last interval */
+} rfob_params;
+
+typedef struct {                 /* dob.RFOBStateC */
+    double tau_hat_Nm;
+    double tau_raw_Nm;
+    double w_prev_rad_s;
+    double has_w_prev;
+    double i_prev_A;
+    double has_i_prev;
+} rfob_state;
 
 /* dob.smooth_sign: clip(w/w_eps, -1, 1) as max(-1, min(1, w/w_eps)) in Python's
  * argument order; the plain sign if w_eps <= 0 */
@@ -26,27 +43,30 @@ static double smooth_sign(double w, double w_eps)
     return m > -1.0 ? m : -1.0;
 }
 
-int cosim_kernel_rfob(const double *p, double *s, const double *in, double *out)
+int cosim_kernel_rfob(const void *params, void *state, const double *in, double *out)
 {
+    const rfob_params *p = params;
+    rfob_state *s = state;
     double i_in = in[0], w = in[1];
-    int prev = p[9] != 0.0;
-    int has_held = prev || s[5] != 0.0;
-    double i_held = prev ? i_in : s[4];
-    if (s[3] != 0.0 && has_held) {
-        double w_mid = 0.5 * (w + s[2]);
-        double tau_f = p[2] * smooth_sign(w_mid, p[3]);        /* Coulomb part of tau_f */
+    int prev = p->i_cmd_is_previous != 0.0;
+    int has_held = prev || s->has_i_prev != 0.0;
+    double i_held = prev ? i_in : s->i_prev_A;
+    if (s->has_w_prev != 0.0 && has_held) {
+        double w_mid = 0.5 * (w + s->w_prev_rad_s);
+        double tau_f = p->fc_Nm * smooth_sign(w_mid, p->w_eps_rad_s);   /* Coulomb part of tau_f */
         /* eq. 10 (external = -reaction), inertia + viscous via the ZOH model eq. 39-40 */
-        s[1] = (w - p[4] * s[2]) / p[5] - p[6] * i_held + tau_f + p[7];
-        s[0] = p[1] * s[0] + (1.0 - p[1]) * s[1];                        /* g/(s+g) */
+        s->tau_raw_Nm = (w - p->a1 * s->w_prev_rad_s) / p->b0_rad_s_per_Nm
+                        - p->Kt_Nm_per_A * i_held + tau_f + p->tau_load_Nm;
+        s->tau_hat_Nm = p->pole * s->tau_hat_Nm + (1.0 - p->pole) * s->tau_raw_Nm;  /* g/(s+g) */
     }
-    s[2] = w;
-    s[3] = 1.0;
-    s[4] = i_in;
-    s[5] = 1.0;
-    double f_ext = s[0] * 2.0 * PI / p[8];                 /* tau = f lead/(2 pi) */
-    out[0] = s[0];
+    s->w_prev_rad_s = w;
+    s->has_w_prev = 1.0;
+    s->i_prev_A = i_in;
+    s->has_i_prev = 1.0;
+    double f_ext = s->tau_hat_Nm * 2.0 * PI / p->lead_m;    /* tau = f lead/(2 pi) */
+    out[0] = s->tau_hat_Nm;
     out[1] = f_ext;
     out[2] = -f_ext;
-    out[3] = s[1];
+    out[3] = s->tau_raw_Nm;
     return 0;
 }

@@ -11,13 +11,7 @@
  * (numpy's SIMD exp differs from libm's by 1 ulp on some arguments) and the dot
  * products (left to right here): tested to 1e-9 relative (tests/test_kernels.py).
  *
- * p: [0] Ts [s]  [1] k [N/(m^2 s)]  [2] tau [s]  [3] per-weight clamp [N/m] (-inf: none,
- *    the law as printed)  [4] xi  [5] 1 = physical damping form  [6] damping mass [kg]
- *    [7] Gaussian prefactor c/(sqrt(2 pi) sigma)  [8] 1/sigma^2 [1/m^2]
- *    [9] m_r + M_h [kg]  [10] K_h [N/m]  [11] b_h [N s/m]  [12] substeps
- *    [13] cells P (<= 64)  [14 .. 14+P) centres [m]
- * s: [0 .. P) heights a [N/m]  [P] has x~_k-1  [P+1] x~_k-1 [m]  [P+2] motors on
- *    [P+3] x [m]  [P+4] x' [m/s]
+ * Parameters and state: the structs below (the heights after the state's scalars).
  * in: r(t_k), then per substep j (t_j = t_k + j h, h = Ts/substeps): r, r' at t_j,
  *    t_j + h/2, t_j + h (1 + 6 substeps values)
  * out: x [m] (before the plant step), r [m], x~ [m], k_p [N/m], f_c [N]
@@ -27,26 +21,56 @@
 
 #define MAXP 64
 
-static double acc(const double *p, double r, double rd, double x, double v, double f)
+typedef struct {                 /* stability.Stability1DofParamsC */
+    double Ts_s;
+    double k_N_per_m2s;          /* adaptation gain k */
+    double tau_s;                /* forgetting time constant */
+    double a_clamp_N_per_m;      /* per-weight clamp (-inf: none, the law as printed) */
+    double xi;                   /* damping ratio */
+    double physical_damping;     /* 1: 2 xi sqrt(kp m); 0: xi/2 sqrt(kp) */
+    double damping_mass_kg;
+    double prefactor;            /* Gaussian prefactor c/(sqrt(2 pi) sigma) */
+    double inv_var_per_m2;       /* 1/sigma^2 */
+    double mass_kg;              /* m_r + M_h */
+    double K_h_N_per_m;          /* human stiffness */
+    double b_h_Ns_per_m;         /* human damping */
+    double substeps;             /* RK4 steps per tick */
+    double cells;                /* P (<= 64) */
+    double centres_m[];          /* P cell centres */
+} stability_1dof_params;
+
+typedef struct {                 /* stability.Stability1DofStateC */
+    double has_err_prev;
+    double err_prev_m;           /* x~ of the previous tick */
+    double motors_on;
+    double x_m;                  /* plant position */
+    double v_m_per_s;            /* plant speed */
+    double a_N_per_m[];          /* P heights */
+} stability_1dof_state;
+
+static double acc(const stability_1dof_params *p, double r, double rd, double x, double v,
+                  double f)
 {
-    return (f + p[10] * (r - x) + p[11] * (rd - v)) / p[9];
+    return (f + p->K_h_N_per_m * (r - x) + p->b_h_Ns_per_m * (rd - v)) / p->mass_kg;
 }
 
-int cosim_kernel_stability_1dof(const double *p, double *s, const double *in, double *out)
+int cosim_kernel_stability_1dof(const void *params, void *state, const double *in, double *out)
 {
-    int P = (int)p[13], i, j, nsub = (int)p[12];
-    const double *mu = p + 14;
-    double Ts = p[0], g[MAXP];
-    double *a = s, *st = s + P;
+    const stability_1dof_params *p = params;
+    stability_1dof_state *st = state;
+    int P = (int)p->cells, i, j, nsub = (int)p->substeps;
+    const double *mu = p->centres_m;
+    double Ts = p->Ts_s, g[MAXP];
+    double *a = st->a_N_per_m;
     if (P > MAXP)
         return 1;
-    double x = st[3], v = st[4];
+    double x = st->x_m, v = st->v_m_per_s;
     double r = in[0];
     double err = r - x;                                   /* x~ = r - x (eq. 65) */
     double g2 = 0.0, kp_prev = 0.0;
     for (i = 0; i < P; i++) {                             /* row of Y(x_k), eq. 62-63 */
         double d = x - mu[i];
-        g[i] = p[7] * exp(-0.5 * (d * d * p[8]));
+        g[i] = p->prefactor * exp(-0.5 * (d * d * p->inv_var_per_m2));
     }
     for (i = 0; i < P; i++)
         g2 += g[i] * g[i];                                /* Y Y^T = |g|^2 */
@@ -55,20 +79,20 @@ int cosim_kernel_stability_1dof(const double *p, double *s, const double *in, do
     /* eq. 71: a_k = a_k-1 + Ts(-1/tau Y^T (YY^T)^-1 Y a_k-1 + k Y^T |x~_k|) */
     double kp = 0.0;
     for (i = 0; i < P; i++) {
-        double forget = g2 > 1e-300 ? kp_prev / g2 * g[i] / p[2] : 0.0;
-        double ai = a[i] + Ts * (-forget + p[1] * (fabs(err) * g[i]));
-        a[i] = ai < p[3] ? p[3] : ai;                     /* per-weight clamp (-inf: none) */
+        double forget = g2 > 1e-300 ? kp_prev / g2 * g[i] / p->tau_s : 0.0;
+        double ai = a[i] + Ts * (-forget + p->k_N_per_m2s * (fabs(err) * g[i]));
+        a[i] = ai < p->a_clamp_N_per_m ? p->a_clamp_N_per_m : ai;  /* per-weight clamp (-inf: none) */
     }
     for (i = 0; i < P; i++)
         kp += a[i] * g[i];                                /* eq. 72 */
     double kpc = kp > 0.0 ? kp : 0.0, kd;
-    if (p[5] != 0.0)                                      /* damping, eq. 57 / eq. 60 */
-        kd = 2.0 * p[4] * sqrt(kpc * p[6]);
+    if (p->physical_damping != 0.0)                      /* damping, eq. 57 / eq. 60 */
+        kd = 2.0 * p->xi * sqrt(kpc * p->damping_mass_kg);
     else
-        kd = 0.5 * p[4] * sqrt(kpc);
-    double derr = st[0] != 0.0 ? (err - st[1]) / Ts : 0.0;   /* eq. 74, first sample: 0 */
-    st[0] = 1.0; st[1] = err;
-    double f = st[2] != 0.0 ? kp * err + kd * derr : 0.0;   /* eq. 73 */
+        kd = 0.5 * p->xi * sqrt(kpc);
+    double derr = st->has_err_prev != 0.0 ? (err - st->err_prev_m) / Ts : 0.0;   /* eq. 74, first sample: 0 */
+    st->has_err_prev = 1.0; st->err_prev_m = err;
+    double f = st->motors_on != 0.0 ? kp * err + kd * derr : 0.0;   /* eq. 73 */
     out[0] = x; out[1] = r; out[2] = err; out[3] = kp; out[4] = f;
     if (!isfinite(x))
         return 0;
@@ -82,20 +106,21 @@ int cosim_kernel_stability_1dof(const double *p, double *s, const double *in, do
         x += h / 6.0 * (k1x + 2 * k2x + 2 * k3x + k4x);
         v += h / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v);
     }
-    st[3] = x; st[4] = v;
+    st->x_m = x; st->v_m_per_s = v;
     return 0;
 }
 
 /* n ticks of the kernel above: in (n x (1 + 6 substeps)), out (n x 5). Stops after the
  * tick whose x is not finite or whose |x~| exceeds blowup_m (that row is written, as in
  * the Python loop); returns the number of rows written. */
-long cosim_stability_1dof_run(const double *p, double *s, const double *in, double *out,
+long cosim_stability_1dof_run(const void *params, void *state, const double *in, double *out,
                               long n, double blowup_m)
 {
-    long k, nin = 1 + 6 * (long)p[12];
+    const stability_1dof_params *p = params;
+    long k, nin = 1 + 6 * (long)p->substeps;
     for (k = 0; k < n; k++) {
         double *o = out + 5 * k;
-        if (cosim_kernel_stability_1dof(p, s, in + nin * k, o) != 0)
+        if (cosim_kernel_stability_1dof(params, state, in + nin * k, o) != 0)
             return -1;
         if (!isfinite(o[0]) || fabs(o[2]) > blowup_m)
             return k + 1;

@@ -16,6 +16,7 @@ is unrolled on floats.
 """
 from __future__ import annotations
 
+import ctypes
 import math
 import sys
 from dataclasses import replace
@@ -24,7 +25,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..aakf import (AakfModel, AakfParams, _check_params, _clamp, _outputs, discretise)
-from ..ckernel import CKernel
+from ..ckernel import CKernel, KernelStruct, fields
 
 __all__ = ["AaKF", "AaKFBank"]
 
@@ -327,23 +328,31 @@ class AaKF:
         seq = self._seq
         if id(seq) not in tables:
             tables[id(seq)] = np.array([r for chunk in seq.K_tuples for r in chunk], float)
-        return [float(self._Ad_sparse), *self._Ad, *self._s_row,
-                float(seq.n), float(id(seq)), float(seq.done)]   # id: the table's offset, later
+        return AakfMemberParamsC(
+            Ad_sparse=float(self._Ad_sparse), Ad=(ctypes.c_double * 16)(*self._Ad),
+            C_acc_alpha=self._s_row[0], C_acc_bias=self._s_row[1], gain_rows=float(seq.n),
+            gain_offset=float(id(seq)),               # id: the table's offset, set by _kernel
+            gain_converged=float(seq.done)).values()
 
     def _kernel_state(self) -> list[float]:
         ep = self._enc_prev
-        return [float(self.k), *self._x_post, *self._x_pred, *self._innov, self.loglik,
-                self.reset_lo, self.reset_hi, 0.0 if ep is None else ep,
-                float(ep is not None), 0.0, 0.0]
+        return AakfStateC(k=float(self.k), x_post=(ctypes.c_double * 4)(*self._x_post),
+                          x_pred=(ctypes.c_double * 4)(*self._x_pred),
+                          innov=(ctypes.c_double * 2)(*self._innov), loglik=self.loglik,
+                          reset_lo_rad=self.reset_lo, reset_hi_rad=self.reset_hi,
+                          enc_prev_rad=0.0 if ep is None else ep,
+                          has_enc_prev=float(ep is not None), reset_pos=0.0,
+                          reset_speed=0.0).values()
 
     def _kernel_sync_state(self, s: Sequence[float]) -> None:
-        self.k = k = int(s[0])
-        self._x_post = tuple(float(v) for v in s[1:5])
-        self._x_pred = tuple(float(v) for v in s[5:9])
-        self._innov = (float(s[9]), float(s[10]))
-        self.loglik = float(s[11])
-        self.reset_lo, self.reset_hi = float(s[12]), float(s[13])
-        self._enc_prev = float(s[14]) if s[15] else None
+        st = AakfStateC.from_values(s)
+        self.k = k = int(st.k)
+        self._x_post = tuple(st.x_post)
+        self._x_pred = tuple(st.x_pred)
+        self._innov = tuple(st.innov)
+        self.loglik = st.loglik
+        self.reset_lo, self.reset_hi = st.reset_lo_rad, st.reset_hi_rad
+        self._enc_prev = st.enc_prev_rad if st.has_enc_prev else None
         self._gk = k - 1                     # the gain of the last step (-1: none yet)
         self._cs = self._ce = 0              # the next step finds its gain chunk again
         self._kf = []
@@ -595,24 +604,52 @@ class AaKFBank(AaKF):
 
     def c_kernel_sync(self, state: Sequence[float]) -> None:
         n = len(self.members)
+        m = _KS_MEMBER
         for i, f in enumerate(self.members):
-            f._kernel_sync_state(state[_KS_MEMBER * i:_KS_MEMBER * (i + 1)])
-        b = [float(v) for v in state[_KS_MEMBER * n:]]
-        self.k = int(b[0])
-        self._enc_prev = b[2] if b[1] else None
-        self._best = int(b[3])
-        self.sigma_a_eff = b[4]
-        self._innov = (b[5], b[6])
-        self._x_mix = tuple(b[7:11])
-        self._L = b[11:11 + n]
-        self._w = b[11 + n:11 + 2 * n]
-        self._w_prior = b[11 + 2 * n:11 + 3 * n]
+            f._kernel_sync_state(state[m * i:m * (i + 1)])
+        b = AakfBankStateC.from_values(state[m * n:])
+        self.k = int(b.k)
+        self._enc_prev = b.enc_prev_rad if b.has_enc_prev else None
+        self._best = int(b.best)
+        self.sigma_a_eff = b.sigma_a_eff
+        self._innov = tuple(b.innov)
+        self._x_mix = tuple(b.x_mix)
+        self._L = b.tail[:n]
+        self._w = b.tail[n:2 * n]
+        self._w_prior = b.tail[2 * n:3 * n]
 
 
-#: kernel layout (c/aakf.c): header, per-member parameter block, per-member state
-_KP_HEADER = 15
-_KP_MEMBER = 22
-_KS_MEMBER = 18
+class AakfParamsC(KernelStruct):
+    """``aakf_params`` of ``c/aakf.c``; tail: (bank) log sigma_a_i, the members'
+    :class:`AakfMemberParamsC`, the gain tables."""
+    _fields_ = fields("n_members", "bank", "Ts_s", "Delta_rad", "half_Delta_rad",
+                      "lead_m_per_rad", "floor_quantiser", "reset_prediction",
+                      "reset_posterior", "member_reset_output", "bank_reset_output",
+                      "init_from_first_measurement", "eq31_accel", "lambda_forgetting",
+                      "compensated_sum")
+
+
+class AakfMemberParamsC(KernelStruct):
+    """``aakf_member_params`` of ``c/aakf.c``: one filter's model and gain table."""
+    _fields_ = fields("Ad_sparse", ("Ad", 16), "C_acc_alpha", "C_acc_bias", "gain_rows",
+                      "gain_offset", "gain_converged")
+
+
+class AakfStateC(KernelStruct):
+    """``aakf_state`` of ``c/aakf.c``: one filter's state."""
+    _fields_ = fields("k", ("x_post", 4), ("x_pred", 4), ("innov", 2), "loglik",
+                      "reset_lo_rad", "reset_hi_rad", "enc_prev_rad", "has_enc_prev",
+                      "reset_pos", "reset_speed")
+
+
+class AakfBankStateC(KernelStruct):
+    """``aakf_bank_state`` of ``c/aakf.c``; tail: L (n), w (n), w_prior (n)."""
+    _fields_ = fields("k", "has_enc_prev", "enc_prev_rad", "best", "sigma_a_eff",
+                      ("innov", 2), ("x_mix", 4))
+
+
+#: doubles of one member's state (c/aakf.c's aakf_state)
+_KS_MEMBER = ctypes.sizeof(AakfStateC) // ctypes.sizeof(ctypes.c_double)
 
 
 def _kernel(f: AaKF, members: Sequence[AaKF], bank: bool, ticks: int | None) -> CKernel:
@@ -628,31 +665,39 @@ def _kernel(f: AaKF, members: Sequence[AaKF], bank: bool, ticks: int | None) -> 
         _extend_together(need)
     blocks = [m._kernel_member(tables) for m in members]
     member_reset_out = (not bank) and f._reset_out
-    head = [float(n), float(bank), p.Ts, members[0]._delta, members[0]._half_delta, f._s,
-            float(p.encoder_quantiser == "floor"),
-            float(members[0]._reset_pred), float(members[0]._reset_post),
-            float(member_reset_out), float(bank and f._reset_out),
-            float(p.init_from_first_measurement), float(p.reset_speed_bound == "eq31_accel"),
-            f._lam if bank else 0.0,
-            # CPython 3.12 made sum() of floats compensated (Neumaier): the bank's sums
-            float(sys.version_info >= (3, 12)), *(f._log_sa if bank else [])]
-    assert len(head) == _KP_HEADER + (n if bank else 0)      # the layout of c/aakf.c
-    off = len(head) + _KP_MEMBER * n
+    head = AakfParamsC(
+        n_members=float(n), bank=float(bank), Ts_s=p.Ts, Delta_rad=members[0]._delta,
+        half_Delta_rad=members[0]._half_delta, lead_m_per_rad=f._s,
+        floor_quantiser=float(p.encoder_quantiser == "floor"),
+        reset_prediction=float(members[0]._reset_pred),
+        reset_posterior=float(members[0]._reset_post),
+        member_reset_output=float(member_reset_out),
+        bank_reset_output=float(bank and f._reset_out),
+        init_from_first_measurement=float(p.init_from_first_measurement),
+        eq31_accel=float(p.reset_speed_bound == "eq31_accel"),
+        lambda_forgetting=f._lam if bank else 0.0,
+        # CPython 3.12 made sum() of floats compensated (Neumaier): the bank's sums
+        compensated_sum=float(sys.version_info >= (3, 12)),
+        tail=f._log_sa if bank else []).values()
+    off = len(head) + sum(len(b) for b in blocks)
     where = {}
     for key, t in tables.items():
         where[key] = off
         off += t.size
     for b in blocks:
-        b[-2] = float(where[int(b[-2])])
+        b[-2] = float(where[int(b[-2])])          # gain_offset: the table's place
     params = np.concatenate([np.array(head + [v for b in blocks for v in b], float),
                              *(t.ravel() for t in tables.values())])
     params.flags.writeable = False
     state = [v for m in members for v in m._kernel_state()]
     if bank:
         ep = f._enc_prev
-        state += [float(f.k), float(ep is not None), 0.0 if ep is None else ep,
-                  float(f._best), f.sigma_a_eff, *f._innov, *f._x_mix,
-                  *f._L, *f._w, *f._w_prior]
+        state += AakfBankStateC(
+            k=float(f.k), has_enc_prev=float(ep is not None),
+            enc_prev_rad=0.0 if ep is None else ep, best=float(f._best),
+            sigma_a_eff=f.sigma_a_eff, innov=(ctypes.c_double * 2)(*f._innov),
+            x_mix=(ctypes.c_double * 4)(*f._x_mix),
+            tail=[*f._L, *f._w, *f._w_prior]).values()
         extra = ("sigma_a_eff",)
     else:
         extra = ("reset_lo", "reset_hi")

@@ -87,7 +87,7 @@ def library_path() -> Path:
 
 
 def _table(names: list[str]) -> str:
-    decl = "".join(f"int cosim_kernel_{n}(const double *, double *, const double *, double *);\n"
+    decl = "".join(f"int cosim_kernel_{n}(const void *, void *, const double *, double *);\n"
                    for n in names)
     rows = "".join(f'    {{"{n}", cosim_kernel_{n}}},\n' for n in names)
     return ('#include "cosim_kernel.h"\n'

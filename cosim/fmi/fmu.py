@@ -24,8 +24,8 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
-from ..fmi import unpack
-from ..fmi.unpack import sha256_file  # noqa: F401  (re-exported: scenarios.store)
+from . import unpack
+from .unpack import sha256_file
 
 _ELEMENT = re.compile(r"^(.+)\[\s*(\d+(?:\s*,\s*\d+)*)\s*\]$")
 
@@ -194,6 +194,10 @@ class RawIO:
     last_time: object = None     # FMI 3: the c_double lastSuccessfulTime out-argument
 
 
+#: (resolved path, size, mtime) -> (FMI version, sha256, model description): an FMU
+#: file is read and parsed once per process (the model description is not modified)
+_PARSED: dict[tuple, tuple] = {}
+
 #: FMUs declaring canBeInstantiatedOnlyOncePerProcess that have a live instance:
 #: (model identifier, instantiation token) -> role
 _ONCE: dict[tuple, str] = {}
@@ -215,17 +219,25 @@ class FMUSlave:
 
     def __init__(self, path, role: str = "fmu", kind: str = "auto", rtol: float = 1e-6):
         import fmpy
-        from ..fmi.check import fmi_version
+        from .check import fmi_version
 
         self.path = Path(path)
         self.role = role
         if not self.path.is_file():
             raise FMUError(f"role {role}: FMU file {self.path} does not exist")
-        try:
-            version = fmi_version(self.path)
-        except Exception as exc:
-            raise FMUError(f"role {role}: {exc}") from None
-        sha = sha256_file(self.path)
+        # the file's FMI version, hash and model description, read once per process
+        # and file version (a course loads the same two FMUs for each of its trainings)
+        st = self.path.stat()
+        key = (str(self.path.resolve()), st.st_size, st.st_mtime_ns)
+        parsed = _PARSED.get(key)
+        if parsed is None:
+            try:
+                version = fmi_version(self.path)
+            except Exception as exc:
+                raise FMUError(f"role {role}: {exc}") from None
+            sha = sha256_file(self.path)
+        else:
+            version, sha, md = parsed
         try:    # one extraction per process and FMU hash, shared (cosim.fmi.unpack)
             self._hold = unpack.acquire(self.path, sha)
         except Exception as exc:
@@ -233,12 +245,15 @@ class FMUSlave:
         # frees what this instance opened when it is dropped (the hold, not self)
         self._free = weakref.finalize(self, self._hold.release)
         unzip = self._hold.dir
-        try:
-            md = fmpy.read_model_description(str(unzip), validate=False)
-        except Exception as exc:
-            raise FMUError(f"role {role}: {self.path}: invalid modelDescription.xml: {exc}") from None
+        if parsed is None:
+            try:
+                md = fmpy.read_model_description(str(unzip), validate=False)
+            except Exception as exc:
+                raise FMUError(f"role {role}: {self.path}: invalid modelDescription.xml: "
+                               f"{exc}") from None
+            _PARSED[key] = (version, sha, md)
         self.md = md
-        from ..fmi.check import model_warnings, warn_once
+        from .check import model_warnings, warn_once
         #: deviations from the standard the FMU runs with (``cosim fmus check``'s warnings)
         self.warnings = warn_once(self.path, role, model_warnings(md))
         if kind not in ("auto", "cs", "me"):
@@ -295,7 +310,7 @@ class FMUSlave:
                 from fmpy.fmi3 import FMU3Model, FMU3Slave
                 self._fmu = FMU3Slave(**args) if kind == "cs" else FMU3Model(**args)
             elif self.fmi1:     # FMI 1.0 behind the FMI 2.0 calls (cosim.fmi.fmi1)
-                from ..fmi.fmi1 import FMI1Adapter
+                from .fmi1 import FMI1Adapter
                 self._fmu = FMI1Adapter(kind, lambda *m: self._log(*m), **args)
             else:
                 from fmpy.fmi2 import FMU2Model, FMU2Slave
@@ -513,10 +528,6 @@ class FMUSlave:
                                f"instantiated in this process (role {other})")
         self._me = None
         _LIVE[self._id] = self
-        tol = self.tolerance
-        if tol is None and self.md.defaultExperiment is not None and \
-                self.md.defaultExperiment.tolerance:
-            tol = float(self.md.defaultExperiment.tolerance)
         logging_on = bool(self.debug_logging)
         try:
             if self.fmi3:
@@ -533,17 +544,50 @@ class FMUSlave:
             if logging_on:
                 cats = [] if self.debug_logging is True else list(self.debug_logging)
                 f.setDebugLogging(True, cats)
-            if self.fmi3:
-                self.set_parameters(parameters or {})
-                f.enterInitializationMode(tolerance=tol, startTime=start_time, stopTime=stop_time)
-            else:
-                f.setupExperiment(tolerance=tol, startTime=start_time, stopTime=stop_time)
-                self.set_parameters(parameters or {})
-                f.enterInitializationMode()
+            self._enter_initialization(parameters, start_time, stop_time)
         except FMUError:
             raise
         except Exception as exc:
             raise self.error(f"instantiation failed ({exc})", getattr(exc, "status", None)) from None
+
+    def restart(self, parameters: Mapping[str, float] | None = None, start_time: float = 0.0,
+                stop_time: float | None = None):
+        """Run the live instance again from the start: fmi2Reset / fmi3Reset (FMI 2.0
+        section 2.1.6, FMI 3.0 section 2.3.1), then as :meth:`instantiate` (parameters,
+        tolerance, start and stop time, into initialisation mode). Cheaper than a new
+        instance; instantiates when there is no live instance (and for FMI 1.0, which
+        has no reset: terminate and instantiate)."""
+        if not self._instantiated or self.fmi1 or self.worst_status >= 3:
+            self.terminate()
+            return self.instantiate(parameters, start_time, stop_time)
+        self.messages.clear()
+        self.worst_status = 0
+        self.time = start_time
+        self._me = None
+        try:
+            self._fmu.reset()
+            self._enter_initialization(parameters, start_time, stop_time)
+        except FMUError:
+            raise
+        except Exception as exc:
+            raise self.error(f"reset failed ({exc})", getattr(exc, "status", None)) from None
+
+    def _enter_initialization(self, parameters, start_time, stop_time):
+        """Parameters and the experiment (tolerance, start and stop time) as the standard
+        says (FMI 2 in fmi2SetupExperiment, FMI 3 in fmi3EnterInitializationMode), then
+        initialisation mode."""
+        f = self._fmu
+        tol = self.tolerance
+        if tol is None and self.md.defaultExperiment is not None and \
+                self.md.defaultExperiment.tolerance:
+            tol = float(self.md.defaultExperiment.tolerance)
+        if self.fmi3:
+            self.set_parameters(parameters or {})
+            f.enterInitializationMode(tolerance=tol, startTime=start_time, stopTime=stop_time)
+        else:
+            f.setupExperiment(tolerance=tol, startTime=start_time, stopTime=stop_time)
+            self.set_parameters(parameters or {})
+            f.enterInitializationMode()
 
     def set_parameters(self, parameters: Mapping[str, float]):
         for name, value in parameters.items():
@@ -613,7 +657,7 @@ class FMUSlave:
         try:
             f.exitInitializationMode()
             if self.kind == "me":
-                from ..fmi.me import MEIntegrator
+                from .me import MEIntegrator
                 self._me = MEIntegrator(f, self.md, self.fmi3, self.error, self.time,
                                         rtol=self.rtol, error_type=FMUError)
                 self._me.start()
@@ -655,6 +699,13 @@ class FMUSlave:
         if self._me is not None:     # ME: input changes go through event handling
             io.set = self._me.input_setter(io.get, io.set)
         return io
+
+    def call_name(self, what: str) -> str:
+        """The C function behind :meth:`raw`'s ``get``, ``set`` or ``step`` for this FMU's
+        version, for error text: fmi2GetReal, fmi3GetFloat64, fmiDoStep (FMI 1.0), ..."""
+        prefix = "fmi3" if self.fmi3 else ("fmi" if self.fmi1 else "fmi2")
+        value = "Float64" if self.fmi3 else "Real"
+        return prefix + {"get": f"Get{value}", "set": f"Set{value}", "step": "DoStep"}[what]
 
     def typed_io(self, v: VarInfo, direction: str):
         """(raw ctypes function fmi2{Get,Set}<T> / fmi3{Get,Set}<T>, C element type,
@@ -809,3 +860,15 @@ class FMUSlave:
     @property
     def closed(self) -> bool:
         return self._closed
+
+    @property
+    def once_per_process(self) -> tuple | None:
+        """(model identifier, instantiation token) when the FMU declares
+        canBeInstantiatedOnlyOncePerProcess, else None."""
+        return self._once_key
+
+    @property
+    def me_integrator(self):
+        """The :class:`~cosim.fmi.me.MEIntegrator` of a Model Exchange run (after
+        :meth:`exit_initialization`), else None: what a coupled group solves together."""
+        return self._me
