@@ -1,0 +1,769 @@
+"""Gap-diagnosis device built from a user's own plant FMU and its binding (``--plant``/``--binding``).
+
+Nothing here is specific to a device: the plant is the FMU, the binding
+(:mod:`cosim.gap.binding`, ``gap-binding/1``) says which log column drives which FMU input,
+which measures which output through which sensor, where an unmodelled force enters
+(the disturbance input) and which parameters to recalibrate.
+
+Comparison (equation error through Model Exchange; why: ``docs/decisions.md``, "Own plant
+FMU: equation error"): at every log sample the FMU's continuous states are set from the
+measured motion (the encoder's output and its derivative, zero-phase smoothed: 200 Hz
+low-pass, central differences), its inputs from the log (commands held over the sample, so
+shifted by half a sample; external force), its parameters from the recalibration; its
+state derivative is the predicted acceleration at the encoder and its bound accelerometer
+output the predicted reading. Two comparison signals, both through the same zero-phase
+100 Hz low-pass ``F``:
+
+* ``<encoder column>.dd``: the encoder's second difference vs the FMU's derivative of its
+  speed state;
+* ``<accelerometer column>``: the reading vs the FMU output through the sensor model
+  (bandwidth pole, specific force, a per-trial offset projected out).
+
+Samples near rest (set-valued friction: ``|v| < v_rest``, dilated 15 ms) and 50 ms at each
+end are not compared. Residuals are also given in command units (divided by the FMU's
+d acc / d command, a finite difference): the analogue of the built-in devices' inverse
+model. Metric: per signal nrmse ``rms(meas - model) / std(meas)`` over the compared samples,
+combined as ``sqrt(sum_s w_s nrmse_s^2)`` with ``w_s ~ 1 / floor_s^2`` (floor_s: the nrmse the
+sensor noise alone gives, from the encoder quantum and the accelerometer's noise measured
+above 0.6 Nyquist; bounded below at 0.005), as the ball-screw device does.
+
+Recalibration: Gauss-Newton (chord: the Jacobian of the first point) on the ``recalibrate:
+true`` parameters within [low, high], finite-difference sensitivities (one FMU instance
+initialised per perturbed parameter set), per-trial accelerometer offsets as nuisances; the
+directions the logs do not determine (e.g. a force constant without a known external force)
+keep their previous value (minimum-norm step).
+
+Effects: each catalogue effect's FMU form (``FMU_FORM`` in its module,
+:mod:`cosim.gap.effects.fmu_form`) enters the linearised evaluation: command-path effects via
+the FMU's d acc / d command, force-path effects via d acc / d disturbance, sensor and
+sensed-point effects on the sensor's prediction; linear coefficients jointly with the
+nominal parameters' sensitivities by least squares, shape parameters on a grid then refined.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from scipy import signal
+from scipy.optimize import minimize_scalar
+
+from ...logs.trial_log import TrialLog
+from ..device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, split_params
+from ..effects import EFFECTS as CATALOGUE
+from ..effects.base import shift
+from ..fmu_me import FmuVariables, MePlant
+
+try:                                               # the binding module (wt-bind23); fallback meanwhile
+    from ..binding import PlantBinding
+except ImportError:                                # pragma: no cover
+    from .._binding_min import PlantBinding
+
+__all__ = ["FmuPlantDevice", "fmu_forms"]
+
+#: fraction of the sample rate of the state-smoothing and the comparison low-pass (as the
+#: ball-screw device: 200 Hz and 100 Hz at 1 kHz)
+SMOOTH_HZ, COMPARE_HZ = 200.0, 100.0
+EDGE_S, REST_DILATE_S = 0.05, 0.015
+FLOOR_MIN = 0.005
+
+
+def fmu_forms() -> dict[str, Any]:
+    """{catalogue name: FmuForm} of the effects that have one."""
+    import importlib
+    out = {}
+    for name in CATALOGUE:
+        m = importlib.import_module(f"cosim.gap.effects.{name}")
+        f = getattr(m, "FMU_FORM", None)
+        if f is not None:
+            out[name] = f
+    return out
+
+
+def _lowpass(fc: float, ts: float):
+    return signal.butter(2, min(fc, 0.45 / ts), fs=1.0 / ts, output="sos")
+
+
+def _prev(u: np.ndarray) -> np.ndarray:
+    """u[k-1] (held at the start)."""
+    return np.concatenate([u[:1], u[:-1]])
+
+
+def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    G = A.T @ A
+    nrm = np.sqrt(np.diag(G)).copy()
+    nrm[nrm == 0] = 1.0
+    x, *_ = np.linalg.lstsq(G / np.outer(nrm, nrm), (A.T @ b) / nrm, rcond=1e-10)
+    return x / nrm
+
+
+@dataclass
+class _Prep:
+    """Parameter-independent quantities of one log (FMU units)."""
+    log: TrialLog
+    ts: float
+    t: np.ndarray
+    u: np.ndarray              # commands as logged (n x nc)
+    fext: np.ndarray           # known external force at the external inputs (n x ne)
+    x: np.ndarray              # smoothed position, speed (FMU units)
+    v: np.ndarray
+    a_enc: np.ndarray          # encoder second difference, filtered by F
+    acc: np.ndarray | None     # accelerometer reading filtered by F
+    mask: np.ndarray           # compared samples
+    noise: dict[str, float]    # per-signal noise variance after F (signal units)
+    cache: dict
+
+
+class FmuPlantDevice:
+    """:class:`cosim.gap.device.GapDevice` of a plant FMU + binding (module docstring)."""
+
+    metric = "nrmse"
+
+    def __init__(self, binding: PlantBinding, fmu_path: str | Path | None = None, progress=None):
+        self.b = binding
+        self.fmu_path = Path(fmu_path or binding.fmu_path)
+        self.vars = FmuVariables(self.fmu_path)
+        if not self.vars.has_me:
+            raise GapInputError("the plant FMU has no Model Exchange interface; the equation-error "
+                                "comparison needs it (a Co-Simulation-only plant is not supported yet)",
+                                self.fmu_path)
+        self.name = binding.device
+        self._me: MePlant | None = None
+        self.progress = progress
+        enc = binding.measurement("encoder")
+        if enc is None:
+            raise GapInputError("the binding has no measurement with sensor kind 'encoder': the "
+                                "comparison sets the plant's states from the measured motion", binding.path,
+                                "measurements")
+        self.enc = enc
+        self.i_pos = self.vars.state_of_output(enc.output)
+        if self.i_pos is None:
+            raise GapInputError(f"the encoder's output {enc.output!r} is not a continuous state of the FMU "
+                                f"(states: {', '.join(self.vars.states)})", binding.path, "measurements")
+        vname = self.vars.derivative_of[self.vars.states[self.i_pos]]
+        self.i_vel = self.vars.state_of_output(vname)
+        if self.i_vel is None:
+            raise GapInputError(f"the derivative of {enc.output!r} ({vname}) is not a continuous state: the "
+                                "plant must be second order in its measured position", binding.path)
+        self.motion = binding.measurement("accelerometer") or binding.measurement("gyroscope")
+        self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
+        self.forms = fmu_forms()
+        names = []
+        for n, f in self.forms.items():
+            if f.kind == "sensor":
+                if self.motion is None:
+                    continue
+                if self.motion.sensor.kind != "accelerometer" and f.generic_name:
+                    n = f.generic_name
+            if f.kind == "sensed_point" and self.motion is None:
+                continue
+            names.append(n)
+        self.effects = tuple(names)
+        self._alias = {f.generic_name: n for n, f in self.forms.items() if f.generic_name}
+        self.rec_params = tuple(p.name for p in binding.parameters if p.recalibrate)
+        self.param_names = tuple(p.name for p in binding.parameters if p.recalibrate)
+        self._bounds = {p.name: (p.low, p.high) for p in binding.parameters}
+        self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate}
+        self.recalibration_note = (
+            "recalibrated " + ", ".join(self.rec_params) + " by Gauss-Newton on the equation error of the plant "
+            "FMU (finite-difference sensitivities), within the binding's ranges; directions the fit logs do not "
+            "determine keep their previous value (minimum-norm step)")
+        self.inputs = tuple(dict.fromkeys([c.input for c in binding.commands] + [e.input for e in binding.external]
+                                          + [binding.disturbance.input]))
+        self.sig_enc = f"{enc.column}.dd"
+        self.sig_acc = self.motion.column if self.motion is not None else None
+        self._preps: dict[int, _Prep] = {}
+        self._evals: dict[tuple, dict] = {}
+        self._jac: dict[int, tuple[tuple, dict]] = {}
+        self._rec_cache: dict[tuple, dict] = {}
+        self._rec_first: dict[str, float] | None = None
+
+    # ------------------------------------------------------------------ preparation
+    def _col(self, log: TrialLog, name: str) -> np.ndarray:
+        if name not in log.data:
+            raise GapInputError(f"missing column the binding maps (has: {', '.join(log.data)})", log.csv_path, name)
+        return np.asarray(log.data[name], dtype=float)
+
+    def _prep(self, log: TrialLog) -> _Prep:
+        hit = self._preps.get(id(log))
+        if hit is not None and hit.log is log:
+            return hit
+        b = self.b
+        ts = float(log.sample_time)
+        t = np.asarray(log.time, float)
+        n = t.size
+        u = np.column_stack([c.scale * self._col(log, c.column) for c in b.commands]) if b.commands \
+            else np.zeros((n, 0))
+        fext = np.zeros((n, len(b.external)))
+        for j, e in enumerate(b.external):
+            for c in e.columns:
+                if c in log.data:
+                    fext[:, j] = e.scale * np.asarray(log.data[c], float)
+                    break
+        xe = self.enc.scale * self._col(log, self.enc.column)
+        sos_s = _lowpass(SMOOTH_HZ * 1e-3 / ts, ts)
+        sosF = _lowpass(COMPARE_HZ * 1e-3 / ts, ts)
+        xs = signal.sosfiltfilt(sos_s, xe)
+        v = np.gradient(xs, ts)
+        add = np.zeros(n)
+        add[1:-1] = (xs[2:] - 2 * xs[1:-1] + xs[:-2]) / ts ** 2
+        a_enc = signal.sosfiltfilt(sosF, add)
+        acc = None
+        if self.motion is not None:
+            acc = signal.sosfiltfilt(sosF, self.motion.scale * self._col(log, self.motion.column))
+        # compared samples: away from rest (set-valued friction) and the filters' edges
+        q = self.enc.sensor.resolution
+        if not q:
+            st = np.abs(np.diff(xe))
+            st = st[st > 0]
+            q = float(st.min()) if st.size else 1e-9
+        av = np.abs(v)
+        v_scale = float(np.percentile(av, 95)) if n else 0.0
+        v_rest = max(0.2 * q / ts, 0.02 * v_scale)
+        rest = av < v_rest
+        k = int(round(REST_DILATE_S / ts))
+        if k > 0 and rest.any():
+            rest = np.convolve(rest.astype(float), np.ones(2 * k + 1), "same") > 0
+        mask = ~rest
+        e = int(round(EDGE_S / ts))
+        mask[:e] = False
+        mask[n - e:] = False
+        p = _Prep(log, ts, t, u, fext, xs, v, a_enc, acc, mask, {}, {"q": q, "v_rest": v_rest,
+                                                                     "v_scale": v_scale, "sosF": sosF})
+        p.noise = self._noise(p, sos_s, sosF, xe)
+        self._preps[id(log)] = p
+        return p
+
+    def _noise(self, p: _Prep, sos_s, sosF, xe) -> dict[str, float]:
+        """Noise variance of each comparison signal after F: encoder quantisation through the
+        smoothing, the second difference and F; the accelerometer's white noise from the
+        robust spread of its reading above 0.6 Nyquist, through F."""
+        ts = p.ts
+        f = np.linspace(0.0, 0.5 / ts, 4097)[1:]
+        wT = 2 * math.pi * f * ts
+        _, hs = signal.sosfreqz(sos_s, worN=f, fs=1.0 / ts)
+        _, hF = signal.sosfreqz(sosF, worN=f, fs=1.0 / ts)
+        gF = np.abs(hF) ** 4
+        gdd = np.abs(hs) ** 4 * (2 - 2 * np.cos(wT)) ** 2 / ts ** 4 * gF
+        q = p.cache["q"]
+        out = {self.sig_enc: q * q / 12.0 * float(np.mean(gdd))}
+        if self.motion is not None:
+            raw = self.motion.scale * np.asarray(p.log.data[self.motion.column], float)
+            hp = signal.sosfiltfilt(signal.butter(4, 0.6 * 0.5 / ts, "highpass", fs=1.0 / ts, output="sos"), raw)
+            mad = 1.4826 * float(np.median(np.abs(hp - np.median(hp))))
+            white = mad * mad / 0.4
+            if self.motion.sensor.noise_rms:
+                white = max(white, 0.0)
+            out[self.sig_acc] = white * float(np.mean(gF))
+        return out
+
+    def _ctx(self, p: _Prep, pred: np.ndarray | None = None):
+        xs = p.x
+        return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
+                               x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))))
+
+    def _ctx_all(self, logs: Sequence[TrialLog]):
+        ps = [self._prep(lg) for lg in logs]
+        u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
+        qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
+        return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"],
+                               v_rest=max(p.cache["v_rest"] for p in ps),
+                               v_scale=max(p.cache["v_scale"] for p in ps),
+                               x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
+                               u_abs_q=sorted(set(v for v in qs if v > 0)))
+
+    # ------------------------------------------------------------------ FMU evaluation
+    def _plant(self) -> MePlant:
+        if self._me is None:
+            self._me = MePlant(self.fmu_path, self.vars)
+        return self._me
+
+    def _full_params(self, params: Mapping[str, float]) -> dict[str, float]:
+        out = dict(self._fixed)
+        out.update({k: float(params[k]) for k in self.rec_params if k in params})
+        return out
+
+    def _inputs(self, p: _Prep, du: np.ndarray | None = None, dF: np.ndarray | None = None) -> np.ndarray:
+        """FMU input values (n x ni): commands shifted by half a sample (zero-order hold: the
+        staircase's centre), external forces, the disturbance."""
+        b = self.b
+        n = p.t.size
+        U = np.zeros((n, len(self.inputs)))
+        idx = {name: j for j, name in enumerate(self.inputs)}
+        for j, c in enumerate(b.commands):
+            uj = p.u[:, j] if du is None else p.u[:, j] + du[:, j]
+            U[:, idx[c.input]] += shift(uj, 0.5 * p.ts, p.ts)
+        for j, e in enumerate(b.external):
+            U[:, idx[e.input]] += p.fext[:, j]
+        if dF is not None:
+            U[:, idx[b.disturbance.input]] += b.disturbance.scale * dF
+        return U
+
+    def _run(self, p: _Prep, params: Mapping[str, float], U: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        X = np.zeros((p.t.size, self.vars.md.numberOfContinuousStates or len(self.vars.states)))
+        for k, s in enumerate(self.vars.states):
+            st = self.vars.start(s)
+            X[:, k] = st if st is not None else 0.0
+        X[:, self.i_pos] = p.x
+        X[:, self.i_vel] = p.v
+        outs = [self.motion.output] if self.motion is not None else []
+        dx, y = self._plant().evaluate(self._full_params(params), p.t, X, self.inputs, U, outs)
+        return dx[:, self.i_vel], (y[:, 0] if outs else None)
+
+    def _eval(self, log: TrialLog, params: Mapping[str, float]) -> dict:
+        """Predicted encoder acceleration and sensor reading at ``params`` (exact), and their
+        sensitivities to each command and to the disturbance (finite differences)."""
+        key = (id(log),) + tuple(round(float(params[k]), 12) for k in self.rec_params)
+        hit = self._evals.get(key)
+        if hit is not None and hit["log"] is log:
+            return hit
+        p = self._prep(log)
+        n = p.t.size
+        a0, s0 = self._run(p, params, self._inputs(p))
+        Gu, Gs = [], []
+        for j in range(p.u.shape[1]):
+            d = max(1e-6, 1e-2 * float(np.sqrt(np.mean(p.u[:, j] ** 2))) or 1e-3)
+            du = np.zeros_like(p.u)
+            du[:, j] = d
+            a1, s1 = self._run(p, params, self._inputs(p, du=du))
+            Gu.append((a1 - a0) / d)
+            Gs.append(None if s0 is None else (s1 - s0) / d)
+        dF = 1e-2 * max(1.0, float(np.sqrt(np.mean(p.fext ** 2))) if p.fext.size else 1.0)
+        a1, s1 = self._run(p, params, self._inputs(p, dF=np.full(n, dF)))
+        if s0 is not None:
+            # the sensor reads at t_k, before command k is applied (the logs' convention:
+            # ``command_hold`` zoh, the command computed from the sensors read at t_k): its
+            # prediction takes command k-1 (exact for a plant affine in its commands)
+            s0 = s0.copy()
+            for j in range(p.u.shape[1]):
+                s0 += Gs[j] * (_prev(p.u[:, j]) - shift(p.u[:, j], 0.5 * p.ts, p.ts))
+        out = {"log": log, "params": dict(params), "a": a0, "s": s0, "Gu": Gu, "Gs": Gs,
+               "GFa": (a1 - a0) / dF, "GFs": None if s0 is None else (s1 - s0) / dF}
+        self._evals[key] = out
+        return out
+
+    def _jacobian(self, log: TrialLog, params: Mapping[str, float]) -> dict:
+        """d(prediction)/d(parameter) on ``log`` (first point asked: chord Gauss-Newton)."""
+        hit = self._jac.get(id(log))
+        if hit is not None and hit[1]["log"] is log:
+            return hit[1]
+        e0 = self._eval(log, params)
+        p = self._prep(log)
+        Ja, Js = {}, {}
+        for k in self.rec_params:
+            pp = dict(params)
+            h = 1e-4 * max(abs(float(params[k])), 1e-9)
+            pp[k] = float(params[k]) + h
+            a1, s1 = self._run(p, pp, self._inputs(p))
+            Ja[k] = (a1 - e0["a"]) / h
+            Js[k] = None if s1 is None else (s1 - e0["s"]) / h
+        out = {"log": log, "Ja": Ja, "Js": Js, "at": dict(params)}
+        self._jac[id(log)] = (tuple(params.values()), out)
+        return out
+
+    def _nearest(self, log: TrialLog, params: Mapping[str, float]) -> dict:
+        """An exact evaluation of ``log`` at ``params`` when one exists, else the first one
+        made on the log (the caller linearises from it with the Jacobian)."""
+        key = (id(log),) + tuple(round(float(params[k]), 12) for k in self.rec_params)
+        hit = self._evals.get(key)
+        if hit is not None and hit["log"] is log:
+            return hit
+        best = None
+        for e in self._evals.values():
+            if e["log"] is log:
+                d = sum(((float(params[k]) - e["params"][k]) / max(abs(e["params"][k]), 1e-12)) ** 2
+                        for k in self.rec_params)
+                if best is None or d < best[0]:
+                    best = (d, e)
+        if best is None:
+            return self._eval(log, params)
+        return best[1]
+
+    # ------------------------------------------------------------------ model assembly
+    def _sensor(self, a: np.ndarray, p: _Prep) -> np.ndarray:
+        """The motion sensor's bandwidth (single pole, bilinear) and then F."""
+        bw = self.motion.sensor.bandwidth_hz if self.motion is not None else None
+        if bw and bw < 0.5 / p.ts:
+            wc = 2 * math.pi * bw
+            bz, az = signal.bilinear([wc], [1.0, wc], fs=1.0 / p.ts)
+            a = signal.lfilter(bz, az, a)
+        return signal.sosfiltfilt(p.cache["sosF"], a)
+
+    def _assemble(self, log: TrialLog, params: Mapping[str, float], cfg: Mapping[str, Mapping[str, float]],
+                  refit: bool) -> dict:
+        """Measured signals, the model's base prediction and its free columns on one log
+        (filtered, compared samples only): ``{sig: (y, base, {col: column})}``; columns: the
+        effects' linear coefficients (``eff:coef``), the nominal parameters' (``nominal.k``,
+        when ``refit``), the accelerometer's per-trial offset (``bias``)."""
+        p = self._prep(log)
+        e = self._nearest(log, params)
+        dp = {k: float(params[k]) - e["params"][k] for k in self.rec_params}
+        lin = any(abs(v) > 0 for v in dp.values())
+        J = self._jacobian(log, e["params"]) if (lin or refit) else None
+        a = e["a"].copy()
+        s = None if e["s"] is None else e["s"].copy()
+        if lin:
+            for k, d in dp.items():
+                a += J["Ja"][k] * d
+                if s is not None:
+                    s += J["Js"][k] * d
+        cols_a: dict[str, np.ndarray] = {}
+        cols_s: dict[str, np.ndarray] = {}
+        body = np.zeros_like(a)
+        specific = self.motion is not None and self.motion.sensor.specific_force
+        for name, shape in cfg.items():
+            f = self.forms[self._alias.get(name, name)]
+            if f.kind == "command":
+                for j in range(p.u.shape[1]):
+                    du = f.command(p.u[:, j], shape, p.ts) - p.u[:, j]
+                    dus = shift(du, 0.5 * p.ts, p.ts)
+                    a += e["Gu"][j] * dus
+                    if s is not None:
+                        s += e["Gs"][j] * _prev(du)
+            elif f.kind == "force":
+                for c, col in f.columns(self._ctx(p), shape).items():
+                    cols_a[f"{name}:{c}"] = e["GFa"] * col
+                    if s is not None:
+                        cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
+                                                 else e["GFs"] * col)
+        if refit:
+            for k in self.rec_params:
+                cols_a[NOMINAL_PREFIX + k] = J["Ja"][k]
+                if s is not None:
+                    cols_s[NOMINAL_PREFIX + k] = J["Js"][k]
+        m = p.mask
+        F = lambda z: signal.sosfiltfilt(p.cache["sosF"], z)[m]   # noqa: E731
+        out = {self.sig_enc: (p.a_enc[m], F(a), {k: F(c) for k, c in cols_a.items()}, e["Gu"][0][m] if e["Gu"] else None)}
+        if s is not None:
+            tr = [(n, self.forms[self._alias.get(n, n)]) for n in cfg
+                  if self.forms[self._alias.get(n, n)].kind == "sensed_point"]
+            for name, f in tr:
+                s = f.transform(s, cfg[name], p.ts)
+                cols_s = {k: f.transform(c, cfg[name], p.ts) for k, c in cols_s.items()}
+            del body
+            sc = {}
+            for name, shape in cfg.items():
+                f = self.forms[self._alias.get(name, name)]
+                if f.kind == "sensor":
+                    for c, col in f.columns(self._ctx(p, pred=s), shape).items():
+                        sc[f"{name}:{c}"] = col
+            cs = {k: self._sensor(c, p)[m] for k, c in cols_s.items()}
+            cs.update({k: self._sensor(c, p)[m] for k, c in sc.items()})
+            cs["bias"] = np.ones(int(m.sum()))
+            out[self.sig_acc] = (p.acc[m], self._sensor(s, p)[m], cs, e["Gs"][0][m] if e["Gs"] else None)
+        return out
+
+    def _weights(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        fl = self.noise_floor(logs)
+        inv = {s: 1.0 / max(fl[s], FLOOR_MIN) ** 2 for s in fl if s != "gap"}
+        tot = sum(inv.values())
+        return {s: v / tot for s, v in inv.items()}
+
+    def _energy(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        key = ("E",) + tuple(id(lg) for lg in logs)
+        if key in self._rec_cache:
+            return self._rec_cache[key]
+        en: dict[str, list] = {}
+        for lg in logs:
+            p = self._prep(lg)
+            m = p.mask
+            for sname, y in ((self.sig_enc, p.a_enc), (self.sig_acc, p.acc)):
+                if y is None:
+                    continue
+                ym = y[m]
+                if ym.size:
+                    en.setdefault(sname, [0.0, 0])
+                    en[sname][0] += float(np.sum((ym - ym.mean()) ** 2))
+                    en[sname][1] += int(ym.size)
+        out = {k: v[0] for k, v in en.items()}
+        out.update({"n:" + k: v[1] for k, v in en.items()})
+        self._rec_cache[key] = out
+        return out
+
+    def _solve(self, logs: Sequence[TrialLog], params: Mapping[str, float], cfg, refit: bool,
+               fixed: Mapping[str, float] | None = None, nonneg: Sequence[str] = ()):
+        """Least squares of the free columns (``fixed``: coefficients given, not fitted) on the
+        metric's weighted rows; returns (gap, coefficients, per-signal nrmse)."""
+        w = self._weights(logs)
+        E = self._energy(logs)
+        parts = [(lg, self._assemble(lg, params, cfg, refit)) for lg in logs]
+        names: list[str] = []
+        for _, asm in parts:
+            for sname, (_, _, cols, _) in asm.items():
+                for c in cols:
+                    key = c if c != "bias" else None
+                    if key is not None and key not in names and not (fixed and c in fixed):
+                        names.append(c)
+        nlog = len(parts)
+        ncol = len(names) + nlog
+        rows, rhs, tags = [], [], []
+        for j, (lg, asm) in enumerate(parts):
+            for sname, (y, base, cols, _) in asm.items():
+                sw = math.sqrt(w.get(sname, 0.0) / max(E.get(sname, 0.0), 1e-300))
+                r = y - base
+                for c, col in cols.items():
+                    if fixed and c in fixed:
+                        r = r - fixed[c] * col
+                A = np.zeros((y.size, ncol))
+                for i, c in enumerate(names):
+                    if c in cols:
+                        A[:, i] = cols[c]
+                if "bias" in cols:
+                    A[:, len(names) + j] = cols["bias"]
+                rows.append(sw * A)
+                rhs.append(sw * r)
+                tags.append((sname, sw, y.size))
+        A = np.vstack(rows)
+        bvec = np.concatenate(rhs)
+        used = np.flatnonzero(np.any(A != 0, axis=0))
+        th = np.zeros(ncol)
+        keep = list(used)
+        for _ in range(3):
+            th[:] = 0.0
+            if keep:
+                th[keep] = _lstsq(A[:, keep], bvec)
+            neg = [i for i in keep if i < len(names) and names[i].split(":")[-1] in nonneg and th[i] < 0]
+            if not neg:
+                break
+            keep = [i for i in keep if i not in neg]
+            th[neg] = 0.0
+        res = bvec - A @ th
+        gap = float(math.sqrt(float(res @ res)))
+        per: dict[str, float] = {}
+        k0 = 0
+        for sname, sw, nrow in tags:
+            rr = res[k0:k0 + nrow]
+            k0 += nrow
+            per[sname] = per.get(sname, 0.0) + float(rr @ rr) / (sw * sw * max(E.get(sname, 0.0), 1e-300)) \
+                if sw > 0 else per.get(sname, 0.0)
+        per = {k: math.sqrt(v) for k, v in per.items()}
+        coef = {c: float(th[i]) for i, c in enumerate(names)}
+        return gap, coef, per
+
+    # ------------------------------------------------------------------ protocol
+    def check_logs(self, fit: Sequence[TrialLog], test: Sequence[TrialLog]) -> None:
+        if not fit:
+            raise GapInputError("no fit logs given")
+        b = self.b
+        for lg in list(fit) + list(test):
+            if lg.device != b.device:
+                raise GapInputError(f"device is {lg.device!r}, the binding is for {b.device!r}", lg.json_path)
+            for c in [c.column for c in b.commands] + [m.column for m in b.measurements
+                                                          if m.sensor.kind in ("encoder", "accelerometer", "gyroscope")]:
+                if c not in lg.data:
+                    raise GapInputError(f"missing column the binding maps (has: {', '.join(lg.data)})", lg.csv_path, c)
+            if lg.n_samples * lg.sample_time < 0.5:
+                raise CannotDiagnose(f"{lg.csv_path}: {lg.n_samples} samples; at least 0.5 s are needed")
+        for lg in fit:
+            p = self._prep(lg)
+            if p.mask.mean() < 0.05:
+                raise CannotDiagnose(f"{lg.csv_path}: the plant is at rest in almost every sample")
+
+    def recalibrate(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        key = ("rec",) + tuple(id(lg) for lg in logs)
+        if key in self._rec_cache:
+            return dict(self._rec_cache[key])
+        p = dict(self._rec_first) if self._rec_first else {k: self._nominal(k) for k in self.rec_params}
+        for it in range(8):
+            g, coef, _ = self._solve_exact(logs, p)
+            step = {k: coef.get(NOMINAL_PREFIX + k, 0.0) for k in self.rec_params}
+            newp = {k: float(np.clip(p[k] + step[k], *self._bounds[k])) for k in self.rec_params}
+            rel = max(abs(newp[k] - p[k]) / max(abs(p[k]), 1e-12) for k in self.rec_params) if p else 0.0
+            p = newp
+            if self.progress:
+                self.progress(f"recalibration step {it + 1}: " + ", ".join(f"{k}={v:.4g}" for k, v in p.items()))
+            if rel < 2e-4:
+                break
+        for lg in logs:                         # exact evaluation at the result
+            self._eval(lg, p)
+        if self._rec_first is None:
+            self._rec_first = dict(p)
+        self._rec_cache[key] = dict(p)
+        return dict(p)
+
+    def _nominal(self, k: str) -> float:
+        return next(p.nominal for p in self.b.parameters if p.name == k)
+
+    def _solve_exact(self, logs, p):
+        for lg in logs:
+            self._eval(lg, p)
+        return self._solve(logs, p, {}, True)
+
+    def signals(self, log: TrialLog, params: Mapping[str, float], effects=None):
+        """Measured and model signals in command units (the FMU's d acc / d command divides
+        both), NaN where not compared; the per-trial accelerometer offset is removed."""
+        nom, own = self._split_all(params, effects)
+        cfg, fixed = self._cfg(own)
+        asm = self._assemble(log, nom, cfg, False)
+        _, coef, _ = self._solve([log], nom, cfg, False, fixed=fixed)
+        p = self._prep(log)
+        out = {}
+        for sname, (y, base, cols, G) in asm.items():
+            pred = base.copy()
+            for c, col in cols.items():
+                if c == "bias":
+                    continue
+                pred += fixed.get(c, coef.get(c, 0.0)) * col
+            if "bias" in cols:
+                pred += float(np.mean(y - pred))
+            g = G if G is not None else np.ones_like(y)
+            g = np.where(np.abs(g) > 1e-12, g, np.nan)
+            ym = np.full(p.t.size, np.nan)
+            sm = np.full(p.t.size, np.nan)
+            ym[p.mask] = y / g
+            sm[p.mask] = pred / g
+            out[sname] = (ym, sm)
+        return out
+
+    def operating_point(self, log: TrialLog, params: Mapping[str, float]) -> dict[str, np.ndarray]:
+        p = self._prep(log)
+        out = {"speed": p.v, "position": p.x, "acceleration": p.a_enc}
+        if p.fext.size:
+            out["force"] = p.fext.sum(axis=1)
+        return out
+
+    # effects' parameters: {shape keys, coefficient names} <-> (shape, coefficients)
+    def _cfg(self, own: Mapping[str, Mapping[str, float]]):
+        cfg, fixed = {}, {}
+        for name, prm in own.items():
+            sh = {k[6:]: float(v) for k, v in prm.items() if k.startswith("shape.")}
+            cfg[name] = sh
+            fixed.update({f"{name}:{k}": float(v) for k, v in prm.items() if not k.startswith("shape.")})
+        return cfg, fixed
+
+    @staticmethod
+    def _split_all(params, effects):
+        nom = dict(params)
+        own = {}
+        for name, prm in (effects or {}).items():
+            nom, own[name] = split_params(nom, prm)
+        return nom, own
+
+    def _evaluate(self, logs, params, effects):
+        nom, own = self._split_all(params, effects)
+        cfg, fixed = self._cfg(own)
+        return self._solve(logs, nom, cfg, False, fixed=fixed)
+
+    def gap(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects=None) -> float:
+        return self._evaluate(logs, params, effects)[0]
+
+    def gap_parts(self, logs, params, effects=None) -> dict:
+        _, _, per = self._evaluate(logs, params, effects)
+        w = self._weights(logs)
+        out = dict(per)
+        out.update({"weight_" + k: v for k, v in w.items()})
+        return out
+
+    def noise_floor(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        key = ("floor",) + tuple(id(lg) for lg in logs)
+        if key in self._rec_cache:
+            return self._rec_cache[key]
+        E = self._energy(logs)
+        out = {}
+        for s in (self.sig_enc, self.sig_acc):
+            if s is None or s not in E:
+                continue
+            var_n = sum(self._prep(lg).noise.get(s, 0.0) * int(self._prep(lg).mask.sum()) for lg in logs)
+            out[s] = math.sqrt(var_n / E[s]) if E[s] > 0 else 0.0
+        inv = {s: 1.0 / max(v, FLOOR_MIN) ** 2 for s, v in out.items()}
+        tot = sum(inv.values())
+        out["gap"] = math.sqrt(sum(inv[s] / tot * max(out[s], FLOOR_MIN) ** 2 for s in inv))
+        self._rec_cache[key] = out
+        return out
+
+    def signal_z(self, logs, params, effects=None) -> dict[str, float]:
+        _, _, per = self._evaluate(logs, params, effects)
+        fl = self.noise_floor(logs)
+        return {s: per[s] / max(fl.get(s, FLOOR_MIN), FLOOR_MIN) for s in per}
+
+    def acts_on(self, effect: str) -> set[str]:
+        f = self.forms[self._alias.get(effect, effect)]
+        if f.kind in ("sensor", "sensed_point"):
+            return {self.sig_acc}
+        specific = self.motion is not None and self.motion.sensor.specific_force
+        if f.kind == "force" and f.body_force and specific:
+            return {self.sig_enc}
+        return {s for s in (self.sig_enc, self.sig_acc) if s}
+
+    def varies_along_travel(self, effect: str) -> bool:
+        return self.forms[self._alias.get(effect, effect)].along_travel
+
+    # ------------------------------------------------------------------ effect fitting
+    def _fit_cfg(self, logs, params, cfg):
+        nonneg = [c for n in cfg for c in self.forms[self._alias.get(n, n)].nonneg]
+        return self._solve(logs, params, cfg, True, nonneg=nonneg)
+
+    def _pack(self, params, cfg, coef) -> dict[str, dict[str, float]]:
+        out = {}
+        for name, sh in cfg.items():
+            prm = {"shape." + k: float(v) for k, v in sh.items()}
+            prm.update({c.split(":", 1)[1]: v for c, v in coef.items() if c.startswith(name + ":")})
+            prm.update({NOMINAL_PREFIX + k: float(params[k]) + coef.get(NOMINAL_PREFIX + k, 0.0)
+                        for k in self.rec_params})
+            out[name] = prm
+        return out
+
+    def _grid(self, logs, effect):
+        return self.forms[self._alias.get(effect, effect)].grid(self._ctx_all(logs))
+
+    def fit_effect(self, logs, params, effect):
+        effs, g = self.fit_effects(logs, params, [effect])
+        return effs[effect], g
+
+    def fit_effects(self, logs, params, effects, descend: bool = True):
+        nom, _ = self._split_all(params, {})
+        grids = {e: self._grid(logs, e) for e in effects}
+        cfg = {}
+        for e in effects:                       # each alone first
+            best = None
+            for sh in grids[e]:
+                g = self._fit_cfg(logs, nom, {e: sh})[0]
+                if best is None or g < best[0]:
+                    best = (g, sh)
+            cfg[e] = self._refine(logs, nom, {e: best[1]}, e, grids[e])[e] if best else {}
+        if len(effects) > 1 and descend:
+            for e in effects:
+                best = None
+                for sh in grids[e]:
+                    trial = dict(cfg)
+                    trial[e] = sh
+                    g = self._fit_cfg(logs, nom, trial)[0]
+                    if best is None or g < best[0]:
+                        best = (g, sh)
+                cur = self._fit_cfg(logs, nom, cfg)[0]
+                if best is not None and best[0] < cur:
+                    cfg[e] = best[1]
+        g, coef, _ = self._fit_cfg(logs, nom, cfg)
+        return self._pack(nom, cfg, coef), g
+
+    def fit_effects_quick(self, logs, params, effects):
+        return self.fit_effects(logs, params, effects, descend=False)[1]
+
+    def _refine(self, logs, nom, cfg, e, grid):
+        key = self.forms[self._alias.get(e, e)].refine
+        if key is None or len(grid) < 2:
+            return cfg
+        vals = sorted({float(s[key]) for s in grid})
+        i = vals.index(float(cfg[e][key]))
+        lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]
+        if hi <= lo:
+            return cfg
+        base = dict(cfg[e])
+
+        def gap_at(lv):
+            sh = dict(base)
+            sh[key] = float(math.exp(lv))
+            return self._fit_cfg(logs, nom, {**cfg, e: sh})[0]
+        r = minimize_scalar(gap_at, bounds=(math.log(lo), math.log(hi)), method="bounded",
+                            options={"xatol": 0.01, "maxiter": 12})
+        if r.fun < self._fit_cfg(logs, nom, cfg)[0]:
+            sh = dict(base)
+            sh[key] = float(math.exp(r.x))
+            return {**cfg, e: sh}
+        return cfg
+
+    def confirm(self, logs, params, effects):
+        return None
