@@ -92,11 +92,11 @@ def _prev(u: np.ndarray) -> np.ndarray:
     return np.concatenate([u[:1], u[:-1]])
 
 
-def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _lstsq(A: np.ndarray, b: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
     G = A.T @ A
     nrm = np.sqrt(np.diag(G)).copy()
     nrm[nrm == 0] = 1.0
-    x, *_ = np.linalg.lstsq(G / np.outer(nrm, nrm), (A.T @ b) / nrm, rcond=1e-10)
+    x, *_ = np.linalg.lstsq(G / np.outer(nrm, nrm), (A.T @ b) / nrm, rcond=rcond)
     return x / nrm
 
 
@@ -392,68 +392,87 @@ class FmuPlantDevice:
             a = signal.lfilter(bz, az, a)
         return signal.sosfiltfilt(p.cache["sosF"], a)
 
+    def _filtered(self, d: dict, key: str, z: np.ndarray | None, p: _Prep, sensor: bool) -> np.ndarray | None:
+        """``F`` (``sensor``: the sensor's pole then ``F``) of ``z``, cached in ``d`` (full length)."""
+        if z is None:
+            return None
+        ck = "_f:" + key
+        if ck not in d:
+            d[ck] = self._sensor(z, p) if sensor else signal.sosfiltfilt(p.cache["sosF"], z)
+        return d[ck]
+
     def _assemble(self, log: TrialLog, params: Mapping[str, float], cfg: Mapping[str, Mapping[str, float]],
                   refit: bool) -> dict:
         """Measured signals, the model's base prediction and its free columns on one log
-        (filtered, compared samples only): ``{sig: (y, base, {col: column})}``; columns: the
-        effects' linear coefficients (``eff:coef``), the nominal parameters' (``nominal.k``,
-        when ``refit``), the accelerometer's per-trial offset (``bias``)."""
+        (filtered, compared samples only): ``{sig: (y, base, {col: column}, d acc/d command)}``;
+        columns: the effects' linear coefficients (``eff:coef``), the nominal parameters'
+        (``nominal.k``, when ``refit``), the accelerometer's per-trial offset (``bias``). The
+        filters are linear, so the filtered pieces of the evaluation are cached and combined."""
         p = self._prep(log)
         e = self._nearest(log, params)
         dp = {k: float(params[k]) - e["params"][k] for k in self.rec_params}
         lin = any(abs(v) > 0 for v in dp.values())
         J = self._jacobian(log, e["params"]) if (lin or refit) else None
-        a = e["a"].copy()
-        s = None if e["s"] is None else e["s"].copy()
+        has_s = e["s"] is not None
+        a = self._filtered(e, "a", e["a"], p, False).copy()
+        s = self._filtered(e, "s", e["s"], p, True).copy() if has_s else None
         if lin:
             for k, d in dp.items():
-                a += J["Ja"][k] * d
-                if s is not None:
-                    s += J["Js"][k] * d
+                a += self._filtered(J, "a" + k, J["Ja"][k], p, False) * d
+                if has_s:
+                    s += self._filtered(J, "s" + k, J["Js"][k], p, True) * d
         cols_a: dict[str, np.ndarray] = {}
         cols_s: dict[str, np.ndarray] = {}
-        body = np.zeros_like(a)
         specific = self.motion is not None and self.motion.sensor.specific_force
-        for name, shape in cfg.items():
-            f = self.forms[self._alias.get(name, name)]
+        forms = [(name, shape, self.forms[self._alias.get(name, name)]) for name, shape in cfg.items()]
+        for name, shape, f in forms:
             if f.kind == "command":
                 for j in range(p.u.shape[1]):
                     du = f.command(p.u[:, j], shape, p.ts) - p.u[:, j]
-                    dus = shift(du, 0.5 * p.ts, p.ts)
-                    a += e["Gu"][j] * dus
-                    if s is not None:
-                        s += e["Gs"][j] * _prev(du)
+                    a += signal.sosfiltfilt(p.cache["sosF"], e["Gu"][j] * shift(du, 0.5 * p.ts, p.ts))
+                    if has_s:
+                        s += self._sensor(e["Gs"][j] * _prev(du), p)
             elif f.kind == "force":
                 for c, col in f.columns(self._ctx(p), shape).items():
-                    cols_a[f"{name}:{c}"] = e["GFa"] * col
-                    if s is not None:
+                    cols_a[f"{name}:{c}"] = signal.sosfiltfilt(p.cache["sosF"], e["GFa"] * col)
+                    if has_s:
                         cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
-                                                 else e["GFs"] * col)
+                                                 else self._sensor(e["GFs"] * col, p))
         if refit:
             for k in self.rec_params:
-                cols_a[NOMINAL_PREFIX + k] = J["Ja"][k]
-                if s is not None:
-                    cols_s[NOMINAL_PREFIX + k] = J["Js"][k]
+                cols_a[NOMINAL_PREFIX + k] = self._filtered(J, "a" + k, J["Ja"][k], p, False)
+                if has_s:
+                    cols_s[NOMINAL_PREFIX + k] = self._filtered(J, "s" + k, J["Js"][k], p, True)
         m = p.mask
-        F = lambda z: signal.sosfiltfilt(p.cache["sosF"], z)[m]   # noqa: E731
-        out = {self.sig_enc: (p.a_enc[m], F(a), {k: F(c) for k, c in cols_a.items()}, e["Gu"][0][m] if e["Gu"] else None)}
-        if s is not None:
-            tr = [(n, self.forms[self._alias.get(n, n)]) for n in cfg
-                  if self.forms[self._alias.get(n, n)].kind == "sensed_point"]
-            for name, f in tr:
-                s = f.transform(s, cfg[name], p.ts)
-                cols_s = {k: f.transform(c, cfg[name], p.ts) for k, c in cols_s.items()}
-            del body
-            sc = {}
-            for name, shape in cfg.items():
-                f = self.forms[self._alias.get(name, name)]
+        out = {self.sig_enc: (p.a_enc[m], a[m], {k: c[m] for k, c in cols_a.items()},
+                              e["Gu"][0][m] if e["Gu"] else None)}
+        if has_s:
+            for name, shape, f in forms:          # the filters commute: transform the filtered pieces
+                if f.kind == "sensed_point":
+                    s = f.transform(s, shape, p.ts)
+                    cols_s = {k: f.transform(c, shape, p.ts) for k, c in cols_s.items()}
+            for name, shape, f in forms:
                 if f.kind == "sensor":
-                    for c, col in f.columns(self._ctx(p, pred=s), shape).items():
-                        sc[f"{name}:{c}"] = col
-            cs = {k: self._sensor(c, p)[m] for k, c in cols_s.items()}
-            cs.update({k: self._sensor(c, p)[m] for k, c in sc.items()})
+                    for c, col in self._sensor_columns(f, p, shape, s).items():
+                        cols_s[f"{name}:{c}"] = col
+            cs = {k: c[m] for k, c in cols_s.items()}
             cs["bias"] = np.ones(int(m.sum()))
-            out[self.sig_acc] = (p.acc[m], self._sensor(s, p)[m], cs, e["Gs"][0][m] if e["Gs"] else None)
+            out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e["Gs"] else None)
+        return out
+
+    def _sensor_columns(self, f, p: _Prep, shape, s_filtered: np.ndarray) -> dict[str, np.ndarray]:
+        """A sensor effect's columns, filtered like the reading: a column proportional to the
+        prediction is the filtered prediction itself (linear filters); others are filtered."""
+        probe = f.columns(self._ctx(p, pred=None), shape)
+        out = {}
+        for c, col in probe.items():
+            if col is None:
+                out[c] = s_filtered.copy()
+            else:
+                key = ("sens", f.generic_name, c, tuple(sorted(shape.items())))
+                if key not in p.cache:
+                    p.cache[key] = self._sensor(col, p)
+                out[c] = p.cache[key]
         return out
 
     def _weights(self, logs: Sequence[TrialLog]) -> dict[str, float]:
@@ -484,7 +503,7 @@ class FmuPlantDevice:
         return out
 
     def _solve(self, logs: Sequence[TrialLog], params: Mapping[str, float], cfg, refit: bool,
-               fixed: Mapping[str, float] | None = None, nonneg: Sequence[str] = ()):
+               fixed: Mapping[str, float] | None = None, nonneg: Sequence[str] = (), rcond: float = 1e-10):
         """Least squares of the free columns (``fixed``: coefficients given, not fitted) on the
         metric's weighted rows; returns (gap, coefficients, per-signal nrmse)."""
         w = self._weights(logs)
@@ -524,7 +543,7 @@ class FmuPlantDevice:
         for _ in range(3):
             th[:] = 0.0
             if keep:
-                th[keep] = _lstsq(A[:, keep], bvec)
+                th[keep] = _lstsq(A[:, keep], bvec, rcond)
             neg = [i for i in keep if i < len(names) and names[i].split(":")[-1] in nonneg and th[i] < 0]
             if not neg:
                 break
@@ -567,22 +586,33 @@ class FmuPlantDevice:
         if key in self._rec_cache:
             return dict(self._rec_cache[key])
         p = dict(self._rec_first) if self._rec_first else {k: self._nominal(k) for k in self.rec_params}
-        for it in range(8):
-            g, coef, _ = self._solve_exact(logs, p)
+        g = self._gap_exact(logs, p)
+        for it in range(10):
+            _, coef, _ = self._solve(logs, p, {}, True, rcond=1e-8)
             step = {k: coef.get(NOMINAL_PREFIX + k, 0.0) for k in self.rec_params}
-            newp = {k: float(np.clip(p[k] + step[k], *self._bounds[k])) for k in self.rec_params}
-            rel = max(abs(newp[k] - p[k]) / max(abs(p[k]), 1e-12) for k in self.rec_params) if p else 0.0
-            p = newp
+            for _half in range(6):              # damped: a step must lower the exact gap
+                newp = {k: float(np.clip(p[k] + step[k], *self._bounds[k])) for k in self.rec_params}
+                g2 = self._gap_exact(logs, newp)
+                if g2 <= g:
+                    break
+                step = {k: 0.5 * v for k, v in step.items()}
+            else:
+                break
+            rel = max(abs(newp[k] - p[k]) / max(abs(p[k]), 1e-12) for k in self.rec_params)
+            p, g = newp, g2
             if self.progress:
                 self.progress(f"recalibration step {it + 1}: " + ", ".join(f"{k}={v:.4g}" for k, v in p.items()))
             if rel < 2e-4:
                 break
-        for lg in logs:                         # exact evaluation at the result
-            self._eval(lg, p)
         if self._rec_first is None:
             self._rec_first = dict(p)
         self._rec_cache[key] = dict(p)
         return dict(p)
+
+    def _gap_exact(self, logs, p) -> float:
+        for lg in logs:
+            self._eval(lg, p)
+        return self._solve(logs, p, {}, False)[0]
 
     def _nominal(self, k: str) -> float:
         return next(p.nominal for p in self.b.parameters if p.name == k)
@@ -590,7 +620,7 @@ class FmuPlantDevice:
     def _solve_exact(self, logs, p):
         for lg in logs:
             self._eval(lg, p)
-        return self._solve(logs, p, {}, True)
+        return self._solve(logs, p, {}, True, rcond=1e-8)
 
     def signals(self, log: TrialLog, params: Mapping[str, float], effects=None):
         """Measured and model signals in command units (the FMU's d acc / d command divides
