@@ -29,6 +29,7 @@ class Sensor:
     noise_rms: float | None = None
     bandwidth_hz: float | None = None
     specific_force: bool = False
+    offset: float | None = None       # offset tolerance (1 sd), FMU output unit
 
 
 @dataclass(frozen=True)
@@ -149,7 +150,8 @@ def load_binding(binding_path, fmu_path) -> PlantBinding:
         res = s.get("resolution")
         meas.append(Measurement(m["column"], out, sc, Sensor(kind, None if res is None else float(res) * sc,
                                                                nrms, None if bw is None else float(bw),
-                                                               bool(s.get("specific_force", False)))))
+                                                               bool(s.get("specific_force", False)),
+                                                               None if s.get("offset") is None else float(s["offset"]) * sc)))
     pars = []
     for name, p in (raw.get("parameters") or {}).items():
         var(name, f"parameters.{name}")

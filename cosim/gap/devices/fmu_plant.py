@@ -57,12 +57,18 @@ from ..effects import EFFECTS as CATALOGUE
 from ..effects.base import shift
 from ..fmu_me import FmuVariables, MePlant
 
-try:                                               # the binding module (wt-bind23); fallback meanwhile
-    from ..binding import PlantBinding
+try:                                               # the binding module; a minimal stand-in meanwhile
+    from ..binding import PlantBinding, load_binding as load_binding_any
 except ImportError:                                # pragma: no cover
-    from .._binding_min import PlantBinding
+    from .._binding_min import PlantBinding, load_binding as load_binding_any
+from .._binding_min import read_log_any
 
-__all__ = ["FmuPlantDevice", "fmu_forms"]
+__all__ = ["FmuPlantDevice", "fmu_forms", "THRESHOLDS_OF", "load_binding_any", "read_log_any"]
+
+#: the decision thresholds a plant without its own use: the engine's cross-validated ones
+#: (``cosim/gap/thresholds.json``; the only set chosen by cross-validation over devices; this
+#: device's metric is built the same way: noise-weighted per-signal nrmse)
+THRESHOLDS_OF = "ballscrew-1dof"
 
 #: fraction of the sample rate of the state-smoothing and the comparison low-pass (as the
 #: ball-screw device: 200 Hz and 100 Hz at 1 kHz)
@@ -174,10 +180,20 @@ class FmuPlantDevice:
         self.inputs = tuple(dict.fromkeys([c.input for c in binding.commands] + [e.input for e in binding.external]
                                           + [binding.disturbance.input]))
         self.sig_enc = f"{enc.column}.dd"
+        off = getattr(self.motion.sensor, "offset", None) if self.motion is not None else None
+        if off is None and self.motion is not None and self.motion.sensor.kind == "accelerometer":
+            # a MEMS accelerometer's zero-g offset tolerance, ~50 mg, when the binding gives none
+            from ...master.units import unit_conversion
+            off = 0.5 * unit_conversion("accelerometer", "m/s2", (), self.vars.unit(self.motion.output) or "m/s2",
+                                        self.vars.md.unitDefinitions)[0]
+        self._offset_sd = float(off) if off else None
         self.sig_acc = self.motion.column if self.motion is not None else None
         self._preps: dict[int, _Prep] = {}
         self._evals: dict[tuple, dict] = {}
-        self._jac: dict[int, tuple[tuple, dict]] = {}
+        self._anchors: dict[int, list[dict]] = {}
+        self._need_sens = False
+        self._chord: dict[int, dict] | None = None
+        self._shapes: dict[tuple, dict] = {}
         self._rec_cache: dict[tuple, dict] = {}
         self._rec_first: dict[str, float] | None = None
 
@@ -314,43 +330,52 @@ class FmuPlantDevice:
         return dx[:, self.i_vel], (y[:, 0] if outs else None)
 
     def _eval(self, log: TrialLog, params: Mapping[str, float]) -> dict:
-        """Predicted encoder acceleration and sensor reading at ``params`` (exact), and their
-        sensitivities to each command and to the disturbance (finite differences)."""
+        """Predicted encoder acceleration and sensor reading at ``params`` (exact); their
+        sensitivities to the commands and the disturbance: :meth:`_sens`."""
         key = (id(log),) + tuple(round(float(params[k]), 12) for k in self.rec_params)
         hit = self._evals.get(key)
         if hit is not None and hit["log"] is log:
             return hit
         p = self._prep(log)
-        n = p.t.size
         a0, s0 = self._run(p, params, self._inputs(p))
+        out = {"log": log, "params": dict(params), "a": a0, "s_raw": s0, "s": s0}
+        if s0 is not None:
+            # the sensor reads at t_k, before command k is applied (the logs' convention:
+            # ``command_hold`` zoh, the command computed from the sensors read at t_k): its
+            # prediction takes command k-1 (exact for a plant affine in its commands)
+            self._sens(out)
+            s1 = s0.copy()
+            for j in range(p.u.shape[1]):
+                s1 += out["Gs"][j] * (_prev(p.u[:, j]) - shift(p.u[:, j], 0.5 * p.ts, p.ts))
+            out["s"] = s1
+        self._evals[key] = out
+        return out
+
+    def _sens(self, e: dict) -> dict:
+        """d acc / d command (each) and d acc / d disturbance at ``e``, finite differences."""
+        if "Gu" in e:
+            return e
+        p = self._prep(e["log"])
+        n = p.t.size
+        a0, s0 = e["a"], e["s_raw"]
         Gu, Gs = [], []
         for j in range(p.u.shape[1]):
             d = max(1e-6, 1e-2 * float(np.sqrt(np.mean(p.u[:, j] ** 2))) or 1e-3)
             du = np.zeros_like(p.u)
             du[:, j] = d
-            a1, s1 = self._run(p, params, self._inputs(p, du=du))
+            a1, s1 = self._run(p, e["params"], self._inputs(p, du=du))
             Gu.append((a1 - a0) / d)
             Gs.append(None if s0 is None else (s1 - s0) / d)
         dF = 1e-2 * max(1.0, float(np.sqrt(np.mean(p.fext ** 2))) if p.fext.size else 1.0)
-        a1, s1 = self._run(p, params, self._inputs(p, dF=np.full(n, dF)))
-        if s0 is not None:
-            # the sensor reads at t_k, before command k is applied (the logs' convention:
-            # ``command_hold`` zoh, the command computed from the sensors read at t_k): its
-            # prediction takes command k-1 (exact for a plant affine in its commands)
-            s0 = s0.copy()
-            for j in range(p.u.shape[1]):
-                s0 += Gs[j] * (_prev(p.u[:, j]) - shift(p.u[:, j], 0.5 * p.ts, p.ts))
-        out = {"log": log, "params": dict(params), "a": a0, "s": s0, "Gu": Gu, "Gs": Gs,
-               "GFa": (a1 - a0) / dF, "GFs": None if s0 is None else (s1 - s0) / dF}
-        self._evals[key] = out
-        return out
+        a1, s1 = self._run(p, e["params"], self._inputs(p, dF=np.full(n, dF)))
+        e.update({"Gu": Gu, "Gs": Gs, "GFa": (a1 - a0) / dF, "GFs": None if s0 is None else (s1 - s0) / dF})
+        return e
 
-    def _jacobian(self, log: TrialLog, params: Mapping[str, float]) -> dict:
-        """d(prediction)/d(parameter) on ``log`` (first point asked: chord Gauss-Newton)."""
-        hit = self._jac.get(id(log))
-        if hit is not None and hit[1]["log"] is log:
-            return hit[1]
-        e0 = self._eval(log, params)
+    def _jacobian(self, e: dict) -> dict:
+        """d(prediction)/d(parameter) at the exact evaluation ``e`` (kept in it)."""
+        if "J" in e:
+            return e["J"]
+        log, params = e["log"], e["params"]
         p = self._prep(log)
         Ja, Js = {}, {}
         for k in self.rec_params:
@@ -358,29 +383,38 @@ class FmuPlantDevice:
             h = 1e-4 * max(abs(float(params[k])), 1e-9)
             pp[k] = float(params[k]) + h
             a1, s1 = self._run(p, pp, self._inputs(p))
-            Ja[k] = (a1 - e0["a"]) / h
-            Js[k] = None if s1 is None else (s1 - e0["s"]) / h
-        out = {"log": log, "Ja": Ja, "Js": Js, "at": dict(params)}
-        self._jac[id(log)] = (tuple(params.values()), out)
-        return out
+            if s1 is not None:                                        # same timing correction
+                s1 = s1 + (e["s"] - e["s_raw"])
+            Ja[k] = (a1 - e["a"]) / h
+            Js[k] = None if s1 is None else (s1 - e["s"]) / h
+        e["J"] = {"log": log, "Ja": Ja, "Js": Js}
+        return e["J"]
 
     def _nearest(self, log: TrialLog, params: Mapping[str, float]) -> dict:
-        """An exact evaluation of ``log`` at ``params`` when one exists, else the first one
-        made on the log (the caller linearises from it with the Jacobian)."""
+        """The exact evaluation of ``log`` at ``params`` when one exists, else the nearest
+        anchor (an exact evaluation at a recalibration result, made one when the log has
+        none): the caller linearises from it with the Jacobian at that anchor."""
         key = (id(log),) + tuple(round(float(params[k]), 12) for k in self.rec_params)
         hit = self._evals.get(key)
         if hit is not None and hit["log"] is log:
             return hit
         best = None
-        for e in self._evals.values():
+        for e in self._anchors.get(id(log), []):
             if e["log"] is log:
                 d = sum(((float(params[k]) - e["params"][k]) / max(abs(e["params"][k]), 1e-12)) ** 2
                         for k in self.rec_params)
                 if best is None or d < best[0]:
                     best = (d, e)
         if best is None:
-            return self._eval(log, params)
+            return self._anchor(log, params)
         return best[1]
+
+    def _anchor(self, log: TrialLog, params: Mapping[str, float]) -> dict:
+        e = self._eval(log, params)
+        lst = self._anchors.setdefault(id(log), [])
+        if not any(x is e for x in lst):
+            lst.append(e)
+        return e
 
     # ------------------------------------------------------------------ model assembly
     def _sensor(self, a: np.ndarray, p: _Prep) -> np.ndarray:
@@ -412,7 +446,9 @@ class FmuPlantDevice:
         e = self._nearest(log, params)
         dp = {k: float(params[k]) - e["params"][k] for k in self.rec_params}
         lin = any(abs(v) > 0 for v in dp.values())
-        J = self._jacobian(log, e["params"]) if (lin or refit) else None
+        J = (self._chord.get(id(log)) if self._chord is not None else None) if refit and not lin else None
+        if J is None and (lin or refit):
+            J = self._jacobian(e)
         has_s = e["s"] is not None
         a = self._filtered(e, "a", e["a"], p, False).copy()
         s = self._filtered(e, "s", e["s"], p, True).copy() if has_s else None
@@ -425,6 +461,8 @@ class FmuPlantDevice:
         cols_s: dict[str, np.ndarray] = {}
         specific = self.motion is not None and self.motion.sensor.specific_force
         forms = [(name, shape, self.forms[self._alias.get(name, name)]) for name, shape in cfg.items()]
+        if cfg or self._need_sens:
+            self._sens(e)
         for name, shape, f in forms:
             if f.kind == "command":
                 for j in range(p.u.shape[1]):
@@ -445,7 +483,7 @@ class FmuPlantDevice:
                     cols_s[NOMINAL_PREFIX + k] = self._filtered(J, "s" + k, J["Js"][k], p, True)
         m = p.mask
         out = {self.sig_enc: (p.a_enc[m], a[m], {k: c[m] for k, c in cols_a.items()},
-                              e["Gu"][0][m] if e["Gu"] else None)}
+                              e["Gu"][0][m] if e.get("Gu") else None)}
         if has_s:
             for name, shape, f in forms:          # the filters commute: transform the filtered pieces
                 if f.kind == "sensed_point":
@@ -457,7 +495,7 @@ class FmuPlantDevice:
                         cols_s[f"{name}:{c}"] = col
             cs = {k: c[m] for k, c in cols_s.items()}
             cs["bias"] = np.ones(int(m.sum()))
-            out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e["Gs"] else None)
+            out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e.get("Gs") else None)
         return out
 
     def _sensor_columns(self, f, p: _Prep, shape, s_filtered: np.ndarray) -> dict[str, np.ndarray]:
@@ -535,6 +573,15 @@ class FmuPlantDevice:
                 rows.append(sw * A)
                 rhs.append(sw * r)
                 tags.append((sname, sw, y.size))
+                if "bias" in cols and self._offset_sd:
+                    # the per-trial offset is a nuisance within the sensor's offset tolerance:
+                    # one row per trial, an offset of one tolerance costs the trial's noise energy
+                    pw = sw * math.sqrt(y.size * self._prep(lg).noise.get(sname, 0.0)) / self._offset_sd
+                    row = np.zeros((1, ncol))
+                    row[0, len(names) + j] = pw
+                    rows.append(row)
+                    rhs.append(np.zeros(1))
+                    tags.append(("offset", 0.0, 1))
         A = np.vstack(rows)
         bvec = np.concatenate(rhs)
         used = np.flatnonzero(np.any(A != 0, axis=0))
@@ -587,6 +634,20 @@ class FmuPlantDevice:
             return dict(self._rec_cache[key])
         p = dict(self._rec_first) if self._rec_first else {k: self._nominal(k) for k in self.rec_params}
         g = self._gap_exact(logs, p)
+        # chord Gauss-Newton: the sensitivities of the starting point for every step
+        self._chord = {id(lg): self._jacobian(self._eval(lg, p)) for lg in logs}
+        try:
+            p, g = self._gauss_newton(logs, p, g)
+        finally:
+            self._chord = None
+        if self._rec_first is None:
+            self._rec_first = dict(p)
+        for lg in logs:
+            self._anchor(lg, p)
+        self._rec_cache[key] = dict(p)
+        return dict(p)
+
+    def _gauss_newton(self, logs, p, g):
         for it in range(10):
             _, coef, _ = self._solve(logs, p, {}, True, rcond=1e-8)
             step = {k: coef.get(NOMINAL_PREFIX + k, 0.0) for k in self.rec_params}
@@ -604,10 +665,7 @@ class FmuPlantDevice:
                 self.progress(f"recalibration step {it + 1}: " + ", ".join(f"{k}={v:.4g}" for k, v in p.items()))
             if rel < 2e-4:
                 break
-        if self._rec_first is None:
-            self._rec_first = dict(p)
-        self._rec_cache[key] = dict(p)
-        return dict(p)
+        return p, g
 
     def _gap_exact(self, logs, p) -> float:
         for lg in logs:
@@ -627,7 +685,11 @@ class FmuPlantDevice:
         both), NaN where not compared; the per-trial accelerometer offset is removed."""
         nom, own = self._split_all(params, effects)
         cfg, fixed = self._cfg(own)
-        asm = self._assemble(log, nom, cfg, False)
+        self._need_sens = True
+        try:
+            asm = self._assemble(log, nom, cfg, False)
+        finally:
+            self._need_sens = False
         _, coef, _ = self._solve([log], nom, cfg, False, fixed=fixed)
         p = self._prep(log)
         out = {}
@@ -646,6 +708,15 @@ class FmuPlantDevice:
             ym[p.mask] = y / g
             sm[p.mask] = pred / g
             out[sname] = (ym, sm)
+        return out
+
+    def signal_units(self) -> dict[str, str]:
+        """The comparison signals in the user's terms: log column, what is compared, units."""
+        out = {self.sig_enc: f"second difference of {self.enc.column} (FMU {self.enc.output}), "
+                             f"compared in command units ({', '.join(c.column for c in self.b.commands)})"}
+        if self.motion is not None:
+            out[self.sig_acc] = (f"{self.motion.column} ({self.motion.sensor.kind}, FMU {self.motion.output}), "
+                                 f"compared in command units")
         return out
 
     def operating_point(self, log: TrialLog, params: Mapping[str, float]) -> dict[str, np.ndarray]:
@@ -740,32 +811,35 @@ class FmuPlantDevice:
         return self.forms[self._alias.get(effect, effect)].grid(self._ctx_all(logs))
 
     def fit_effect(self, logs, params, effect):
+        if self.progress:
+            self.progress(f"fitting {effect}")
         effs, g = self.fit_effects(logs, params, [effect])
         return effs[effect], g
 
     def fit_effects(self, logs, params, effects, descend: bool = True):
         nom, _ = self._split_all(params, {})
-        grids = {e: self._grid(logs, e) for e in effects}
+        pk = tuple(id(lg) for lg in logs) + tuple(round(float(nom[k]), 10) for k in self.rec_params)
         cfg = {}
-        for e in effects:                       # each alone first
-            best = None
-            for sh in grids[e]:
-                g = self._fit_cfg(logs, nom, {e: sh})[0]
-                if best is None or g < best[0]:
-                    best = (g, sh)
-            cfg[e] = self._refine(logs, nom, {e: best[1]}, e, grids[e])[e] if best else {}
-        if len(effects) > 1 and descend:
-            for e in effects:
+        for e in effects:                       # each alone first (cached: pairs reuse it)
+            ck = pk + (e,)
+            if ck not in self._shapes:
+                grid = self._grid(logs, e)
                 best = None
-                for sh in grids[e]:
+                for sh in grid:
+                    g = self._fit_cfg(logs, nom, {e: sh})[0]
+                    if best is None or g < best[0]:
+                        best = (g, sh)
+                self._shapes[ck] = self._refine(logs, nom, {e: best[1]}, e, grid)[e] if best else {}
+            cfg[e] = self._shapes[ck]
+        if len(effects) > 1 and descend:
+            cur = self._fit_cfg(logs, nom, cfg)[0]
+            for e in effects:
+                for sh in self._grid(logs, e):
                     trial = dict(cfg)
                     trial[e] = sh
                     g = self._fit_cfg(logs, nom, trial)[0]
-                    if best is None or g < best[0]:
-                        best = (g, sh)
-                cur = self._fit_cfg(logs, nom, cfg)[0]
-                if best is not None and best[0] < cur:
-                    cfg[e] = best[1]
+                    if g < cur:
+                        cur, cfg = g, trial
         g, coef, _ = self._fit_cfg(logs, nom, cfg)
         return self._pack(nom, cfg, coef), g
 

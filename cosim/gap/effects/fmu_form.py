@@ -60,7 +60,7 @@ def log_grid(lo: float, hi: float, n: int) -> list[float]:
     return [float(v) for v in np.geomspace(lo, hi, n)]
 
 
-def period_grid(c: Any, n: int = 36) -> list[float]:
+def period_grid(c: Any, n: int = 24) -> list[float]:
     """Spatial periods searched for a ripple along the travel: on an angle whole fractions
     of a turn (2 pi / k), on a length log-spaced between 30 encoder quanta (and 4 mm/1000
     of the travel) and half the travel."""

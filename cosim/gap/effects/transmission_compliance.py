@@ -97,7 +97,7 @@ EFFECT = Effect(
 # ---- the form in the diagnosis of a user's own plant FMU: the sensed point is a second body
 # on a spring-damper (fn, zeta on a grid) behind the plant's point
 def _fmu_grid(c):
-    return [{"fn_hz": f, "zeta": z} for f in log_grid(0.01 / c.ts, 0.4 / c.ts, 12) for z in (0.05, 0.2, 0.5)]
+    return [{"fn_hz": f, "zeta": z} for f in log_grid(0.01 / c.ts, 0.4 / c.ts, 8) for z in (0.05, 0.2, 0.5)]
 
 
 FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid,
