@@ -70,7 +70,7 @@ def add_commands(subparsers: Any) -> None:
                    help="your own plant FMU (FMI 2.0 with Model Exchange), instead of --device")
     d.add_argument("--binding", default=None, metavar="BINDING.yaml",
                    help="with --plant: which log column drives/measures which FMU variable "
-                        "(format gap-binding/1, docs/gap-own-plant.md)")
+                        "(format gap-binding/1, docs/gap-plant-diagnosis.md)")
     d.add_argument("--fit", nargs="+", required=True, metavar="LOG", help="trial logs to fit on (.csv or stem)")
     d.add_argument("--test", nargs="+", required=True, metavar="LOG", help="held-out trial logs")
     d.add_argument("--out", required=True, metavar="DIR", help="output directory")
