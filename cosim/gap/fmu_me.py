@@ -83,6 +83,13 @@ class MePlant:
         self._get_dx = dll.fmi2GetDerivatives
         self._set_real = dll.fmi2SetReal
         self._get_real = dll.fmi2GetReal
+        vp, sz, dbl = ctypes.c_void_p, ctypes.c_size_t, ctypes.c_double
+        # raw addresses as arguments: no pointer object per call
+        self._set_time.argtypes = [vp, dbl]
+        self._set_x.argtypes = [vp, vp, sz]
+        self._get_dx.argtypes = [vp, vp, sz]
+        self._set_real.argtypes = [vp, vp, sz, vp]
+        self._get_real.argtypes = [vp, vp, sz, vp]
         for f in (self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real):
             f.restype = ctypes.c_int
 
@@ -118,38 +125,39 @@ class MePlant:
         self._initialised = True
 
     def evaluate(self, params: Mapping[str, float], t: np.ndarray, x: np.ndarray,
-                 inputs: Sequence[str], u: np.ndarray, outputs: Sequence[str]
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 inputs: Sequence[str], u: np.ndarray, outputs: Sequence[str],
+                 u_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """State derivatives (n x nx) and ``outputs`` (n x no) at the n points
-        (time ``t``, states ``x`` n x nx, ``inputs`` values ``u`` n x ni)."""
+        (time ``t``, states ``x`` n x nx, ``inputs`` values ``u`` n x ni); with ``u_out`` the
+        outputs are read after setting the inputs to ``u_out`` instead (same point)."""
         self.initialise(params)
         n = int(t.size)
         nx, ni, no = self.nx, len(inputs), len(outputs)
         x = np.ascontiguousarray(x, dtype=np.float64).reshape(n, nx)
         u = np.ascontiguousarray(u, dtype=np.float64).reshape(n, ni)
+        u2 = None if u_out is None else np.ascontiguousarray(u_out, dtype=np.float64).reshape(n, ni)
         dx = np.zeros((n, nx))
         y = np.zeros((n, max(no, 1)))
         vr_in = (ctypes.c_uint * max(ni, 1))(*[self.vars.vr(s) for s in inputs])
         vr_out = (ctypes.c_uint * max(no, 1))(*[self.vars.vr(s) for s in outputs])
-        dbl = ctypes.POINTER(ctypes.c_double)
-        xp = x.ctypes.data_as(dbl)
-        up = u.ctypes.data_as(dbl)
-        dxp = dx.ctypes.data_as(dbl)
-        yp = y.ctypes.data_as(dbl)
         c = self._c
         st, sx, gd, sr, gr = self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real
-        step = ctypes.sizeof(ctypes.c_double)
-        xa, ua, dxa, ya = (ctypes.addressof(p.contents) for p in (xp, up, dxp, yp))
-        ts = [ctypes.c_double(float(v)) for v in t]
+        b = 8
+        xa, ua, dxa, ya = x.ctypes.data, u.ctypes.data, dx.ctypes.data, y.ctypes.data
+        u2a = None if u2 is None else u2.ctypes.data
+        vin, vout = ctypes.addressof(vr_in), ctypes.addressof(vr_out)
+        tl = t.tolist()
         bad = 0
         for k in range(n):
-            bad |= st(c, ts[k])
-            bad |= sx(c, ctypes.cast(xa + k * nx * step, dbl), nx)
+            bad |= st(c, tl[k])
+            bad |= sx(c, xa + k * nx * b, nx)
             if ni:
-                bad |= sr(c, vr_in, ni, ctypes.cast(ua + k * ni * step, dbl))
-            bad |= gd(c, ctypes.cast(dxa + k * nx * step, dbl), nx)
+                bad |= sr(c, vin, ni, ua + k * ni * b)
+            bad |= gd(c, dxa + k * nx * b, nx)
             if no:
-                bad |= gr(c, vr_out, no, ctypes.cast(ya + k * no * step, dbl))
+                if u2a is not None and ni:
+                    bad |= sr(c, vin, ni, u2a + k * ni * b)
+                bad |= gr(c, vout, no, ya + k * no * b)
         if bad > 1:                                   # fmi2OK = 0, fmi2Warning = 1
             raise RuntimeError(f"{self.vars.path.name}: an FMU call failed while evaluating the plant "
                                "point-wise (Model Exchange)")

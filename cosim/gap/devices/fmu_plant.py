@@ -194,6 +194,7 @@ class FmuPlantDevice:
         self._need_sens = False
         self._chord: dict[int, dict] | None = None
         self._shapes: dict[tuple, dict] = {}
+        self._hints: dict[str, dict] = {}
         self._rec_cache: dict[tuple, dict] = {}
         self._rec_first: dict[str, float] | None = None
 
@@ -302,7 +303,8 @@ class FmuPlantDevice:
         out.update({k: float(params[k]) for k in self.rec_params if k in params})
         return out
 
-    def _inputs(self, p: _Prep, du: np.ndarray | None = None, dF: np.ndarray | None = None) -> np.ndarray:
+    def _inputs(self, p: _Prep, du: np.ndarray | None = None, dF: np.ndarray | None = None,
+                prev: bool = False) -> np.ndarray:
         """FMU input values (n x ni): commands shifted by half a sample (zero-order hold: the
         staircase's centre), external forces, the disturbance."""
         b = self.b
@@ -311,14 +313,15 @@ class FmuPlantDevice:
         idx = {name: j for j, name in enumerate(self.inputs)}
         for j, c in enumerate(b.commands):
             uj = p.u[:, j] if du is None else p.u[:, j] + du[:, j]
-            U[:, idx[c.input]] += shift(uj, 0.5 * p.ts, p.ts)
+            U[:, idx[c.input]] += _prev(uj) if prev else shift(uj, 0.5 * p.ts, p.ts)
         for j, e in enumerate(b.external):
             U[:, idx[e.input]] += p.fext[:, j]
         if dF is not None:
             U[:, idx[b.disturbance.input]] += b.disturbance.scale * dF
         return U
 
-    def _run(self, p: _Prep, params: Mapping[str, float], U: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    def _run(self, p: _Prep, params: Mapping[str, float], U: np.ndarray,
+             U_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         X = np.zeros((p.t.size, self.vars.md.numberOfContinuousStates or len(self.vars.states)))
         for k, s in enumerate(self.vars.states):
             st = self.vars.start(s)
@@ -326,7 +329,7 @@ class FmuPlantDevice:
         X[:, self.i_pos] = p.x
         X[:, self.i_vel] = p.v
         outs = [self.motion.output] if self.motion is not None else []
-        dx, y = self._plant().evaluate(self._full_params(params), p.t, X, self.inputs, U, outs)
+        dx, y = self._plant().evaluate(self._full_params(params), p.t, X, self.inputs, U, outs, U_out)
         return dx[:, self.i_vel], (y[:, 0] if outs else None)
 
     def _eval(self, log: TrialLog, params: Mapping[str, float]) -> dict:
@@ -337,17 +340,12 @@ class FmuPlantDevice:
         if hit is not None and hit["log"] is log:
             return hit
         p = self._prep(log)
-        a0, s0 = self._run(p, params, self._inputs(p))
-        out = {"log": log, "params": dict(params), "a": a0, "s_raw": s0, "s": s0}
-        if s0 is not None:
-            # the sensor reads at t_k, before command k is applied (the logs' convention:
-            # ``command_hold`` zoh, the command computed from the sensors read at t_k): its
-            # prediction takes command k-1 (exact for a plant affine in its commands)
-            self._sens(out)
-            s1 = s0.copy()
-            for j in range(p.u.shape[1]):
-                s1 += out["Gs"][j] * (_prev(p.u[:, j]) - shift(p.u[:, j], 0.5 * p.ts, p.ts))
-            out["s"] = s1
+        # the sensor reads at t_k, before command k is applied (the logs' convention:
+        # ``command_hold`` zoh, the command computed from the sensors read at t_k): its output
+        # is read with command k-1; the encoder's smoothed acceleration sees the staircase's
+        # centre (half a sample)
+        a0, s0 = self._run(p, params, self._inputs(p), self._inputs(p, prev=True))
+        out = {"log": log, "params": dict(params), "a": a0, "s": s0}
         self._evals[key] = out
         return out
 
@@ -357,17 +355,18 @@ class FmuPlantDevice:
             return e
         p = self._prep(e["log"])
         n = p.t.size
-        a0, s0 = e["a"], e["s_raw"]
+        a0, s0 = e["a"], e["s"]
         Gu, Gs = [], []
         for j in range(p.u.shape[1]):
             d = max(1e-6, 1e-2 * float(np.sqrt(np.mean(p.u[:, j] ** 2))) or 1e-3)
             du = np.zeros_like(p.u)
             du[:, j] = d
-            a1, s1 = self._run(p, e["params"], self._inputs(p, du=du))
+            a1, s1 = self._run(p, e["params"], self._inputs(p, du=du), self._inputs(p, du=du, prev=True))
             Gu.append((a1 - a0) / d)
             Gs.append(None if s0 is None else (s1 - s0) / d)
         dF = 1e-2 * max(1.0, float(np.sqrt(np.mean(p.fext ** 2))) if p.fext.size else 1.0)
-        a1, s1 = self._run(p, e["params"], self._inputs(p, dF=np.full(n, dF)))
+        a1, s1 = self._run(p, e["params"], self._inputs(p, dF=np.full(n, dF)),
+                           self._inputs(p, dF=np.full(n, dF), prev=True))
         e.update({"Gu": Gu, "Gs": Gs, "GFa": (a1 - a0) / dF, "GFs": None if s0 is None else (s1 - s0) / dF})
         return e
 
@@ -382,9 +381,7 @@ class FmuPlantDevice:
             pp = dict(params)
             h = 1e-4 * max(abs(float(params[k])), 1e-9)
             pp[k] = float(params[k]) + h
-            a1, s1 = self._run(p, pp, self._inputs(p))
-            if s1 is not None:                                        # same timing correction
-                s1 = s1 + (e["s"] - e["s_raw"])
+            a1, s1 = self._run(p, pp, self._inputs(p), self._inputs(p, prev=True))
             Ja[k] = (a1 - e["a"]) / h
             Js[k] = None if s1 is None else (s1 - e["s"]) / h
         e["J"] = {"log": log, "Ja": Ja, "Js": Js}
@@ -541,7 +538,7 @@ class FmuPlantDevice:
         return out
 
     def _solve(self, logs: Sequence[TrialLog], params: Mapping[str, float], cfg, refit: bool,
-               fixed: Mapping[str, float] | None = None, nonneg: Sequence[str] = (), rcond: float = 1e-10):
+               fixed: Mapping[str, float] | None = None, nonneg: Sequence[str] = (), rcond: float = 1e-7):
         """Least squares of the free columns (``fixed``: coefficients given, not fitted) on the
         metric's weighted rows; returns (gap, coefficients, per-signal nrmse)."""
         w = self._weights(logs)
@@ -605,7 +602,7 @@ class FmuPlantDevice:
             k0 += nrow
             per[sname] = per.get(sname, 0.0) + float(rr @ rr) / (sw * sw * max(E.get(sname, 0.0), 1e-300)) \
                 if sw > 0 else per.get(sname, 0.0)
-        per = {k: math.sqrt(v) for k, v in per.items()}
+        per = {k: math.sqrt(v) for k, v in per.items() if k != "offset"}
         coef = {c: float(th[i]) for i, c in enumerate(names)}
         return gap, coef, per
 
@@ -824,12 +821,22 @@ class FmuPlantDevice:
             ck = pk + (e,)
             if ck not in self._shapes:
                 grid = self._grid(logs, e)
+                hint = self._hints.get(e)
+                if hint is not None and len(grid) > 5:
+                    # a subset of logs (a held-out fold): search near the shape found on all of
+                    # them (five grid points around it), then refine
+                    key = self.forms[self._alias.get(e, e)].refine
+                    if key is not None:
+                        order = sorted(range(len(grid)), key=lambda i: abs(math.log(max(grid[i].get(key, 1.0), 1e-300))
+                                                                           - math.log(max(hint.get(key, 1.0), 1e-300))))
+                        grid = [grid[i] for i in sorted(order[:5])]
                 best = None
                 for sh in grid:
                     g = self._fit_cfg(logs, nom, {e: sh})[0]
                     if best is None or g < best[0]:
                         best = (g, sh)
                 self._shapes[ck] = self._refine(logs, nom, {e: best[1]}, e, grid)[e] if best else {}
+                self._hints.setdefault(e, self._shapes[ck])
             cfg[e] = self._shapes[ck]
         if len(effects) > 1 and descend:
             cur = self._fit_cfg(logs, nom, cfg)[0]

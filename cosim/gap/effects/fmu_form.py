@@ -29,9 +29,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
+from scipy import signal
 
 __all__ = ["FmuForm", "log_grid", "period_grid"]
 
@@ -69,3 +71,15 @@ def period_grid(c: Any, n: int = 24) -> list[float]:
     span = max(c.x_max - c.x_min, 1e-9)
     lo = max(30 * c.q, 2e-3 * span)
     return log_grid(lo, 0.5 * span, n)
+
+
+@lru_cache(maxsize=512)
+def _base_excited_ba(fn: float, zeta: float, ts: float):
+    wn = 2 * math.pi * fn
+    return signal.bilinear([2 * zeta * wn, wn * wn], [1, 2 * zeta * wn, wn * wn], fs=1.0 / ts)
+
+
+def base_excited_cached(a_in: np.ndarray, fn: float, zeta: float, ts: float) -> np.ndarray:
+    """:func:`cosim.gap.effects.base.base_excited` with its filter designed once per shape."""
+    b, a = _base_excited_ba(float(fn), float(zeta), float(ts))
+    return signal.lfilter(b, a, a_in)

@@ -5,7 +5,7 @@ import numpy as np
 from scipy import signal
 
 from .backlash import ZETA_TR
-from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
+from .fmu_form import FmuForm, base_excited_cached, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import (BOTH, BallscrewForm, EmpsForm, Effect, Terms, base_excited, nut_force_response, params,
                    uniform)
 
@@ -101,4 +101,4 @@ def _fmu_grid(c):
 
 
 FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid,
-                   transform=lambda a, sh, ts: base_excited(a, sh["fn_hz"], sh["zeta"], ts))
+                   transform=lambda a, sh, ts: base_excited_cached(a, sh["fn_hz"], sh["zeta"], ts))
