@@ -75,6 +75,9 @@ THRESHOLDS_OF = "ballscrew-1dof"
 SMOOTH_HZ, COMPARE_HZ = 200.0, 100.0
 EDGE_S, REST_DILATE_S = 0.05, 0.015
 FLOOR_MIN = 0.005
+#: weight of the pull of the nominal parameters towards their current values in the fits
+#: (per unit relative change, in the metric's units: a 10 % change costs 1e-6 of gap^2)
+RIDGE = 1e-2
 
 
 def fmu_forms() -> dict[str, Any]:
@@ -98,9 +101,12 @@ def _prev(u: np.ndarray) -> np.ndarray:
     return np.concatenate([u[:1], u[:-1]])
 
 
-def _lstsq(A: np.ndarray, b: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+def _lstsq(A: np.ndarray, b: np.ndarray, rcond: float = 1e-10, scale: np.ndarray | None = None) -> np.ndarray:
+    """Least squares through the normal equations of the column-scaled problem (columns
+    divided by ``scale``, default their norms); directions whose singular value is below
+    ``sqrt(rcond)`` of the largest are left at 0 (minimum norm in the scaled coordinates)."""
     G = A.T @ A
-    nrm = np.sqrt(np.diag(G)).copy()
+    nrm = np.sqrt(np.diag(G)).copy() if scale is None else np.asarray(scale, float).copy()
     nrm[nrm == 0] = 1.0
     x, *_ = np.linalg.lstsq(G / np.outer(nrm, nrm), (A.T @ b) / nrm, rcond=rcond)
     return x / nrm
@@ -538,7 +544,7 @@ class FmuPlantDevice:
         return out
 
     def _solve(self, logs: Sequence[TrialLog], params: Mapping[str, float], cfg, refit: bool,
-               fixed: Mapping[str, float] | None = None, nonneg: Sequence[str] = (), rcond: float = 1e-7):
+               fixed: Mapping[str, float] | None = None, nonneg: Sequence[str] = (), rcond: float = 1e-6):
         """Least squares of the free columns (``fixed``: coefficients given, not fitted) on the
         metric's weighted rows; returns (gap, coefficients, per-signal nrmse)."""
         w = self._weights(logs)
@@ -579,21 +585,31 @@ class FmuPlantDevice:
                     rows.append(row)
                     rhs.append(np.zeros(1))
                     tags.append(("offset", 0.0, 1))
+        n_ridge = 0
         A = np.vstack(rows)
         bvec = np.concatenate(rhs)
         used = np.flatnonzero(np.any(A != 0, axis=0))
+        # the nominal parameters' columns scaled to relative changes (one scale for all of
+        # them): a direction the logs do not determine (M, Kf, b, Fc scaled together without
+        # a known external force) has a vanishing singular value there and stays where it is
+        nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
+        nom_idx = [i for i, c in enumerate(names) if c.startswith(NOMINAL_PREFIX)]
+        if nom_idx:
+            rel = np.array([abs(float(params[names[i][len(NOMINAL_PREFIX):]])) for i in nom_idx])
+            top = max(float(np.max(nrm[nom_idx] * rel)), 1e-300)
+            nrm[nom_idx] = top / np.maximum(rel, 1e-300)
         th = np.zeros(ncol)
         keep = list(used)
         for _ in range(3):
             th[:] = 0.0
             if keep:
-                th[keep] = _lstsq(A[:, keep], bvec, rcond)
+                th[keep] = _lstsq(A[:, keep], bvec, rcond, nrm[keep])
             neg = [i for i in keep if i < len(names) and names[i].split(":")[-1] in nonneg and th[i] < 0]
             if not neg:
                 break
             keep = [i for i in keep if i not in neg]
             th[neg] = 0.0
-        res = bvec - A @ th
+        res = (bvec - A @ th)[:bvec.size - n_ridge]
         gap = float(math.sqrt(float(res @ res)))
         per: dict[str, float] = {}
         k0 = 0
@@ -646,7 +662,7 @@ class FmuPlantDevice:
 
     def _gauss_newton(self, logs, p, g):
         for it in range(10):
-            _, coef, _ = self._solve(logs, p, {}, True, rcond=1e-8)
+            _, coef, _ = self._solve(logs, p, {}, True, rcond=1e-6)
             step = {k: coef.get(NOMINAL_PREFIX + k, 0.0) for k in self.rec_params}
             for _half in range(6):              # damped: a step must lower the exact gap
                 newp = {k: float(np.clip(p[k] + step[k], *self._bounds[k])) for k in self.rec_params}
