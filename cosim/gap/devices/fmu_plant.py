@@ -199,6 +199,7 @@ class FmuPlantDevice:
         self._anchors: dict[int, list[dict]] = {}
         self._need_sens = False
         self._chord: dict[int, dict] | None = None
+        self._chord_at: dict[str, float] | None = None
         self._shapes: dict[tuple, dict] = {}
         self._hints: dict[str, dict] = {}
         self._rec_cache: dict[tuple, dict] = {}
@@ -595,7 +596,8 @@ class FmuPlantDevice:
         nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
         nom_idx = [i for i, c in enumerate(names) if c.startswith(NOMINAL_PREFIX)]
         if nom_idx:
-            rel = np.array([abs(float(params[names[i][len(NOMINAL_PREFIX):]])) for i in nom_idx])
+            at = self._chord_at or params       # the chord's point: the scaling of its Jacobian
+            rel = np.array([abs(float(at[names[i][len(NOMINAL_PREFIX):]])) for i in nom_idx])
             top = max(float(np.max(nrm[nom_idx] * rel)), 1e-300)
             nrm[nom_idx] = top / np.maximum(rel, 1e-300)
         th = np.zeros(ncol)
@@ -649,10 +651,11 @@ class FmuPlantDevice:
         g = self._gap_exact(logs, p)
         # chord Gauss-Newton: the sensitivities of the starting point for every step
         self._chord = {id(lg): self._jacobian(self._eval(lg, p)) for lg in logs}
+        self._chord_at = dict(p)
         try:
             p, g = self._gauss_newton(logs, p, g)
         finally:
-            self._chord = None
+            self._chord, self._chord_at = None, None
         if self._rec_first is None:
             self._rec_first = dict(p)
         for lg in logs:
@@ -662,8 +665,19 @@ class FmuPlantDevice:
 
     def _gauss_newton(self, logs, p, g):
         for it in range(10):
-            _, coef, _ = self._solve(logs, p, {}, True, rcond=1e-6)
-            step = {k: coef.get(NOMINAL_PREFIX + k, 0.0) for k in self.rec_params}
+            # projected step: a parameter the step would push beyond its range is held on
+            # its bound and the others re-solved (clipping alone would break the step's balance)
+            active: dict[str, float] = {}
+            for _ in range(len(self.rec_params) + 1):
+                _, coef, _ = self._solve(logs, p, {}, True, rcond=1e-6, fixed=active)
+                step = {k: active.get(NOMINAL_PREFIX + k, coef.get(NOMINAL_PREFIX + k, 0.0))
+                        for k in self.rec_params}
+                out = [k for k in self.rec_params if NOMINAL_PREFIX + k not in active
+                       and not self._bounds[k][0] <= p[k] + step[k] <= self._bounds[k][1]]
+                if not out:
+                    break
+                for k in out:
+                    active[NOMINAL_PREFIX + k] = float(np.clip(p[k] + step[k], *self._bounds[k])) - p[k]
             for _half in range(6):              # damped: a step must lower the exact gap
                 newp = {k: float(np.clip(p[k] + step[k], *self._bounds[k])) for k in self.rec_params}
                 g2 = self._gap_exact(logs, newp)
