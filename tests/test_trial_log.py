@@ -159,8 +159,12 @@ def test_wrong_format(tmp_path):
 
 
 def test_unknown_device(tmp_path):
-    e = err(put(tmp_path, side=dict(SIDE, device="hexapod")))
-    assert "unknown device 'hexapod'" in e.reason
+    # a device not in the tables is read in the units its sidecar declares; a unit the
+    # package does not convert is refused, naming the device, the tables and the column
+    e = err(put(tmp_path, side=dict(SIDE, device="hexapod",
+                                    signals={"i_cmd": "A", "theta_enc": "furlong"})))
+    assert "unknown device 'hexapod'" in e.reason and "'furlong'" in e.reason
+    assert e.column == "theta_enc" and e.file.endswith("trial.json")
     assert all(d in e.reason for d in DEVICES)
 
 
@@ -339,7 +343,9 @@ def test_write_rejects_bad_data_and_leaves_nothing(tmp_path):
     (dict(device="emps-1dof", data={"x_enc": [0, "a"]}, signals={"x_enc": "m"}), "x_enc"),
     (dict(device="emps-1dof", data={"time": [0, 0.001, 0.003], "x_enc": [0, 1, 2]},
           signals={"x_enc": "m"}), "time"),
-    (dict(device="robot", data={"x_enc": [0, 1]}, signals={"x_enc": "m"}), None),
+    # a device not in the tables: its declared units must be units the package converts
+    (dict(device="robot", data={"x_enc": [0, 1]}, signals={"x_enc": "furlong"}), "x_enc"),
+    (dict(device="", data={"x_enc": [0, 1]}, signals={"x_enc": "m"}), None),
 ])
 def test_write_validates_first(tmp_path, kwargs, column):
     with pytest.raises(TrialLogError) as ei:

@@ -3,7 +3,10 @@
 The format is the contract in ``spec/trial-log.md``. In short: the CSV has one
 header row, ``time`` first (seconds, uniformly sampled), one column per signal in
 SI units; the JSON sidecar says what the columns are (``format``, ``device``,
-``sample_time`` and ``signals`` are required).
+``sample_time`` and ``signals`` are required). A device of :data:`DEVICES` has its
+columns' units fixed by the table; any other device is read in the units its sidecar
+declares, which must be units the package converts (:func:`unit_si`;
+``docs/gap-own-plant.md``, "Trial logs of a new device").
 
 Every problem is raised as one exception class, :class:`TrialLogError`, which
 names the file, the column and the row.
@@ -56,6 +59,7 @@ __all__ = [
     "write_trial_log",
     "require_columns",
     "log_paths",
+    "unit_si",
 ]
 
 #: value of the sidecar's ``format`` key
@@ -195,8 +199,8 @@ def _check_sidecar(meta: Any, jfile: Any) -> tuple[str, float, dict[str, str], d
     if meta["format"] != FORMAT:
         raise TrialLogError(jfile, f"format is {meta['format']!r}, expected {FORMAT!r}")
     device = meta["device"]
-    if not isinstance(device, str) or device not in DEVICES:
-        raise TrialLogError(jfile, f"unknown device {device!r} (known: {', '.join(DEVICES)})")
+    if not isinstance(device, str) or not device.strip():
+        raise TrialLogError(jfile, f"device must be a non-empty string, got {device!r}")
     ts = meta["sample_time"]
     if not _is_number(ts) or not math.isfinite(float(ts)) or float(ts) <= 0:
         raise TrialLogError(jfile, f"sample_time must be a positive finite number of seconds, got {ts!r}")
@@ -204,17 +208,25 @@ def _check_sidecar(meta: Any, jfile: Any) -> tuple[str, float, dict[str, str], d
     signals = meta["signals"]
     if not isinstance(signals, dict):
         raise TrialLogError(jfile, f"signals must be an object name -> unit, got {type(signals).__name__}")
-    table = DEVICES[device]
+    # a device of the tables: its units are fixed; any other device is read as its
+    # sidecar declares it, in units the package converts (docs/gap-own-plant.md)
+    table = DEVICES.get(device)
     for name, unit in signals.items():
         if not isinstance(unit, str) or not unit.strip():
             raise TrialLogError(jfile, f"signals[{name!r}]: the unit must be a non-empty string, got {unit!r}",
                                 column=name)
+        if table is None and name != TIME_COLUMN and unit_si(unit) is None:
+            raise TrialLogError(jfile, f"unknown device {device!r} (not in the trial-log tables: "
+                                f"{', '.join(DEVICES)}), so its signals are read in the units its "
+                                f"sidecar declares; {unit!r} is not a unit the package converts "
+                                f"(SI symbols with prefixes, deg, rev, rpm, min, h, bar; products "
+                                f"with '.', one '/', exponents as in 'm/s2' or 'm/s^2')", column=name)
         if name == TIME_COLUMN:
             if unit.strip() != "s":
                 raise TrialLogError(jfile, f"unit mismatch: time is in 's', the sidecar says {unit!r}",
                                     column=name)
             continue
-        if name in table and unit.strip() != table[name]:
+        if table is not None and name in table and unit.strip() != table[name]:
             raise TrialLogError(jfile, f"unit mismatch: device {device} has {name} in {table[name]!r}, "
                                 f"the sidecar says {unit!r} (units are not converted)", column=name)
     nominal = meta.get("nominal", {})
@@ -227,6 +239,19 @@ def _check_sidecar(meta: Any, jfile: Any) -> tuple[str, float, dict[str, str], d
             raise TrialLogError(jfile, f"nominal[{k!r}] must be a finite number, got {v!r}")
     sig = {k: v.strip() for k, v in signals.items() if k != TIME_COLUMN}
     return device, ts, sig, dict(nominal)
+
+
+def unit_si(unit: str, definitions: Iterable = ()):
+    """``unit`` in SI base units (:class:`cosim.master.units.BaseUnit`), or None when the
+    package's unit code does not know it. Accepts the trial-log spelling of powers
+    (``m/s^2``) beside Modelica's (``m/s2``): the spec's tables write ``m/s^2``."""
+    from ..master.units import base_unit
+    if not isinstance(unit, str):
+        return None
+    u = unit.strip().replace(" ", "").replace("^", "").replace("*", ".").replace("\u00b7", ".")
+    if not u:
+        return None
+    return base_unit(u, definitions)
 
 
 def _check_header(header: list[str], signals: Mapping[str, str], cfile: Any, jfile: Any) -> None:

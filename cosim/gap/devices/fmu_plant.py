@@ -178,7 +178,8 @@ class FmuPlantDevice:
         self.rec_params = tuple(p.name for p in binding.parameters if p.recalibrate)
         self.param_names = tuple(p.name for p in binding.parameters if p.recalibrate)
         self._bounds = {p.name: (p.low, p.high) for p in binding.parameters}
-        self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate}
+        self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate
+                       and not getattr(p, "same_as", None)}
         self.recalibration_note = (
             "recalibrated " + ", ".join(self.rec_params) + " by Gauss-Newton on the equation error of the plant "
             "FMU (finite-difference sensitivities), within the binding's ranges; directions the fit logs do not "
@@ -227,7 +228,7 @@ class FmuPlantDevice:
                 if c in log.data:
                     fext[:, j] = e.scale * np.asarray(log.data[c], float)
                     break
-        xe = self.enc.scale * self._col(log, self.enc.column)
+        xe = self.enc.scale * self._col(log, self.enc.column) + float(getattr(self.enc, "offset", 0.0))
         sos_s = _lowpass(SMOOTH_HZ * 1e-3 / ts, ts)
         sosF = _lowpass(COMPARE_HZ * 1e-3 / ts, ts)
         xs = signal.sosfiltfilt(sos_s, xe)
@@ -308,6 +309,10 @@ class FmuPlantDevice:
     def _full_params(self, params: Mapping[str, float]) -> dict[str, float]:
         out = dict(self._fixed)
         out.update({k: float(params[k]) for k in self.rec_params if k in params})
+        for p in self.b.parameters:            # a parameter the binding ties to another (same_as)
+            tie = getattr(p, "same_as", None)
+            if tie and tie in out:
+                out[p.name] = out[tie] * float(getattr(p, "same_scale", 1.0))
         return out
 
     def _inputs(self, p: _Prep, du: np.ndarray | None = None, dF: np.ndarray | None = None,
