@@ -173,3 +173,15 @@ def test_cli_end_to_end_on_a_foreign_dev_case(fmu, tmp_path):
     for k in ("M", "Kf", "b", "Fc"):
         assert abs(d["recalibrated"][k] / lab["true_params"][k] - 1) < 0.15, k
     assert "x_enc.dd" in d["plant"]["signals"]
+
+
+def test_cli_plant_and_device_are_exclusive_and_plant_needs_a_binding(tmp_path):
+    """Exit 2 with a message naming what is missing; nothing written."""
+    base = [sys.executable, "-m", "cosim", "gap", "diagnose", "--fit", "a.csv", "--test", "b.csv",
+            "--out", str(tmp_path / "out")]
+    r = subprocess.run(base + ["--plant", "p.fmu"], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2 and "--binding" in r.stderr
+    r = subprocess.run(base + ["--plant", "p.fmu", "--binding", "b.yaml", "--device", "ballscrew-1dof"],
+                       capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2 and "either --device" in r.stderr
+    assert not (tmp_path / "out").exists()
