@@ -639,12 +639,8 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
                 raise GapInputError(f"--{role} log is not a valid trial log: {e.reason}", e.file, e.column) from None
         logs[role] = out_l
     fit, test = logs["fit"], logs["test"]
-    try:
-        from .binding import check_logs as check_bound_logs
-    except ImportError:          # pragma: no cover - the binding module's checks, when present
-        check_bound_logs = None
-    if check_bound_logs is not None:
-        check_bound_logs(binding, fit + test)
+    from .binding import check_logs as check_bound_logs
+    check_bound_logs(binding, fit + test)
     device = FmuPlantDevice(binding, fmu_path, progress=progress)
     _check_devices(device.name, fit, test)
     th = kw.pop("thresholds", None)

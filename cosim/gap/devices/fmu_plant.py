@@ -57,11 +57,8 @@ from ..effects import EFFECTS as CATALOGUE
 from ..effects.base import shift
 from ..fmu_me import FmuVariables, MePlant
 
-try:                                               # the binding module; a minimal stand-in meanwhile
-    from ..binding import PlantBinding, load_binding as load_binding_any
-except ImportError:                                # pragma: no cover
-    from .._binding_min import PlantBinding, load_binding as load_binding_any
-from .._binding_min import read_log_any
+from ...logs.trial_log import read_trial_log as read_log_any
+from ..binding import PlantBinding, load_binding as load_binding_any
 
 __all__ = ["FmuPlantDevice", "fmu_forms", "THRESHOLDS_OF", "load_binding_any", "read_log_any"]
 
