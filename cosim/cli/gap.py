@@ -9,6 +9,14 @@ from .exitcodes import BAD_INPUT, CANNOT_TELL, OK
 __all__ = ["add_commands"]
 
 
+def _progress(msg: str) -> None:
+    """One line on stderr, overwritten (a terminal) or appended (a file)."""
+    if sys.stderr.isatty():
+        print(f"\r\x1b[K{msg}", end="", file=sys.stderr, flush=True)
+    else:
+        print(msg, file=sys.stderr, flush=True)
+
+
 def _cmd_diagnose(a: Any) -> int:
     from ..gap.device import GapInputError
     from ..gap.diagnose import diagnose
@@ -16,13 +24,23 @@ def _cmd_diagnose(a: Any) -> int:
     from ..logs.fileio import OutputPathError, check_out_dir
     try:
         check_out_dir(a.out)        # created by diagnose once the inputs are read
-        res = diagnose(a.device, a.fit, a.test, a.out, report=not a.no_report, margin=a.margin)
+        if (a.plant is None) == (a.device is None):
+            raise GapInputError("give either --device NAME (a built-in device) or --plant PLANT.fmu "
+                                "with --binding BINDING.yaml")
+        if a.plant is not None:
+            if a.binding is None:
+                raise GapInputError("--plant needs --binding BINDING.yaml (which log column is which FMU variable)")
+            from ..gap.diagnose import diagnose_plant
+            res = diagnose_plant(a.plant, a.binding, a.fit, a.test, a.out, report=not a.no_report,
+                                 margin=a.margin, progress=_progress)
+        else:
+            res = diagnose(a.device, a.fit, a.test, a.out, report=not a.no_report, margin=a.margin)
     except (GapInputError, OutputPathError) as e:
         print(f"cosim: error: {e}", file=sys.stderr)
         return BAD_INPUT
     except Implausible as e:        # the logs do not fit the nominal model: no diagnosis
         print(f"cannot diagnose: implausible input: {e}")
-        write_refusal(a.out, a.device, e)
+        write_refusal(a.out, a.device or str(a.plant), e)
         return CANNOT_TELL
     if res.get("cannot_diagnose"):
         print(f"cannot diagnose: {res['cannot_diagnose']}")
@@ -45,9 +63,14 @@ def add_commands(subparsers: Any) -> None:
                     "the catalogue effects, select those that lower the gap on held-out data, and "
                     "measure the gap on --test logs before/after. Writes DIR/diagnosis.json and "
                     "DIR/report.html.")
-    d.add_argument("--device", required=True,
-                   help="the trial logs' device, e.g. ballscrew-1dof (an unknown name is "
-                        "refused with the list of known ones)")
+    d.add_argument("--device", default=None,
+                   help="a built-in device, e.g. ballscrew-1dof (an unknown name is "
+                        "refused with the list of known ones); or --plant/--binding")
+    d.add_argument("--plant", default=None, metavar="PLANT.fmu",
+                   help="your own plant FMU (FMI 2.0 with Model Exchange), instead of --device")
+    d.add_argument("--binding", default=None, metavar="BINDING.yaml",
+                   help="with --plant: which log column drives/measures which FMU variable "
+                        "(format gap-binding/1, docs/gap-plant-diagnosis.md)")
     d.add_argument("--fit", nargs="+", required=True, metavar="LOG", help="trial logs to fit on (.csv or stem)")
     d.add_argument("--test", nargs="+", required=True, metavar="LOG", help="held-out trial logs")
     d.add_argument("--out", required=True, metavar="DIR", help="output directory")

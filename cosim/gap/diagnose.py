@@ -611,3 +611,51 @@ def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_path
         from .report import render_report
         atomic_write_text(out / "report.html", render_report(result, extras))
     return result
+
+
+def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
+                   fit_paths: Sequence[str | os.PathLike], test_paths: Sequence[str | os.PathLike],
+                   out_dir: str | os.PathLike, *, report: bool = True, progress=None, **kw: Any) -> dict[str, Any]:
+    """The diagnosis of a user's own plant FMU (``--plant``/``--binding``): the same
+    ``diagnosis.json``/``report.html`` as :func:`diagnose`, the device built from the FMU and
+    its binding (:class:`cosim.gap.devices.fmu_plant.FmuPlantDevice`). Thresholds: the
+    engine's cross-validated ones (:data:`cosim.gap.devices.fmu_plant.THRESHOLDS_OF`) unless
+    the binding's device has its own. Raises :class:`GapInputError` on bad input (nothing
+    is written then)."""
+    from .devices.fmu_plant import THRESHOLDS_OF, FmuPlantDevice, load_binding_any, read_log_any
+    fmu_path, binding_path = Path(fmu_path), Path(binding_path)
+    if not fmu_path.is_file():
+        raise GapInputError("no such plant FMU", fmu_path)
+    binding = load_binding_any(binding_path, fmu_path)
+    logs = {}
+    for role, paths in (("fit", fit_paths), ("test", test_paths)):
+        if not paths:
+            raise GapInputError(f"no --{role} logs given")
+        out_l = []
+        for p in paths:
+            try:
+                out_l.append(read_log_any(p))
+            except TrialLogError as e:
+                raise GapInputError(f"--{role} log is not a valid trial log: {e.reason}", e.file, e.column) from None
+        logs[role] = out_l
+    fit, test = logs["fit"], logs["test"]
+    from .binding import check_logs as check_bound_logs
+    check_bound_logs(binding, fit + test)
+    device = FmuPlantDevice(binding, fmu_path, progress=progress)
+    _check_devices(device.name, fit, test)
+    th = kw.pop("thresholds", None)
+    chosen = None
+    if th is None and not provenance_for(device.name).startswith("bench"):
+        th, chosen = thresholds_for(THRESHOLDS_OF), provenance_for(THRESHOLDS_OF)
+    result, extras = run_diagnosis(device, fit, test, thresholds=th, **kw)
+    if chosen is not None and "thresholds" in result:
+        result["thresholds"]["chosen_by"] = f"those of {THRESHOLDS_OF} (cross-validated): {chosen}"
+    result["plant"] = {"fmu": str(fmu_path), "binding": str(binding_path),
+                       "signals": device.signal_units()}
+    result = jsonable(result)
+    out = Path(out_dir)
+    atomic_write_text(out / "diagnosis.json", json.dumps(result, indent=2) + "\n")
+    if report:
+        from .report import render_report
+        atomic_write_text(out / "report.html", render_report(result, extras))
+    return result

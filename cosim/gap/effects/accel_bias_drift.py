@@ -1,6 +1,7 @@
 """Accelerometer bias drifting over the trial (temperature)."""
 import numpy as np
 
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BALLSCREW, BallscrewForm, Effect, Terms, params, signed, uniform
 
 
@@ -19,3 +20,10 @@ EFFECT = Effect(
     # thermal drift 0.3-0.8 m/s^2 with time constant 3-20 s
     lambda r: {"drift": signed(r, 0.3, 0.8), "T": uniform(r, 3.0, 20.0)},
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: the motion sensor's bias drifts
+# (first order from the trial's start; the constant offset is a per-trial nuisance)
+FMU_FORM = FmuForm("sensor", grid=lambda c: [{"T": T} for T in (0.5, 1, 2, 4, 8, 16, 32, 64)], refine="T",
+                   columns=lambda c, sh: {"db": 1.0 - np.exp(-(c.t - c.t[0]) / sh["T"])},
+                   generic_name="sensor_bias_drift")

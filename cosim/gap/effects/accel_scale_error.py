@@ -1,4 +1,5 @@
 """Accelerometer scale factor different from nominal, or axis misalignment."""
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BALLSCREW, BallscrewForm, Effect, Terms, params, signed
 
 
@@ -16,3 +17,8 @@ EFFECT = Effect(
     BallscrewForm(_terms, linear=("ds_acc",), acc_only=("ds_acc",), acts_on=("acc_meas", "acc_dc")),
     lambda r: {"scale": 1.0 + signed(r, 0.08, 0.2)},
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: the motion sensor (accelerometer,
+# gyroscope) reads (1 + ds) times the true value
+FMU_FORM = FmuForm("sensor", columns=lambda c, sh: {"ds": c.pred}, generic_name="sensor_scale_error")

@@ -2,6 +2,7 @@
 import numpy as np
 
 from ...offline.emps import zoh_align
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, shift, uniform
 
 
@@ -43,3 +44,8 @@ EFFECT = Effect(
     lambda r: {"delay": uniform(r, 2e-3, 5e-3)},
     emps=EMPS_FORM,
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: the command reaches the plant late
+FMU_FORM = FmuForm("command", grid=lambda c: [{"delay": d * c.ts} for d in (0.25, 0.5, 1, 1.5, 2, 3, 4, 6, 8, 12)],
+                   refine="delay", command=lambda u, sh, ts: shift(u, sh["delay"], ts))

@@ -1,6 +1,7 @@
 """Coulomb and viscous friction that differ with the direction of motion."""
 import numpy as np
 
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, signed
 
 
@@ -39,3 +40,8 @@ EFFECT = Effect(
     lambda r: {"dfc": signed(r, 0.25, 0.45), "db": signed(r, 0.25, 0.45)},
     emps=EMPS_FORM,
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: friction differing by direction,
+# -(dfc + db |v|) on top of the symmetric nominal friction (signed coefficients)
+FMU_FORM = FmuForm("force", columns=lambda c, sh: {"dfc": -np.ones_like(c.v), "db": -np.abs(c.v)})

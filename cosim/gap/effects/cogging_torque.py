@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BALLSCREW, BallscrewForm, Effect, Terms, params, uniform
 
 
@@ -38,3 +39,14 @@ EFFECT = Effect(
     lambda r: {"amp": uniform(r, 0.5, 1.0) * 3e-3, "n": float(r.choice([4, 6, 8, 12])),
                "phase": uniform(r, 0, 2 * math.pi)},
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: a force ripple periodic in the
+# position (cogging of a rotary or linear motor), period on a grid
+def _fmu_cols(c, sh):
+    ph = 2 * np.pi * c.x / sh["period"]
+    return {"A_cog_sin": np.sin(ph), "A_cog_cos": np.cos(ph)}
+
+
+FMU_FORM = FmuForm("force", grid=lambda c: [{"period": p} for p in period_grid(c)], refine="period",
+                   columns=_fmu_cols)

@@ -1,6 +1,7 @@
 """First-order lag of the current driver (finite bandwidth)."""
 import numpy as np
 
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, lag, params, uniform
 
 
@@ -37,3 +38,10 @@ EFFECT = Effect(
     lambda r: {"tau": uniform(r, 2e-3, 6e-3)},
     emps=EMPS_FORM,
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: a first-order lag between the
+# command and the plant input (the driver's loop), bandwidth on a grid
+FMU_FORM = FmuForm("command", grid=lambda c: [{"bandwidth_hz": f} for f in log_grid(0.02 / c.ts, 0.45 / c.ts, 14)],
+                   refine="bandwidth_hz",
+                   command=lambda u, sh, ts: lag(u, 1.0 / (2 * np.pi * sh["bandwidth_hz"]), ts))

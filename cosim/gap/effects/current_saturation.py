@@ -1,6 +1,7 @@
 """The driver clips the current at a limit."""
 import numpy as np
 
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BALLSCREW, BallscrewForm, Effect, Terms, params, uniform
 
 
@@ -32,3 +33,9 @@ EFFECT = Effect(
     # clip at 1.1-1.5 x the command rms (0.15 A)
     lambda r: {"i_max_rms": uniform(r, 1.1, 1.5)},
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: the plant input clips at a limit
+# below the commanded peaks (limit on a grid of the commands' quantiles)
+FMU_FORM = FmuForm("command", grid=lambda c: [{"limit": float(v)} for v in c.u_abs_q], refine="limit",
+                   command=lambda u, sh, ts: np.clip(u, -sh["limit"], sh["limit"]))

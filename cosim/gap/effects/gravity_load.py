@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, signed
 
 G0 = 9.80665
@@ -49,3 +50,15 @@ EFFECT = Effect(
     lambda r: {"tilt": signed(r, math.radians(4), math.radians(12))},
     emps=EMPS_FORM,
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: gravity along the motion, a body
+# force (a specific-force accelerometer does not see it): constant on a tilted linear axis,
+# m g r sin(q + phi) on a rotary one
+def _fmu_cols(c, sh):
+    if c.angle:
+        return {"g_sin": np.sin(c.x), "g_cos": np.cos(c.x)}
+    return {"g_force": np.ones_like(c.x)}
+
+
+FMU_FORM = FmuForm("force", columns=_fmu_cols, body_force=True)

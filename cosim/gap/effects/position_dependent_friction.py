@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, uniform
 
 
@@ -69,3 +70,16 @@ EFFECT = Effect(
     lambda r: {"amp": uniform(r, 0.35, 0.6), "period": uniform(r, 0.02, 0.06), "phase": uniform(r, 0, 2 * math.pi)},
     emps=EMPS_FORM,
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: Coulomb friction varying along
+# the travel, a gradient and a periodic part (period on a grid), times the direction
+def _fmu_cols(c, sh):
+    s = -np.sign(c.v)
+    ph = 2 * np.pi * c.x / sh["lp"]
+    xm = c.x - c.x_mid
+    return {"kfx": s * xm, "dfp_sin": s * np.sin(ph), "dfp_cos": s * np.cos(ph)}
+
+
+FMU_FORM = FmuForm("force", grid=lambda c: [{"lp": p} for p in period_grid(c, 24)], refine="lp",
+                   columns=_fmu_cols, along_travel=True)

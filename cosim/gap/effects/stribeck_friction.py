@@ -1,6 +1,7 @@
 """Stribeck friction: static friction above Coulomb, decaying with speed."""
 import numpy as np
 
+from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, uniform
 
 
@@ -43,3 +44,13 @@ EFFECT = Effect(
     lambda r: {"fs_ratio": uniform(r, 1.5, 2.2), "ws": uniform(r, 2.0, 6.0)},
     emps=EMPS_FORM,
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU (cosim/gap/devices/fmu_plant.py):
+# extra friction -dfs exp(-(v/vs)^2) sign(v) at the disturbance input, vs on a grid
+def _fmu_cols(c, sh):
+    return {"dfs": -np.sign(c.v) * np.exp(-(c.v / sh["vs"]) ** 2)}
+
+
+FMU_FORM = FmuForm("force", grid=lambda c: [{"vs": v} for v in log_grid(c.v_rest, c.v_scale, 14)],
+                   refine="vs", columns=_fmu_cols, nonneg=("dfs",))

@@ -5,6 +5,7 @@ import numpy as np
 from scipy import signal
 
 from .backlash import ZETA_TR
+from .fmu_form import FmuForm, base_excited_cached, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import (BOTH, BallscrewForm, EmpsForm, Effect, Terms, base_excited, nut_force_response, params,
                    uniform)
 
@@ -91,3 +92,13 @@ EFFECT = Effect(
     lambda r: {"fn": uniform(r, 25, 70), "zeta": uniform(r, 0.03, 0.1)},
     emps=EMPS_FORM,
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: the sensed point is a second body
+# on a spring-damper (fn, zeta on a grid) behind the plant's point
+def _fmu_grid(c):
+    return [{"fn_hz": f, "zeta": z} for f in log_grid(0.01 / c.ts, 0.4 / c.ts, 8) for z in (0.05, 0.2, 0.5)]
+
+
+FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid,
+                   transform=lambda a, sh, ts: base_excited_cached(a, sh["fn_hz"], sh["zeta"], ts))

@@ -1,0 +1,912 @@
+"""Gap-diagnosis device built from a user's own plant FMU and its binding (``--plant``/``--binding``).
+
+Nothing here is specific to a device: the plant is the FMU, the binding
+(:mod:`cosim.gap.binding`, ``gap-binding/1``) says which log column drives which FMU input,
+which measures which output through which sensor, where an unmodelled force enters
+(the disturbance input) and which parameters to recalibrate.
+
+Comparison (equation error through Model Exchange; why: ``docs/decisions.md``, "Own plant
+FMU: equation error"): at every log sample the FMU's continuous states are set from the
+measured motion (the encoder's output and its derivative, zero-phase smoothed: 200 Hz
+low-pass, central differences), its inputs from the log (commands held over the sample, so
+shifted by half a sample; external force), its parameters from the recalibration; its
+state derivative is the predicted acceleration at the encoder and its bound accelerometer
+output the predicted reading. Two comparison signals, both through the same zero-phase
+100 Hz low-pass ``F``:
+
+* ``<encoder column>.dd``: the encoder's second difference vs the FMU's derivative of its
+  speed state;
+* ``<accelerometer column>``: the reading vs the FMU output through the sensor model
+  (bandwidth pole, specific force, a per-trial offset projected out).
+
+Samples near rest (set-valued friction: ``|v| < v_rest``, dilated 15 ms) and 50 ms at each
+end are not compared. Residuals are also given in command units (divided by the FMU's
+d acc / d command, a finite difference): the analogue of the built-in devices' inverse
+model. Metric: per signal nrmse ``rms(meas - model) / std(meas)`` over the compared samples,
+combined as ``sqrt(sum_s w_s nrmse_s^2)`` with ``w_s ~ 1 / floor_s^2`` (floor_s: the nrmse the
+sensor noise alone gives, from the encoder quantum and the accelerometer's noise measured
+above 0.6 Nyquist; bounded below at 0.005), as the ball-screw device does.
+
+Recalibration: Gauss-Newton (chord: the Jacobian of the first point) on the ``recalibrate:
+true`` parameters within [low, high], finite-difference sensitivities (one FMU instance
+initialised per perturbed parameter set), per-trial accelerometer offsets as nuisances; the
+directions the logs do not determine (e.g. a force constant without a known external force)
+keep their previous value (minimum-norm step).
+
+Effects: each catalogue effect's FMU form (``FMU_FORM`` in its module,
+:mod:`cosim.gap.effects.fmu_form`) enters the linearised evaluation: command-path effects via
+the FMU's d acc / d command, force-path effects via d acc / d disturbance, sensor and
+sensed-point effects on the sensor's prediction; linear coefficients jointly with the
+nominal parameters' sensitivities by least squares, shape parameters on a grid then refined.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from scipy import signal
+from scipy.optimize import minimize_scalar
+
+from ...logs.trial_log import TrialLog
+from ..device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, split_params
+from ..effects import EFFECTS as CATALOGUE
+from ..effects.base import shift
+from ..fmu_me import FmuVariables, MePlant
+
+from ...logs.trial_log import read_trial_log as read_log_any
+from ..binding import PlantBinding, load_binding as load_binding_any
+
+__all__ = ["FmuPlantDevice", "fmu_forms", "THRESHOLDS_OF", "load_binding_any", "read_log_any"]
+
+#: the decision thresholds a plant without its own use: the engine's cross-validated ones
+#: (``cosim/gap/thresholds.json``; the only set chosen by cross-validation over devices; this
+#: device's metric is built the same way: noise-weighted per-signal nrmse)
+THRESHOLDS_OF = "ballscrew-1dof"
+
+#: fraction of the sample rate of the state-smoothing and the comparison low-pass (as the
+#: ball-screw device: 200 Hz and 100 Hz at 1 kHz)
+SMOOTH_HZ, COMPARE_HZ = 200.0, 100.0
+EDGE_S, REST_DILATE_S = 0.05, 0.015
+FLOOR_MIN = 0.005
+#: weight of the pull of the nominal parameters towards their current values in the fits
+#: (per unit relative change, in the metric's units: a 10 % change costs 1e-6 of gap^2)
+RIDGE = 1e-2
+
+
+def fmu_forms() -> dict[str, Any]:
+    """{catalogue name: FmuForm} of the effects that have one."""
+    import importlib
+    out = {}
+    for name in CATALOGUE:
+        m = importlib.import_module(f"cosim.gap.effects.{name}")
+        f = getattr(m, "FMU_FORM", None)
+        if f is not None:
+            out[name] = f
+    return out
+
+
+def _lowpass(fc: float, ts: float):
+    return signal.butter(2, min(fc, 0.45 / ts), fs=1.0 / ts, output="sos")
+
+
+def _prev(u: np.ndarray) -> np.ndarray:
+    """u[k-1] (held at the start)."""
+    return np.concatenate([u[:1], u[:-1]])
+
+
+def _lstsq(A: np.ndarray, b: np.ndarray, rcond: float = 1e-10, scale: np.ndarray | None = None) -> np.ndarray:
+    """Least squares through the normal equations of the column-scaled problem (columns
+    divided by ``scale``, default their norms); directions whose singular value is below
+    ``sqrt(rcond)`` of the largest are left at 0 (minimum norm in the scaled coordinates)."""
+    G = A.T @ A
+    nrm = np.sqrt(np.diag(G)).copy() if scale is None else np.asarray(scale, float).copy()
+    nrm[nrm == 0] = 1.0
+    x, *_ = np.linalg.lstsq(G / np.outer(nrm, nrm), (A.T @ b) / nrm, rcond=rcond)
+    return x / nrm
+
+
+@dataclass
+class _Prep:
+    """Parameter-independent quantities of one log (FMU units)."""
+    log: TrialLog
+    ts: float
+    t: np.ndarray
+    u: np.ndarray              # commands as logged (n x nc)
+    fext: np.ndarray           # known external force at the external inputs (n x ne)
+    x: np.ndarray              # smoothed position, speed (FMU units)
+    v: np.ndarray
+    a_enc: np.ndarray          # encoder second difference, filtered by F
+    acc: np.ndarray | None     # accelerometer reading filtered by F
+    mask: np.ndarray           # compared samples
+    noise: dict[str, float]    # per-signal noise variance after F (signal units)
+    cache: dict
+
+
+class FmuPlantDevice:
+    """:class:`cosim.gap.device.GapDevice` of a plant FMU + binding (module docstring)."""
+
+    metric = "nrmse"
+
+    def __init__(self, binding: PlantBinding, fmu_path: str | Path | None = None, progress=None):
+        self.b = binding
+        self.fmu_path = Path(fmu_path or binding.fmu_path)
+        self.vars = FmuVariables(self.fmu_path)
+        if not self.vars.has_me:
+            raise GapInputError("the plant FMU has no Model Exchange interface; the equation-error "
+                                "comparison needs it (a Co-Simulation-only plant is not supported yet)",
+                                self.fmu_path)
+        self.name = binding.device
+        self._me: MePlant | None = None
+        self.progress = progress
+        enc = binding.measurement("encoder")
+        if enc is None:
+            raise GapInputError("the binding has no measurement with sensor kind 'encoder': the "
+                                "comparison sets the plant's states from the measured motion", binding.path,
+                                "measurements")
+        self.enc = enc
+        self.i_pos = self.vars.state_of_output(enc.output)
+        if self.i_pos is None:
+            raise GapInputError(f"the encoder's output {enc.output!r} is not a continuous state of the FMU "
+                                f"(states: {', '.join(self.vars.states)})", binding.path, "measurements")
+        vname = self.vars.derivative_of[self.vars.states[self.i_pos]]
+        self.i_vel = self.vars.state_of_output(vname)
+        if self.i_vel is None:
+            raise GapInputError(f"the derivative of {enc.output!r} ({vname}) is not a continuous state: the "
+                                "plant must be second order in its measured position", binding.path)
+        self.motion = binding.measurement("accelerometer") or binding.measurement("gyroscope")
+        self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
+        self.forms = fmu_forms()
+        names = []
+        for n, f in self.forms.items():
+            if f.kind == "sensor":
+                if self.motion is None:
+                    continue
+                if self.motion.sensor.kind != "accelerometer" and f.generic_name:
+                    n = f.generic_name
+            if f.kind == "sensed_point" and self.motion is None:
+                continue
+            names.append(n)
+        self.effects = tuple(names)
+        self._alias = {f.generic_name: n for n, f in self.forms.items() if f.generic_name}
+        self.rec_params = tuple(p.name for p in binding.parameters if p.recalibrate)
+        self.param_names = tuple(p.name for p in binding.parameters if p.recalibrate)
+        self._bounds = {p.name: (p.low, p.high) for p in binding.parameters}
+        self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate
+                       and not getattr(p, "same_as", None)}
+        self.recalibration_note = (
+            "recalibrated " + ", ".join(self.rec_params) + " by Gauss-Newton on the equation error of the plant "
+            "FMU (finite-difference sensitivities), within the binding's ranges; directions the fit logs do not "
+            "determine keep their previous value (minimum-norm step)")
+        self.inputs = tuple(dict.fromkeys([c.input for c in binding.commands] + [e.input for e in binding.external]
+                                          + [binding.disturbance.input]))
+        self.sig_enc = f"{enc.column}.dd"
+        off = getattr(self.motion.sensor, "offset", None) if self.motion is not None else None
+        if off is None and self.motion is not None and self.motion.sensor.kind == "accelerometer":
+            # a MEMS accelerometer's zero-g offset tolerance, ~50 mg, when the binding gives none
+            from ...master.units import unit_conversion
+            off = 0.5 * unit_conversion("accelerometer", "m/s2", (), self.vars.unit(self.motion.output) or "m/s2",
+                                        self.vars.md.unitDefinitions)[0]
+        self._offset_sd = float(off) if off else None
+        self.sig_acc = self.motion.column if self.motion is not None else None
+        self._preps: dict[int, _Prep] = {}
+        self._evals: dict[tuple, dict] = {}
+        self._anchors: dict[int, list[dict]] = {}
+        self._need_sens = False
+        self._chord: dict[int, dict] | None = None
+        self._chord_at: dict[str, float] | None = None
+        self._shapes: dict[tuple, dict] = {}
+        self._hints: dict[str, dict] = {}
+        self._rec_cache: dict[tuple, dict] = {}
+        self._rec_first: dict[str, float] | None = None
+
+    # ------------------------------------------------------------------ preparation
+    def _col(self, log: TrialLog, name: str) -> np.ndarray:
+        if name not in log.data:
+            raise GapInputError(f"missing column the binding maps (has: {', '.join(log.data)})", log.csv_path, name)
+        return np.asarray(log.data[name], dtype=float)
+
+    def _prep(self, log: TrialLog) -> _Prep:
+        hit = self._preps.get(id(log))
+        if hit is not None and hit.log is log:
+            return hit
+        b = self.b
+        ts = float(log.sample_time)
+        t = np.asarray(log.time, float)
+        n = t.size
+        u = np.column_stack([c.scale * self._col(log, c.column) for c in b.commands]) if b.commands \
+            else np.zeros((n, 0))
+        fext = np.zeros((n, len(b.external)))
+        for j, e in enumerate(b.external):
+            for c in e.columns:
+                if c in log.data:
+                    fext[:, j] = e.scale * np.asarray(log.data[c], float)
+                    break
+        xe = self.enc.scale * self._col(log, self.enc.column) + float(getattr(self.enc, "offset", 0.0))
+        sos_s = _lowpass(SMOOTH_HZ * 1e-3 / ts, ts)
+        sosF = _lowpass(COMPARE_HZ * 1e-3 / ts, ts)
+        xs = signal.sosfiltfilt(sos_s, xe)
+        v = np.gradient(xs, ts)
+        add = np.zeros(n)
+        add[1:-1] = (xs[2:] - 2 * xs[1:-1] + xs[:-2]) / ts ** 2
+        a_enc = signal.sosfiltfilt(sosF, add)
+        acc = None
+        if self.motion is not None:
+            acc = signal.sosfiltfilt(sosF, self.motion.scale * self._col(log, self.motion.column))
+        # compared samples: away from rest (set-valued friction) and the filters' edges
+        q = self.enc.sensor.resolution
+        if not q:
+            st = np.abs(np.diff(xe))
+            st = st[st > 0]
+            q = float(st.min()) if st.size else 1e-9
+        av = np.abs(v)
+        v_scale = float(np.percentile(av, 95)) if n else 0.0
+        v_rest = max(0.2 * q / ts, 0.02 * v_scale)
+        rest = av < v_rest
+        k = int(round(REST_DILATE_S / ts))
+        if k > 0 and rest.any():
+            rest = np.convolve(rest.astype(float), np.ones(2 * k + 1), "same") > 0
+        mask = ~rest
+        e = int(round(EDGE_S / ts))
+        mask[:e] = False
+        mask[n - e:] = False
+        p = _Prep(log, ts, t, u, fext, xs, v, a_enc, acc, mask, {}, {"q": q, "v_rest": v_rest,
+                                                                     "v_scale": v_scale, "sosF": sosF})
+        p.noise = self._noise(p, sos_s, sosF, xe)
+        self._preps[id(log)] = p
+        return p
+
+    def _noise(self, p: _Prep, sos_s, sosF, xe) -> dict[str, float]:
+        """Noise variance of each comparison signal after F: encoder quantisation through the
+        smoothing, the second difference and F; the accelerometer's white noise from the
+        robust spread of its reading above 0.6 Nyquist, through F."""
+        ts = p.ts
+        f = np.linspace(0.0, 0.5 / ts, 4097)[1:]
+        wT = 2 * math.pi * f * ts
+        _, hs = signal.sosfreqz(sos_s, worN=f, fs=1.0 / ts)
+        _, hF = signal.sosfreqz(sosF, worN=f, fs=1.0 / ts)
+        gF = np.abs(hF) ** 4
+        gdd = np.abs(hs) ** 4 * (2 - 2 * np.cos(wT)) ** 2 / ts ** 4 * gF
+        q = p.cache["q"]
+        out = {self.sig_enc: q * q / 12.0 * float(np.mean(gdd))}
+        if self.motion is not None:
+            raw = self.motion.scale * np.asarray(p.log.data[self.motion.column], float)
+            hp = signal.sosfiltfilt(signal.butter(4, 0.6 * 0.5 / ts, "highpass", fs=1.0 / ts, output="sos"), raw)
+            mad = 1.4826 * float(np.median(np.abs(hp - np.median(hp))))
+            white = mad * mad / 0.4
+            if self.motion.sensor.noise_rms:
+                white = max(white, 0.0)
+            out[self.sig_acc] = white * float(np.mean(gF))
+        return out
+
+    def _ctx(self, p: _Prep, pred: np.ndarray | None = None):
+        xs = p.x
+        return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
+                               x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))))
+
+    def _ctx_all(self, logs: Sequence[TrialLog]):
+        ps = [self._prep(lg) for lg in logs]
+        u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
+        qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
+        return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"],
+                               v_rest=max(p.cache["v_rest"] for p in ps),
+                               v_scale=max(p.cache["v_scale"] for p in ps),
+                               x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
+                               u_abs_q=sorted(set(v for v in qs if v > 0)))
+
+    # ------------------------------------------------------------------ FMU evaluation
+    def _plant(self) -> MePlant:
+        if self._me is None:
+            self._me = MePlant(self.fmu_path, self.vars)
+        return self._me
+
+    def _full_params(self, params: Mapping[str, float]) -> dict[str, float]:
+        out = dict(self._fixed)
+        out.update({k: float(params[k]) for k in self.rec_params if k in params})
+        for p in self.b.parameters:            # a parameter the binding ties to another (same_as)
+            tie = getattr(p, "same_as", None)
+            if tie and tie in out:
+                out[p.name] = out[tie] * float(getattr(p, "same_scale", 1.0))
+        return out
+
+    def _inputs(self, p: _Prep, du: np.ndarray | None = None, dF: np.ndarray | None = None,
+                prev: bool = False) -> np.ndarray:
+        """FMU input values (n x ni): commands shifted by half a sample (zero-order hold: the
+        staircase's centre), external forces, the disturbance."""
+        b = self.b
+        n = p.t.size
+        U = np.zeros((n, len(self.inputs)))
+        idx = {name: j for j, name in enumerate(self.inputs)}
+        for j, c in enumerate(b.commands):
+            uj = p.u[:, j] if du is None else p.u[:, j] + du[:, j]
+            U[:, idx[c.input]] += _prev(uj) if prev else shift(uj, 0.5 * p.ts, p.ts)
+        for j, e in enumerate(b.external):
+            U[:, idx[e.input]] += p.fext[:, j]
+        if dF is not None:
+            U[:, idx[b.disturbance.input]] += b.disturbance.scale * dF
+        return U
+
+    def _run(self, p: _Prep, params: Mapping[str, float], U: np.ndarray,
+             U_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        X = np.zeros((p.t.size, self.vars.md.numberOfContinuousStates or len(self.vars.states)))
+        for k, s in enumerate(self.vars.states):
+            st = self.vars.start(s)
+            X[:, k] = st if st is not None else 0.0
+        X[:, self.i_pos] = p.x
+        X[:, self.i_vel] = p.v
+        outs = [self.motion.output] if self.motion is not None else []
+        dx, y = self._plant().evaluate(self._full_params(params), p.t, X, self.inputs, U, outs, U_out)
+        return dx[:, self.i_vel], (y[:, 0] if outs else None)
+
+    def _eval(self, log: TrialLog, params: Mapping[str, float]) -> dict:
+        """Predicted encoder acceleration and sensor reading at ``params`` (exact); their
+        sensitivities to the commands and the disturbance: :meth:`_sens`."""
+        key = (id(log),) + tuple(round(float(params[k]), 12) for k in self.rec_params)
+        hit = self._evals.get(key)
+        if hit is not None and hit["log"] is log:
+            return hit
+        p = self._prep(log)
+        # the sensor reads at t_k, before command k is applied (the logs' convention:
+        # ``command_hold`` zoh, the command computed from the sensors read at t_k): its output
+        # is read with command k-1; the encoder's smoothed acceleration sees the staircase's
+        # centre (half a sample)
+        a0, s0 = self._run(p, params, self._inputs(p), self._inputs(p, prev=True))
+        out = {"log": log, "params": dict(params), "a": a0, "s": s0}
+        self._evals[key] = out
+        return out
+
+    def _sens(self, e: dict) -> dict:
+        """d acc / d command (each) and d acc / d disturbance at ``e``, finite differences."""
+        if "Gu" in e:
+            return e
+        p = self._prep(e["log"])
+        n = p.t.size
+        a0, s0 = e["a"], e["s"]
+        Gu, Gs = [], []
+        for j in range(p.u.shape[1]):
+            d = max(1e-6, 1e-2 * float(np.sqrt(np.mean(p.u[:, j] ** 2))) or 1e-3)
+            du = np.zeros_like(p.u)
+            du[:, j] = d
+            a1, s1 = self._run(p, e["params"], self._inputs(p, du=du), self._inputs(p, du=du, prev=True))
+            Gu.append((a1 - a0) / d)
+            Gs.append(None if s0 is None else (s1 - s0) / d)
+        dF = 1e-2 * max(1.0, float(np.sqrt(np.mean(p.fext ** 2))) if p.fext.size else 1.0)
+        a1, s1 = self._run(p, e["params"], self._inputs(p, dF=np.full(n, dF)),
+                           self._inputs(p, dF=np.full(n, dF), prev=True))
+        e.update({"Gu": Gu, "Gs": Gs, "GFa": (a1 - a0) / dF, "GFs": None if s0 is None else (s1 - s0) / dF})
+        return e
+
+    def _jacobian(self, e: dict) -> dict:
+        """d(prediction)/d(parameter) at the exact evaluation ``e`` (kept in it)."""
+        if "J" in e:
+            return e["J"]
+        log, params = e["log"], e["params"]
+        p = self._prep(log)
+        Ja, Js = {}, {}
+        for k in self.rec_params:
+            pp = dict(params)
+            h = 1e-4 * max(abs(float(params[k])), 1e-9)
+            pp[k] = float(params[k]) + h
+            a1, s1 = self._run(p, pp, self._inputs(p), self._inputs(p, prev=True))
+            Ja[k] = (a1 - e["a"]) / h
+            Js[k] = None if s1 is None else (s1 - e["s"]) / h
+        e["J"] = {"log": log, "Ja": Ja, "Js": Js}
+        return e["J"]
+
+    def _nearest(self, log: TrialLog, params: Mapping[str, float]) -> dict:
+        """The exact evaluation of ``log`` at ``params`` when one exists, else the nearest
+        anchor (an exact evaluation at a recalibration result, made one when the log has
+        none): the caller linearises from it with the Jacobian at that anchor."""
+        key = (id(log),) + tuple(round(float(params[k]), 12) for k in self.rec_params)
+        hit = self._evals.get(key)
+        if hit is not None and hit["log"] is log:
+            return hit
+        best = None
+        for e in self._anchors.get(id(log), []):
+            if e["log"] is log:
+                d = sum(((float(params[k]) - e["params"][k]) / max(abs(e["params"][k]), 1e-12)) ** 2
+                        for k in self.rec_params)
+                if best is None or d < best[0]:
+                    best = (d, e)
+        if best is None:
+            return self._anchor(log, params)
+        return best[1]
+
+    def _anchor(self, log: TrialLog, params: Mapping[str, float]) -> dict:
+        e = self._eval(log, params)
+        lst = self._anchors.setdefault(id(log), [])
+        if not any(x is e for x in lst):
+            lst.append(e)
+        return e
+
+    # ------------------------------------------------------------------ model assembly
+    def _sensor(self, a: np.ndarray, p: _Prep) -> np.ndarray:
+        """The motion sensor's bandwidth (single pole, bilinear) and then F."""
+        bw = self.motion.sensor.bandwidth_hz if self.motion is not None else None
+        if bw and bw < 0.5 / p.ts:
+            wc = 2 * math.pi * bw
+            bz, az = signal.bilinear([wc], [1.0, wc], fs=1.0 / p.ts)
+            a = signal.lfilter(bz, az, a)
+        return signal.sosfiltfilt(p.cache["sosF"], a)
+
+    def _filtered(self, d: dict, key: str, z: np.ndarray | None, p: _Prep, sensor: bool) -> np.ndarray | None:
+        """``F`` (``sensor``: the sensor's pole then ``F``) of ``z``, cached in ``d`` (full length)."""
+        if z is None:
+            return None
+        ck = "_f:" + key
+        if ck not in d:
+            d[ck] = self._sensor(z, p) if sensor else signal.sosfiltfilt(p.cache["sosF"], z)
+        return d[ck]
+
+    def _assemble(self, log: TrialLog, params: Mapping[str, float], cfg: Mapping[str, Mapping[str, float]],
+                  refit: bool) -> dict:
+        """Measured signals, the model's base prediction and its free columns on one log
+        (filtered, compared samples only): ``{sig: (y, base, {col: column}, d acc/d command)}``;
+        columns: the effects' linear coefficients (``eff:coef``), the nominal parameters'
+        (``nominal.k``, when ``refit``), the accelerometer's per-trial offset (``bias``). The
+        filters are linear, so the filtered pieces of the evaluation are cached and combined."""
+        p = self._prep(log)
+        e = self._nearest(log, params)
+        dp = {k: float(params[k]) - e["params"][k] for k in self.rec_params}
+        lin = any(abs(v) > 0 for v in dp.values())
+        J = (self._chord.get(id(log)) if self._chord is not None else None) if refit and not lin else None
+        if J is None and (lin or refit):
+            J = self._jacobian(e)
+        has_s = e["s"] is not None
+        a = self._filtered(e, "a", e["a"], p, False).copy()
+        s = self._filtered(e, "s", e["s"], p, True).copy() if has_s else None
+        if lin:
+            for k, d in dp.items():
+                a += self._filtered(J, "a" + k, J["Ja"][k], p, False) * d
+                if has_s:
+                    s += self._filtered(J, "s" + k, J["Js"][k], p, True) * d
+        cols_a: dict[str, np.ndarray] = {}
+        cols_s: dict[str, np.ndarray] = {}
+        specific = self.motion is not None and self.motion.sensor.specific_force
+        forms = [(name, shape, self.forms[self._alias.get(name, name)]) for name, shape in cfg.items()]
+        if cfg or self._need_sens:
+            self._sens(e)
+        for name, shape, f in forms:
+            if f.kind == "command":
+                for j in range(p.u.shape[1]):
+                    du = f.command(p.u[:, j], shape, p.ts) - p.u[:, j]
+                    a += signal.sosfiltfilt(p.cache["sosF"], e["Gu"][j] * shift(du, 0.5 * p.ts, p.ts))
+                    if has_s:
+                        s += self._sensor(e["Gs"][j] * _prev(du), p)
+            elif f.kind == "force":
+                for c, col in f.columns(self._ctx(p), shape).items():
+                    cols_a[f"{name}:{c}"] = signal.sosfiltfilt(p.cache["sosF"], e["GFa"] * col)
+                    if has_s:
+                        cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
+                                                 else self._sensor(e["GFs"] * col, p))
+        if refit:
+            for k in self.rec_params:
+                cols_a[NOMINAL_PREFIX + k] = self._filtered(J, "a" + k, J["Ja"][k], p, False)
+                if has_s:
+                    cols_s[NOMINAL_PREFIX + k] = self._filtered(J, "s" + k, J["Js"][k], p, True)
+        m = p.mask
+        out = {self.sig_enc: (p.a_enc[m], a[m], {k: c[m] for k, c in cols_a.items()},
+                              e["Gu"][0][m] if e.get("Gu") else None)}
+        if has_s:
+            for name, shape, f in forms:          # the filters commute: transform the filtered pieces
+                if f.kind == "sensed_point":
+                    s = f.transform(s, shape, p.ts)
+                    cols_s = {k: f.transform(c, shape, p.ts) for k, c in cols_s.items()}
+            for name, shape, f in forms:
+                if f.kind == "sensor":
+                    for c, col in self._sensor_columns(f, p, shape, s).items():
+                        cols_s[f"{name}:{c}"] = col
+            cs = {k: c[m] for k, c in cols_s.items()}
+            cs["bias"] = np.ones(int(m.sum()))
+            out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e.get("Gs") else None)
+        return out
+
+    def _sensor_columns(self, f, p: _Prep, shape, s_filtered: np.ndarray) -> dict[str, np.ndarray]:
+        """A sensor effect's columns, filtered like the reading: a column proportional to the
+        prediction is the filtered prediction itself (linear filters); others are filtered."""
+        probe = f.columns(self._ctx(p, pred=None), shape)
+        out = {}
+        for c, col in probe.items():
+            if col is None:
+                out[c] = s_filtered.copy()
+            else:
+                key = ("sens", f.generic_name, c, tuple(sorted(shape.items())))
+                if key not in p.cache:
+                    p.cache[key] = self._sensor(col, p)
+                out[c] = p.cache[key]
+        return out
+
+    def _weights(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        fl = self.noise_floor(logs)
+        inv = {s: 1.0 / max(fl[s], FLOOR_MIN) ** 2 for s in fl if s != "gap"}
+        tot = sum(inv.values())
+        return {s: v / tot for s, v in inv.items()}
+
+    def _energy(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        key = ("E",) + tuple(id(lg) for lg in logs)
+        if key in self._rec_cache:
+            return self._rec_cache[key]
+        en: dict[str, list] = {}
+        for lg in logs:
+            p = self._prep(lg)
+            m = p.mask
+            for sname, y in ((self.sig_enc, p.a_enc), (self.sig_acc, p.acc)):
+                if y is None:
+                    continue
+                ym = y[m]
+                if ym.size:
+                    en.setdefault(sname, [0.0, 0])
+                    en[sname][0] += float(np.sum((ym - ym.mean()) ** 2))
+                    en[sname][1] += int(ym.size)
+        out = {k: v[0] for k, v in en.items()}
+        out.update({"n:" + k: v[1] for k, v in en.items()})
+        self._rec_cache[key] = out
+        return out
+
+    def _solve(self, logs: Sequence[TrialLog], params: Mapping[str, float], cfg, refit: bool,
+               fixed: Mapping[str, float] | None = None, nonneg: Sequence[str] = (), rcond: float = 1e-6):
+        """Least squares of the free columns (``fixed``: coefficients given, not fitted) on the
+        metric's weighted rows; returns (gap, coefficients, per-signal nrmse)."""
+        w = self._weights(logs)
+        E = self._energy(logs)
+        parts = [(lg, self._assemble(lg, params, cfg, refit)) for lg in logs]
+        names: list[str] = []
+        for _, asm in parts:
+            for sname, (_, _, cols, _) in asm.items():
+                for c in cols:
+                    key = c if c != "bias" else None
+                    if key is not None and key not in names and not (fixed and c in fixed):
+                        names.append(c)
+        nlog = len(parts)
+        ncol = len(names) + nlog
+        rows, rhs, tags = [], [], []
+        for j, (lg, asm) in enumerate(parts):
+            for sname, (y, base, cols, _) in asm.items():
+                sw = math.sqrt(w.get(sname, 0.0) / max(E.get(sname, 0.0), 1e-300))
+                r = y - base
+                for c, col in cols.items():
+                    if fixed and c in fixed:
+                        r = r - fixed[c] * col
+                A = np.zeros((y.size, ncol))
+                for i, c in enumerate(names):
+                    if c in cols:
+                        A[:, i] = cols[c]
+                if "bias" in cols:
+                    A[:, len(names) + j] = cols["bias"]
+                rows.append(sw * A)
+                rhs.append(sw * r)
+                tags.append((sname, sw, y.size))
+                if "bias" in cols and self._offset_sd:
+                    # the per-trial offset is a nuisance within the sensor's offset tolerance:
+                    # one row per trial, an offset of one tolerance costs the trial's noise energy
+                    pw = sw * math.sqrt(y.size * self._prep(lg).noise.get(sname, 0.0)) / self._offset_sd
+                    row = np.zeros((1, ncol))
+                    row[0, len(names) + j] = pw
+                    rows.append(row)
+                    rhs.append(np.zeros(1))
+                    tags.append(("offset", 0.0, 1))
+        n_ridge = 0
+        A = np.vstack(rows)
+        bvec = np.concatenate(rhs)
+        used = np.flatnonzero(np.any(A != 0, axis=0))
+        # the nominal parameters' columns scaled to relative changes (one scale for all of
+        # them): a direction the logs do not determine (M, Kf, b, Fc scaled together without
+        # a known external force) has a vanishing singular value there and stays where it is
+        nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
+        nom_idx = [i for i, c in enumerate(names) if c.startswith(NOMINAL_PREFIX)]
+        if nom_idx:
+            at = self._chord_at or params       # the chord's point: the scaling of its Jacobian
+            rel = np.array([abs(float(at[names[i][len(NOMINAL_PREFIX):]])) for i in nom_idx])
+            top = max(float(np.max(nrm[nom_idx] * rel)), 1e-300)
+            nrm[nom_idx] = top / np.maximum(rel, 1e-300)
+        th = np.zeros(ncol)
+        keep = list(used)
+        for _ in range(3):
+            th[:] = 0.0
+            if keep:
+                th[keep] = _lstsq(A[:, keep], bvec, rcond, nrm[keep])
+            neg = [i for i in keep if i < len(names) and names[i].split(":")[-1] in nonneg and th[i] < 0]
+            if not neg:
+                break
+            keep = [i for i in keep if i not in neg]
+            th[neg] = 0.0
+        res = (bvec - A @ th)[:bvec.size - n_ridge]
+        gap = float(math.sqrt(float(res @ res)))
+        per: dict[str, float] = {}
+        k0 = 0
+        for sname, sw, nrow in tags:
+            rr = res[k0:k0 + nrow]
+            k0 += nrow
+            per[sname] = per.get(sname, 0.0) + float(rr @ rr) / (sw * sw * max(E.get(sname, 0.0), 1e-300)) \
+                if sw > 0 else per.get(sname, 0.0)
+        per = {k: math.sqrt(v) for k, v in per.items() if k != "offset"}
+        coef = {c: float(th[i]) for i, c in enumerate(names)}
+        return gap, coef, per
+
+    # ------------------------------------------------------------------ protocol
+    def check_logs(self, fit: Sequence[TrialLog], test: Sequence[TrialLog]) -> None:
+        if not fit:
+            raise GapInputError("no fit logs given")
+        b = self.b
+        for lg in list(fit) + list(test):
+            if lg.device != b.device:
+                raise GapInputError(f"device is {lg.device!r}, the binding is for {b.device!r}", lg.json_path)
+            for c in [c.column for c in b.commands] + [m.column for m in b.measurements
+                                                          if m.sensor.kind in ("encoder", "accelerometer", "gyroscope")]:
+                if c not in lg.data:
+                    raise GapInputError(f"missing column the binding maps (has: {', '.join(lg.data)})", lg.csv_path, c)
+            if lg.n_samples * lg.sample_time < 0.5:
+                raise CannotDiagnose(f"{lg.csv_path}: {lg.n_samples} samples; at least 0.5 s are needed")
+        for lg in fit:
+            p = self._prep(lg)
+            if p.mask.mean() < 0.05:
+                raise CannotDiagnose(f"{lg.csv_path}: the plant is at rest in almost every sample")
+
+    def recalibrate(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        key = ("rec",) + tuple(id(lg) for lg in logs)
+        if key in self._rec_cache:
+            return dict(self._rec_cache[key])
+        p = dict(self._rec_first) if self._rec_first else {k: self._nominal(k) for k in self.rec_params}
+        g = self._gap_exact(logs, p)
+        # chord Gauss-Newton: the sensitivities of the starting point for every step
+        self._chord = {id(lg): self._jacobian(self._eval(lg, p)) for lg in logs}
+        self._chord_at = dict(p)
+        try:
+            p, g = self._gauss_newton(logs, p, g)
+        finally:
+            self._chord, self._chord_at = None, None
+        if self._rec_first is None:
+            self._rec_first = dict(p)
+        for lg in logs:
+            self._anchor(lg, p)
+        self._rec_cache[key] = dict(p)
+        return dict(p)
+
+    def _gauss_newton(self, logs, p, g):
+        for it in range(10):
+            # projected step: a parameter the step would push beyond its range is held on
+            # its bound and the others re-solved (clipping alone would break the step's balance)
+            active: dict[str, float] = {}
+            for _ in range(len(self.rec_params) + 1):
+                _, coef, _ = self._solve(logs, p, {}, True, rcond=1e-6, fixed=active)
+                step = {k: active.get(NOMINAL_PREFIX + k, coef.get(NOMINAL_PREFIX + k, 0.0))
+                        for k in self.rec_params}
+                out = [k for k in self.rec_params if NOMINAL_PREFIX + k not in active
+                       and not self._bounds[k][0] <= p[k] + step[k] <= self._bounds[k][1]]
+                if not out:
+                    break
+                for k in out:
+                    active[NOMINAL_PREFIX + k] = float(np.clip(p[k] + step[k], *self._bounds[k])) - p[k]
+            for _half in range(6):              # damped: a step must lower the exact gap
+                newp = {k: float(np.clip(p[k] + step[k], *self._bounds[k])) for k in self.rec_params}
+                g2 = self._gap_exact(logs, newp)
+                if g2 <= g:
+                    break
+                step = {k: 0.5 * v for k, v in step.items()}
+            else:
+                break
+            rel = max(abs(newp[k] - p[k]) / max(abs(p[k]), 1e-12) for k in self.rec_params)
+            p, g = newp, g2
+            if self.progress:
+                self.progress(f"recalibration step {it + 1}: " + ", ".join(f"{k}={v:.4g}" for k, v in p.items()))
+            if rel < 2e-4:
+                break
+        return p, g
+
+    def _gap_exact(self, logs, p) -> float:
+        for lg in logs:
+            self._eval(lg, p)
+        return self._solve(logs, p, {}, False)[0]
+
+    def _nominal(self, k: str) -> float:
+        return next(p.nominal for p in self.b.parameters if p.name == k)
+
+    def _solve_exact(self, logs, p):
+        for lg in logs:
+            self._eval(lg, p)
+        return self._solve(logs, p, {}, True, rcond=1e-8)
+
+    def signals(self, log: TrialLog, params: Mapping[str, float], effects=None):
+        """Measured and model signals in command units (the FMU's d acc / d command divides
+        both), NaN where not compared; the per-trial accelerometer offset is removed."""
+        nom, own = self._split_all(params, effects)
+        cfg, fixed = self._cfg(own)
+        self._need_sens = True
+        try:
+            asm = self._assemble(log, nom, cfg, False)
+        finally:
+            self._need_sens = False
+        _, coef, _ = self._solve([log], nom, cfg, False, fixed=fixed)
+        p = self._prep(log)
+        out = {}
+        for sname, (y, base, cols, G) in asm.items():
+            pred = base.copy()
+            for c, col in cols.items():
+                if c == "bias":
+                    continue
+                pred += fixed.get(c, coef.get(c, 0.0)) * col
+            if "bias" in cols:
+                pred += float(np.mean(y - pred))
+            g = G if G is not None else np.ones_like(y)
+            g = np.where(np.abs(g) > 1e-12, g, np.nan)
+            ym = np.full(p.t.size, np.nan)
+            sm = np.full(p.t.size, np.nan)
+            ym[p.mask] = y / g
+            sm[p.mask] = pred / g
+            out[sname] = (ym, sm)
+        return out
+
+    def signal_units(self) -> dict[str, str]:
+        """The comparison signals in the user's terms: log column, what is compared, units."""
+        out = {self.sig_enc: f"second difference of {self.enc.column} (FMU {self.enc.output}), "
+                             f"compared in command units ({', '.join(c.column for c in self.b.commands)})"}
+        if self.motion is not None:
+            out[self.sig_acc] = (f"{self.motion.column} ({self.motion.sensor.kind}, FMU {self.motion.output}), "
+                                 f"compared in command units")
+        return out
+
+    def operating_point(self, log: TrialLog, params: Mapping[str, float]) -> dict[str, np.ndarray]:
+        p = self._prep(log)
+        out = {"speed": p.v, "position": p.x, "acceleration": p.a_enc}
+        if p.fext.size:
+            out["force"] = p.fext.sum(axis=1)
+        return out
+
+    # effects' parameters: {shape keys, coefficient names} <-> (shape, coefficients)
+    def _cfg(self, own: Mapping[str, Mapping[str, float]]):
+        cfg, fixed = {}, {}
+        for name, prm in own.items():
+            sh = {k[6:]: float(v) for k, v in prm.items() if k.startswith("shape.")}
+            cfg[name] = sh
+            fixed.update({f"{name}:{k}": float(v) for k, v in prm.items() if not k.startswith("shape.")})
+        return cfg, fixed
+
+    @staticmethod
+    def _split_all(params, effects):
+        nom = dict(params)
+        own = {}
+        for name, prm in (effects or {}).items():
+            nom, own[name] = split_params(nom, prm)
+        return nom, own
+
+    def _evaluate(self, logs, params, effects):
+        nom, own = self._split_all(params, effects)
+        cfg, fixed = self._cfg(own)
+        return self._solve(logs, nom, cfg, False, fixed=fixed)
+
+    def gap(self, logs: Sequence[TrialLog], params: Mapping[str, float], effects=None) -> float:
+        return self._evaluate(logs, params, effects)[0]
+
+    def gap_parts(self, logs, params, effects=None) -> dict:
+        _, _, per = self._evaluate(logs, params, effects)
+        w = self._weights(logs)
+        out = dict(per)
+        out.update({"weight_" + k: v for k, v in w.items()})
+        return out
+
+    def noise_floor(self, logs: Sequence[TrialLog]) -> dict[str, float]:
+        key = ("floor",) + tuple(id(lg) for lg in logs)
+        if key in self._rec_cache:
+            return self._rec_cache[key]
+        E = self._energy(logs)
+        out = {}
+        for s in (self.sig_enc, self.sig_acc):
+            if s is None or s not in E:
+                continue
+            var_n = sum(self._prep(lg).noise.get(s, 0.0) * int(self._prep(lg).mask.sum()) for lg in logs)
+            out[s] = math.sqrt(var_n / E[s]) if E[s] > 0 else 0.0
+        inv = {s: 1.0 / max(v, FLOOR_MIN) ** 2 for s, v in out.items()}
+        tot = sum(inv.values())
+        out["gap"] = math.sqrt(sum(inv[s] / tot * max(out[s], FLOOR_MIN) ** 2 for s in inv))
+        self._rec_cache[key] = out
+        return out
+
+    def signal_z(self, logs, params, effects=None) -> dict[str, float]:
+        _, _, per = self._evaluate(logs, params, effects)
+        fl = self.noise_floor(logs)
+        return {s: per[s] / max(fl.get(s, FLOOR_MIN), FLOOR_MIN) for s in per}
+
+    def acts_on(self, effect: str) -> set[str]:
+        f = self.forms[self._alias.get(effect, effect)]
+        if f.kind in ("sensor", "sensed_point"):
+            return {self.sig_acc}
+        specific = self.motion is not None and self.motion.sensor.specific_force
+        if f.kind == "force" and f.body_force and specific:
+            return {self.sig_enc}
+        return {s for s in (self.sig_enc, self.sig_acc) if s}
+
+    def varies_along_travel(self, effect: str) -> bool:
+        return self.forms[self._alias.get(effect, effect)].along_travel
+
+    # ------------------------------------------------------------------ effect fitting
+    def _fit_cfg(self, logs, params, cfg):
+        nonneg = [c for n in cfg for c in self.forms[self._alias.get(n, n)].nonneg]
+        return self._solve(logs, params, cfg, True, nonneg=nonneg)
+
+    def _pack(self, params, cfg, coef) -> dict[str, dict[str, float]]:
+        out = {}
+        for name, sh in cfg.items():
+            prm = {"shape." + k: float(v) for k, v in sh.items()}
+            prm.update({c.split(":", 1)[1]: v for c, v in coef.items() if c.startswith(name + ":")})
+            prm.update({NOMINAL_PREFIX + k: float(params[k]) + coef.get(NOMINAL_PREFIX + k, 0.0)
+                        for k in self.rec_params})
+            out[name] = prm
+        return out
+
+    def _grid(self, logs, effect):
+        return self.forms[self._alias.get(effect, effect)].grid(self._ctx_all(logs))
+
+    def fit_effect(self, logs, params, effect):
+        if self.progress:
+            self.progress(f"fitting {effect}")
+        effs, g = self.fit_effects(logs, params, [effect])
+        return effs[effect], g
+
+    def fit_effects(self, logs, params, effects, descend: bool = True):
+        nom, _ = self._split_all(params, {})
+        pk = tuple(id(lg) for lg in logs) + tuple(round(float(nom[k]), 10) for k in self.rec_params)
+        cfg = {}
+        for e in effects:                       # each alone first (cached: pairs reuse it)
+            ck = pk + (e,)
+            if ck not in self._shapes:
+                grid = self._grid(logs, e)
+                hint = self._hints.get(e)
+                if hint is not None and len(grid) > 5:
+                    # a subset of logs (a held-out fold): search near the shape found on all of
+                    # them (five grid points around it), then refine
+                    key = self.forms[self._alias.get(e, e)].refine
+                    if key is not None:
+                        order = sorted(range(len(grid)), key=lambda i: abs(math.log(max(grid[i].get(key, 1.0), 1e-300))
+                                                                           - math.log(max(hint.get(key, 1.0), 1e-300))))
+                        grid = [grid[i] for i in sorted(order[:5])]
+                best = None
+                for sh in grid:
+                    g = self._fit_cfg(logs, nom, {e: sh})[0]
+                    if best is None or g < best[0]:
+                        best = (g, sh)
+                self._shapes[ck] = self._refine(logs, nom, {e: best[1]}, e, grid)[e] if best else {}
+                self._hints.setdefault(e, self._shapes[ck])
+            cfg[e] = self._shapes[ck]
+        if len(effects) > 1 and descend:
+            cur = self._fit_cfg(logs, nom, cfg)[0]
+            for e in effects:
+                for sh in self._grid(logs, e):
+                    trial = dict(cfg)
+                    trial[e] = sh
+                    g = self._fit_cfg(logs, nom, trial)[0]
+                    if g < cur:
+                        cur, cfg = g, trial
+        g, coef, _ = self._fit_cfg(logs, nom, cfg)
+        return self._pack(nom, cfg, coef), g
+
+    def fit_effects_quick(self, logs, params, effects):
+        return self.fit_effects(logs, params, effects, descend=False)[1]
+
+    def _refine(self, logs, nom, cfg, e, grid):
+        key = self.forms[self._alias.get(e, e)].refine
+        if key is None or len(grid) < 2:
+            return cfg
+        vals = sorted({float(s[key]) for s in grid})
+        i = vals.index(float(cfg[e][key]))
+        lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]
+        if hi <= lo:
+            return cfg
+        base = dict(cfg[e])
+
+        def gap_at(lv):
+            sh = dict(base)
+            sh[key] = float(math.exp(lv))
+            return self._fit_cfg(logs, nom, {**cfg, e: sh})[0]
+        r = minimize_scalar(gap_at, bounds=(math.log(lo), math.log(hi)), method="bounded",
+                            options={"xatol": 0.01, "maxiter": 12})
+        if r.fun < self._fit_cfg(logs, nom, cfg)[0]:
+            sh = dict(base)
+            sh[key] = float(math.exp(r.x))
+            return {**cfg, e: sh}
+        return cfg
+
+    def confirm(self, logs, params, effects):
+        return None

@@ -1,0 +1,85 @@
+"""An effect's form in the diagnosis of a user's own plant FMU (``--plant``/``--binding``,
+:mod:`cosim.gap.devices.fmu_plant`): written once per effect, the same for every plant.
+
+The plant FMU is evaluated at the measured motion (equation error); an effect changes
+that evaluation in one of four places, which is its ``kind``:
+
+* ``"command"``: the command path between the log's command column and the FMU input
+  (``command(u, shape, ts) -> u'``; the device turns ``u' - u`` into acceleration with the
+  FMU's own sensitivity d acc / d command);
+* ``"force"``: a force (torque) at the binding's disturbance input, a function of the
+  measured motion, linear in its coefficients: ``columns(ctx, shape)`` -> {coefficient: force
+  per unit coefficient} in the disturbance input's unit; ``body_force``: gravity-like (a
+  specific-force accelerometer does not see it);
+* ``"sensor"``: the motion sensor (accelerometer, gyroscope) reads a changed value:
+  ``columns(ctx, shape)`` -> {coefficient: column in the sensor's unit}, where ``ctx.pred``
+  is the sensor's predicted reading;
+* ``"sensed_point"``: the sensed point is a second body behind the plant's point (a
+  structure between them): ``transform(pred, shape, ts)`` maps the plant's acceleration to
+  the sensed point's.
+
+``ctx`` (per log): ``t`` [s], ``ts``, ``x`` position and ``v`` speed of the plant (FMU units,
+smoothed), ``pred`` (sensor effects), ``angle`` (the position is an angle in rad).
+``grid(ctx_all)`` gives the shapes searched from the logs' ranges (``ctx_all``: speed
+scale ``v_scale``, rest speed ``v_rest``, travel ``x_min``/``x_max``, encoder quantum ``q``,
+command quantiles ``u_abs_q``, ``ts``, ``angle``); ``refine``: the one shape parameter refined
+between its grid neighbours; ``nonneg``: coefficients that physics keeps >= 0.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from scipy import signal
+
+__all__ = ["FmuForm", "log_grid", "period_grid"]
+
+
+@dataclass(frozen=True)
+class FmuForm:
+    kind: str
+    grid: Callable[[Any], list[dict[str, float]]] = lambda c: [{}]
+    refine: str | None = None
+    command: Callable[[np.ndarray, Mapping[str, float], float], np.ndarray] | None = None
+    columns: Callable[[Any, Mapping[str, float]], dict[str, np.ndarray]] | None = None
+    transform: Callable[[np.ndarray, Mapping[str, float], float], np.ndarray] | None = None
+    body_force: bool = False
+    nonneg: tuple[str, ...] = ()
+    along_travel: bool = False
+    #: for ``sensor`` effects: the generic catalogue name (``sensor_scale_error``) used when the
+    #: motion sensor is not an accelerometer
+    generic_name: str | None = None
+    notes: str = field(default="")
+
+
+def log_grid(lo: float, hi: float, n: int) -> list[float]:
+    lo, hi = float(lo), float(hi)
+    if not (hi > lo > 0):
+        return [lo] if lo > 0 else []
+    return [float(v) for v in np.geomspace(lo, hi, n)]
+
+
+def period_grid(c: Any, n: int = 24) -> list[float]:
+    """Spatial periods searched for a ripple along the travel: on an angle whole fractions
+    of a turn (2 pi / k), on a length log-spaced between 30 encoder quanta (and 4 mm/1000
+    of the travel) and half the travel."""
+    if c.angle:
+        return [2 * math.pi / k for k in range(1, 61)]
+    span = max(c.x_max - c.x_min, 1e-9)
+    lo = max(30 * c.q, 2e-3 * span)
+    return log_grid(lo, 0.5 * span, n)
+
+
+@lru_cache(maxsize=512)
+def _base_excited_ba(fn: float, zeta: float, ts: float):
+    wn = 2 * math.pi * fn
+    return signal.bilinear([2 * zeta * wn, wn * wn], [1, 2 * zeta * wn, wn * wn], fs=1.0 / ts)
+
+
+def base_excited_cached(a_in: np.ndarray, fn: float, zeta: float, ts: float) -> np.ndarray:
+    """:func:`cosim.gap.effects.base.base_excited` with its filter designed once per shape."""
+    b, a = _base_excited_ba(float(fn), float(zeta), float(ts))
+    return signal.lfilter(b, a, a_in)

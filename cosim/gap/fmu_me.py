@@ -1,0 +1,164 @@
+"""Fast point-wise evaluation of a plant FMU through its FMI 2.0 Model Exchange interface.
+
+The gap diagnosis of a user's own plant (:mod:`cosim.gap.devices.fmu_plant`) asks the FMU,
+at every log sample, "with THIS state and THESE inputs, what is the state derivative and
+what are the outputs?" (an equation-error comparison). That is tens of thousands of
+evaluations per log, so the per-sample calls go straight to the FMU's shared library through
+ctypes (FMPy's wrappers check and log each call, ~10x the cost); FMPy extracts the archive,
+reads the model description and instantiates.
+
+Parameters of variability ``fixed`` can only be set before initialisation, so a new parameter
+set means a new instance (:meth:`MePlant.evaluate` takes the parameters and re-initialises).
+"""
+from __future__ import annotations
+
+import ctypes
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["MePlant", "FmuVariables"]
+
+
+class FmuVariables:
+    """Names, value references, causalities and units of an FMU's variables, and its
+    continuous states (the variables whose derivatives the FMU lists, in its order)."""
+
+    def __init__(self, fmu_path: str | Path):
+        from fmpy import read_model_description
+        self.path = Path(fmu_path)
+        self.md = read_model_description(str(self.path))
+        self.by_name = {v.name: v for v in self.md.modelVariables}
+        self.states = [d.variable.derivative.name for d in self.md.derivatives]
+        self.derivative_of = {d.variable.derivative.name: d.variable.name for d in self.md.derivatives}
+        self.has_me = self.md.modelExchange is not None
+        self.has_cs = self.md.coSimulation is not None
+
+    def vr(self, name: str) -> int:
+        return int(self.by_name[name].valueReference)
+
+    def unit(self, name: str) -> str | None:
+        v = self.by_name.get(name)
+        return None if v is None else v.unit
+
+    def start(self, name: str) -> float | None:
+        v = self.by_name.get(name)
+        return None if v is None or v.start is None else float(v.start)
+
+    def state_of_output(self, name: str) -> int | None:
+        """Index of the continuous state that ``name`` is, or aliases (same value reference)."""
+        if name not in self.by_name:
+            return None
+        vr = self.vr(name)
+        for k, s in enumerate(self.states):
+            if self.vr(s) == vr:
+                return k
+        return None
+
+
+class MePlant:
+    """One Model Exchange instance evaluated point-wise: set time, states, inputs; read
+    the state derivatives and some outputs. Reused across parameter sets (re-initialised)."""
+
+    def __init__(self, fmu_path: str | Path, variables: FmuVariables | None = None):
+        from fmpy import extract
+        from fmpy.fmi2 import FMU2Model
+        self.vars = variables or FmuVariables(fmu_path)
+        if not self.vars.has_me:
+            raise ValueError(f"{fmu_path}: the FMU has no Model Exchange interface")
+        self._dir = extract(str(fmu_path), tempfile.mkdtemp(prefix="cosim-me-"))
+        me = self.vars.md.modelExchange
+        self.fmu = FMU2Model(guid=self.vars.md.guid, unzipDirectory=self._dir,
+                             modelIdentifier=me.modelIdentifier, instanceName="gap")
+        self.fmu.instantiate()
+        self.nx = len(self.vars.states)
+        self._initialised = False
+        dll = self.fmu.dll
+        self._c = self.fmu.component
+        self._set_time = dll.fmi2SetTime
+        self._set_x = dll.fmi2SetContinuousStates
+        self._get_dx = dll.fmi2GetDerivatives
+        self._set_real = dll.fmi2SetReal
+        self._get_real = dll.fmi2GetReal
+        vp, sz, dbl = ctypes.c_void_p, ctypes.c_size_t, ctypes.c_double
+        # raw addresses as arguments: no pointer object per call
+        self._set_time.argtypes = [vp, dbl]
+        self._set_x.argtypes = [vp, vp, sz]
+        self._get_dx.argtypes = [vp, vp, sz]
+        self._set_real.argtypes = [vp, vp, sz, vp]
+        self._get_real.argtypes = [vp, vp, sz, vp]
+        for f in (self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real):
+            f.restype = ctypes.c_int
+
+    def close(self) -> None:
+        try:
+            self.fmu.terminate()
+            self.fmu.freeInstance()
+        except Exception:   # noqa: BLE001 - best effort on a broken instance
+            pass
+        shutil.rmtree(self._dir, ignore_errors=True)
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:   # noqa: BLE001
+            pass
+
+    def initialise(self, params: Mapping[str, float]) -> None:
+        """(Re-)initialise with ``params`` (fixed parameters: set before initialisation)."""
+        f = self.fmu
+        if self._initialised:
+            f.reset()
+        f.setupExperiment(startTime=0.0)
+        if params:
+            names = list(params)
+            f.setReal([self.vars.vr(n) for n in names], [float(params[n]) for n in names])
+        f.enterInitializationMode()
+        f.exitInitializationMode()
+        info = f.newDiscreteStates()
+        while info[0]:                               # newDiscreteStatesNeeded
+            info = f.newDiscreteStates()
+        f.enterContinuousTimeMode()
+        self._initialised = True
+
+    def evaluate(self, params: Mapping[str, float], t: np.ndarray, x: np.ndarray,
+                 inputs: Sequence[str], u: np.ndarray, outputs: Sequence[str],
+                 u_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """State derivatives (n x nx) and ``outputs`` (n x no) at the n points
+        (time ``t``, states ``x`` n x nx, ``inputs`` values ``u`` n x ni); with ``u_out`` the
+        outputs are read after setting the inputs to ``u_out`` instead (same point)."""
+        self.initialise(params)
+        n = int(t.size)
+        nx, ni, no = self.nx, len(inputs), len(outputs)
+        x = np.ascontiguousarray(x, dtype=np.float64).reshape(n, nx)
+        u = np.ascontiguousarray(u, dtype=np.float64).reshape(n, ni)
+        u2 = None if u_out is None else np.ascontiguousarray(u_out, dtype=np.float64).reshape(n, ni)
+        dx = np.zeros((n, nx))
+        y = np.zeros((n, max(no, 1)))
+        vr_in = (ctypes.c_uint * max(ni, 1))(*[self.vars.vr(s) for s in inputs])
+        vr_out = (ctypes.c_uint * max(no, 1))(*[self.vars.vr(s) for s in outputs])
+        c = self._c
+        st, sx, gd, sr, gr = self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real
+        b = 8
+        xa, ua, dxa, ya = x.ctypes.data, u.ctypes.data, dx.ctypes.data, y.ctypes.data
+        u2a = None if u2 is None else u2.ctypes.data
+        vin, vout = ctypes.addressof(vr_in), ctypes.addressof(vr_out)
+        tl = t.tolist()
+        bad = 0
+        for k in range(n):
+            bad |= st(c, tl[k])
+            bad |= sx(c, xa + k * nx * b, nx)
+            if ni:
+                bad |= sr(c, vin, ni, ua + k * ni * b)
+            bad |= gd(c, dxa + k * nx * b, nx)
+            if no:
+                if u2a is not None and ni:
+                    bad |= sr(c, vin, ni, u2a + k * ni * b)
+                bad |= gr(c, vout, no, ya + k * no * b)
+        if bad > 1:                                   # fmi2OK = 0, fmi2Warning = 1
+            raise RuntimeError(f"{self.vars.path.name}: an FMU call failed while evaluating the plant "
+                               "point-wise (Model Exchange)")
+        return dx, y[:, :no]
