@@ -159,6 +159,10 @@ ZF_PY, ZF_C = "cosim/algorithms/zero_force.py", "cosim/algorithms/c/zero_force.c
 BL_PY, BL_C = "cosim/algorithms/bilateral.py", "cosim/algorithms/c/bilateral.c"
 RF_PY, RF_C = "cosim/algorithms/dob.py", "cosim/algorithms/c/rfob.c"
 DB_C = "cosim/algorithms/c/dob.c"
+AK_PY, AK_C = "cosim/algorithms/fast/aakf_fast.py", "cosim/algorithms/c/aakf.c"
+#: code both paths share (the aaKF's gain sequence is computed in Python for the C twin;
+#: the RLS runs after the co-simulation, in Python only): planted once, run on both
+AK_SHARED, RLS_PY = "cosim/algorithms/aakf.py", "cosim/algorithms/rls.py"
 
 #: scenario -> cases whose runs the bench executes (the others are skipped: their
 #: requirements report no value)
@@ -167,6 +171,7 @@ SCENARIO_CASES = {
     "scenarios/zero_force.yaml": ["no_control", "load_cell", "dob_rfob", "off_table_identified",
                                   "off_table_table1"],
     "scenarios/bilateral.yaml": ["encoder", "aakf"],
+    "scenarios/free_motion.yaml": ["default"],
 }
 
 #: parameters the bench sets in a scenario to keep it short (bilateral: no g sweep, so
@@ -221,6 +226,28 @@ SCENARIO_BUGS: list[tuple[str, str, str, str, str, str]] = [
      "a_d = 0.5 * p.Kp_per_s2 * (0.0 - x_d)", "scenarios/bilateral.yaml"),
     ("bl-Kp-50pct-low/c", "subtle", BL_C, "double a_d = p[0] * (0.0 - x_d)",
      "double a_d = 0.5 * p[0] * (0.0 - x_d)", "scenarios/bilateral.yaml"),
+    # ---- aaKF (eq. 98-103), free-motion trial
+    ("aakf-acc-gain-sign/py", "gross", AK_PY, "x1 = x1 + (k10 * e0 + k11 * e1)",
+     "x1 = x1 + (k10 * e0 - k11 * e1)", "scenarios/free_motion.yaml"),
+    ("aakf-acc-gain-sign/c", "gross", AK_C, "x1 = x1 + (K[2] * e0 + K[3] * e1);",
+     "x1 = x1 + (K[2] * e0 - K[3] * e1);", "scenarios/free_motion.yaml"),
+    ("aakf-bias-in-innovation-sign/py", "gross", AK_PY, "e1 = acc - (c2 * x2 + c3 * x3)",
+     "e1 = acc - (c2 * x2 - c3 * x3)", "scenarios/free_motion.yaml"),
+    ("aakf-bias-in-innovation-sign/c", "gross", AK_C, "double e1 = acc - (m[17] * x2 + m[18] * x3);",
+     "double e1 = acc - (m[17] * x2 - m[18] * x3);", "scenarios/free_motion.yaml"),
+    ("aakf-sigma_b-x3/shared-py", "subtle", AK_SHARED,
+     "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
+     "Qc = np.diag([p.sigma_a ** 2, (3.0 * p.sigma_b) ** 2])", "scenarios/free_motion.yaml"),
+    ("aakf-sigma_b-x3/shared-c", "subtle", AK_SHARED,
+     "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
+     "Qc = np.diag([p.sigma_a ** 2, (3.0 * p.sigma_b) ** 2])", "scenarios/free_motion.yaml"),
+    # ---- RLS (eq. 46-50; the chain's integral regression), start-up identification of
+    # the zero-force trial feeding the DOB/RFOB
+    ("rls-update-sign/py", "gross", RLS_PY, "self.theta = self.theta + e * g  # eq. 48",
+     "self.theta = self.theta - e * g  # eq. 48", "scenarios/zero_force.yaml"),
+    ("rls-coulomb-regressor-30pct-low/py", "subtle", RLS_PY,
+     "sgn_c * Ts * math.fsum(sgn_w)])", "0.7 * sgn_c * Ts * math.fsum(sgn_w)])",
+     "scenarios/zero_force.yaml"),
 ]
 
 _DRIVER = r"""
@@ -295,7 +322,7 @@ def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
                         ignore=shutil.ignore_patterns("__pycache__"))
         baselines: dict = {}
         for bug_id, severity, path, old, new, scen in bugs:
-            engine = "python" if path.endswith(".py") else "auto"
+            engine = "auto" if path.endswith(".c") or bug_id.endswith("-c") else "python"
             if (scen, engine) not in baselines:
                 baselines[(scen, engine)] = _run_scenario(base_root, scen, engine, tmp, timeout)
                 b = baselines[(scen, engine)]
