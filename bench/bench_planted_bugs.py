@@ -226,6 +226,37 @@ SCENARIO_BUGS: list[tuple[str, str, str, str, str, str]] = [
      "a_d = 0.5 * p.Kp_per_s2 * (0.0 - x_d)", "scenarios/bilateral.yaml"),
     ("bl-Kp-50pct-low/c", "subtle", BL_C, "double a_d = p[0] * (0.0 - x_d)",
      "double a_d = 0.5 * p[0] * (0.0 - x_d)", "scenarios/bilateral.yaml"),
+    # ---- more gross bugs, each in the Python class and in its C twin
+    ("ac-error-abs-missing/py", "gross", AC_PY,
+     "coef = Ts * (p.k_N_per_m2s * np.array((abs(ex), abs(ey)))",
+     "coef = Ts * (p.k_N_per_m2s * np.array((ex, ey))", "scenarios/circular.yaml"),
+    ("ac-error-abs-missing/c", "gross", AC_C,
+     "cxo = Ts * (p[1] * fabs(ex) - kpx * inv);\n        cyo = Ts * (p[1] * fabs(ey) - kpy * inv);",
+     "cxo = Ts * (p[1] * ex - kpx * inv);\n        cyo = Ts * (p[1] * ey - kpy * inv);",
+     "scenarios/circular.yaml"),
+    ("zf-force-to-current-missing/py", "gross", ZF_PY,
+     "i_c = p.drive.force_to_current(self.f_cntr)", "i_c = self.f_cntr",
+     "scenarios/zero_force.yaml"),
+    ("zf-force-to-current-missing/c", "gross", ZF_C, "double i_c = s[0] / p[1];",
+     "double i_c = s[0];", "scenarios/zero_force.yaml"),
+    ("rfob-inertia-sign/py", "gross", RF_PY, "self.tau_raw = ((w - self.a1 * self._w_prev) / self.b0",
+     "self.tau_raw = ((self.a1 * self._w_prev - w) / self.b0", "scenarios/zero_force.yaml"),
+    ("rfob-inertia-sign/c", "gross", RF_C, "s[1] = (w - p[4] * s[2]) / p[5]",
+     "s[1] = (p[4] * s[2] - w) / p[5]", "scenarios/zero_force.yaml"),
+    ("bl-position-error-sign/py", "gross", BL_PY,
+     "a_d = p.Kp_per_s2 * (0.0 - x_d) + p.Kv_per_s * (0.0 - v_d)",
+     "a_d = p.Kp_per_s2 * (x_d - 0.0) + p.Kv_per_s * (0.0 - v_d)", "scenarios/bilateral.yaml"),
+    ("bl-position-error-sign/c", "gross", BL_C,
+     "double a_d = p[0] * (0.0 - x_d) + p[1] * (0.0 - v_d);",
+     "double a_d = p[0] * (x_d - 0.0) + p[1] * (0.0 - v_d);", "scenarios/bilateral.yaml"),
+    # the RFOB's identified inertia 40 % high (eq. 8-10, through the ZOH coefficients
+    # that Python packs for the C twin: shared code, run on both paths)
+    ("rfob-J-40pct-high/shared-py", "subtle", RF_PY,
+     "self.a1 = math.exp(-Ts * self.b / self.J)  # eq. 39",
+     "self.a1 = math.exp(-Ts * self.b / (1.4 * self.J))  # eq. 39", "scenarios/zero_force.yaml"),
+    ("rfob-J-40pct-high/shared-c", "subtle", RF_PY,
+     "self.a1 = math.exp(-Ts * self.b / self.J)  # eq. 39",
+     "self.a1 = math.exp(-Ts * self.b / (1.4 * self.J))  # eq. 39", "scenarios/zero_force.yaml"),
     # ---- aaKF (eq. 98-103), free-motion trial
     ("aakf-acc-gain-sign/py", "gross", AK_PY, "x1 = x1 + (k10 * e0 + k11 * e1)",
      "x1 = x1 + (k10 * e0 - k11 * e1)", "scenarios/free_motion.yaml"),
@@ -268,7 +299,8 @@ mv, me = metric_table(sc, views, infos)
 res = {}
 for q in sc.requirements:
     j = judge(q, mv, me, infos, q.case)
-    res[q.id] = {"value": j["value"], "held": j["held"], "rule": q.rule, "limit": q.limit}
+    res[q.id] = {"value": j["value"], "held": j["held"], "rule": q.rule, "limit": q.limit,
+                 "message": j["message"]}
 print("RESULT " + json.dumps(res))
 """
 
@@ -340,16 +372,24 @@ def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
                 continue
             t0 = time.perf_counter()
             got = _run_scenario(root, scen, engine, tmp, timeout)
-            kills = []
+            kills, errors = [], []
             for rid, v in got.items():
                 if rid.startswith("_"):
                     continue
                 if base.get(rid, {}).get("held") and v["held"] is False:
                     kills.append((rid, v["value"], v["limit"], base[rid]["value"], _margin(v)))
+                elif base.get(rid, {}).get("held") and v["held"] is None:
+                    # the bug makes a run fail: the suite reports the requirement as an
+                    # error (a red verdict), which catches the bug too
+                    errors.append((rid, v.get("message") or ""))
+            if not kills and errors:
+                kills = [(rid, None, got[rid]["limit"], base[rid]["value"], None)
+                         for rid, _ in errors]
             outcome = "killed" if kills else ("ERROR" if "_error" in got else "SURVIVED")
             best = max(kills, key=lambda k: k[4] if k[4] is not None else -1) if kills else None
             rows.append({"id": bug_id, "severity": severity, "scenario": scen, "engine": engine,
                          "outcome": outcome, "seconds": round(time.perf_counter() - t0, 1),
+                         "run_errors": [{"req": r, "message": m[-300:]} for r, m in errors],
                          "kills": [{"req": k[0], "value": k[1], "limit": k[2], "baseline": k[3],
                                     "margin": k[4]} for k in kills],
                          "error": got.get("_error")})
@@ -360,7 +400,9 @@ def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
                             and base.get(r, {}).get("value")), reverse=True)
             rows[-1]["moved_most"] = moved[0][1:] if moved else None
             desc = (f"{best[0]} {best[1]:.4g} vs {best[2]} (baseline {best[3]:.4g}, "
-                    f"margin {100 * best[4]:.0f} %) +{len(kills) - 1}" if best else
+                    f"margin {100 * best[4]:.0f} %) +{len(kills) - 1}" if best and best[1] is not None
+                    else f"run error on {len(errors)} requirement(s), e.g. {errors[0][0]}: "
+                    f"{errors[0][1][-160:]}" if best else
                     f"moved most: {moved[0][1]} {moved[0][2]:.4g} -> {moved[0][3]:.4g} "
                     f"(limit {moved[0][4]})" if moved else
                     (got.get("_error") or "")[-120:].replace("\n", " "))
