@@ -407,6 +407,7 @@ def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
                     # the bug makes a run fail: the suite reports the requirement as an
                     # error (a red verdict), which catches the bug too
                     errors.append((rid, v.get("message") or ""))
+            errors.sort(key=lambda e: "run(s) failed" not in e[1])   # the cause first
             if not kills and errors:
                 kills = [(rid, None, got[rid]["limit"], base[rid]["value"], None)
                          for rid, _ in errors]
