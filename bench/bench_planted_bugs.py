@@ -159,6 +159,10 @@ ZF_PY, ZF_C = "cosim/algorithms/zero_force.py", "cosim/algorithms/c/zero_force.c
 BL_PY, BL_C = "cosim/algorithms/bilateral.py", "cosim/algorithms/c/bilateral.c"
 RF_PY, RF_C = "cosim/algorithms/dob.py", "cosim/algorithms/c/rfob.c"
 DB_C = "cosim/algorithms/c/dob.c"
+AK_PY, AK_C = "cosim/algorithms/fast/aakf_fast.py", "cosim/algorithms/c/aakf.c"
+#: code both paths share (the aaKF's gain sequence is computed in Python for the C twin;
+#: the RLS runs after the co-simulation, in Python only): planted once, run on both
+AK_SHARED, RLS_PY = "cosim/algorithms/aakf.py", "cosim/algorithms/rls.py"
 
 #: scenario -> cases whose runs the bench executes (the others are skipped: their
 #: requirements report no value)
@@ -167,6 +171,7 @@ SCENARIO_CASES = {
     "scenarios/zero_force.yaml": ["no_control", "load_cell", "dob_rfob", "off_table_identified",
                                   "off_table_table1"],
     "scenarios/bilateral.yaml": ["encoder", "aakf"],
+    "scenarios/free_motion.yaml": ["default"],
 }
 
 #: parameters the bench sets in a scenario to keep it short (bilateral: no g sweep, so
@@ -221,6 +226,84 @@ SCENARIO_BUGS: list[tuple[str, str, str, str, str, str]] = [
      "a_d = 0.5 * p.Kp_per_s2 * (0.0 - x_d)", "scenarios/bilateral.yaml"),
     ("bl-Kp-50pct-low/c", "subtle", BL_C, "double a_d = p[0] * (0.0 - x_d)",
      "double a_d = 0.5 * p[0] * (0.0 - x_d)", "scenarios/bilateral.yaml"),
+    # ---- more gross bugs, each in the Python class and in its C twin
+    ("ac-error-abs-missing/py", "gross", AC_PY,
+     "coef = Ts * (p.k_N_per_m2s * np.array((abs(ex), abs(ey)))",
+     "coef = Ts * (p.k_N_per_m2s * np.array((ex, ey))", "scenarios/circular.yaml"),
+    ("ac-error-abs-missing/c", "gross", AC_C,
+     "cxo = Ts * (p[1] * fabs(ex) - kpx * inv);\n        cyo = Ts * (p[1] * fabs(ey) - kpy * inv);",
+     "cxo = Ts * (p[1] * ex - kpx * inv);\n        cyo = Ts * (p[1] * ey - kpy * inv);",
+     "scenarios/circular.yaml"),
+    ("zf-force-to-current-missing/py", "gross", ZF_PY,
+     "i_c = p.drive.force_to_current(self.f_cntr)", "i_c = self.f_cntr",
+     "scenarios/zero_force.yaml"),
+    ("zf-force-to-current-missing/c", "gross", ZF_C, "double i_c = s[0] / p[1];",
+     "double i_c = s[0];", "scenarios/zero_force.yaml"),
+    ("rfob-inertia-sign/py", "gross", RF_PY, "self.tau_raw = ((w - self.a1 * self._w_prev) / self.b0",
+     "self.tau_raw = ((self.a1 * self._w_prev - w) / self.b0", "scenarios/zero_force.yaml"),
+    ("rfob-inertia-sign/c", "gross", RF_C, "s[1] = (w - p[4] * s[2]) / p[5]",
+     "s[1] = (p[4] * s[2] - w) / p[5]", "scenarios/zero_force.yaml"),
+    ("bl-position-error-sign/py", "gross", BL_PY,
+     "a_d = p.Kp_per_s2 * (0.0 - x_d) + p.Kv_per_s * (0.0 - v_d)",
+     "a_d = p.Kp_per_s2 * (x_d - 0.0) + p.Kv_per_s * (0.0 - v_d)", "scenarios/bilateral.yaml"),
+    ("bl-position-error-sign/c", "gross", BL_C,
+     "double a_d = p[0] * (0.0 - x_d) + p[1] * (0.0 - v_d);",
+     "double a_d = p[0] * (x_d - 0.0) + p[1] * (0.0 - v_d);", "scenarios/bilateral.yaml"),
+    ("dob-inertia-sign/py", "gross", RF_PY,
+     "self.d_raw = prm.Ktn_Nm_per_A * i_held - prm.Jn_kg_m2 * (w - self._w_prev) / prm.Ts_s",
+     "self.d_raw = prm.Ktn_Nm_per_A * i_held + prm.Jn_kg_m2 * (w - self._w_prev) / prm.Ts_s",
+     "scenarios/zero_force.yaml"),
+    ("dob-inertia-sign/c", "gross", DB_C, "s[1] = p[0] * i_held - p[1] * (w - s[2]) / p[2];",
+     "s[1] = p[0] * i_held + p[1] * (w - s[2]) / p[2];", "scenarios/zero_force.yaml"),
+    ("zf-dob-current-not-added/py", "gross", ZF_PY, "i_tot = _saturate(i_c + i_cmp, p.i_max_A)",
+     "i_tot = _saturate(i_c, p.i_max_A)", "scenarios/zero_force.yaml"),
+    ("zf-dob-current-not-added/c", "gross", ZF_C, "double i_tot = i_c + i_cmp;",
+     "double i_tot = i_c;", "scenarios/zero_force.yaml"),
+    ("bl-force-error-sign/py", "gross", BL_PY, "a_c = p.force_gain / m_n * (0.0 - f_c)",
+     "a_c = p.force_gain / m_n * (f_c - 0.0)", "scenarios/bilateral.yaml"),
+    ("bl-force-error-sign/c", "gross", BL_C, "double a_c = p[2] / m_n * (0.0 - f_c)",
+     "double a_c = p[2] / m_n * (f_c - 0.0)", "scenarios/bilateral.yaml"),
+    ("aakf-enc-innovation-sign/py", "gross", AK_PY, "e0 = y_enc - x0                                               # eq. 101",
+     "e0 = x0 - y_enc                                               # eq. 101", "scenarios/free_motion.yaml"),
+    ("aakf-enc-innovation-sign/c", "gross", AK_C, "double e0 = y_enc - x0;",
+     "double e0 = x0 - y_enc;", "scenarios/free_motion.yaml"),
+    # the aaKF's sigma_a half the Fig. 19-20 tuning (the gain sequence, shared)
+    ("aakf-sigma_a-50pct-low/shared-py", "subtle", AK_SHARED,
+     "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
+     "Qc = np.diag([(0.5 * p.sigma_a) ** 2, p.sigma_b ** 2])", "scenarios/free_motion.yaml"),
+    ("aakf-sigma_a-50pct-low/shared-c", "subtle", AK_SHARED,
+     "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
+     "Qc = np.diag([(0.5 * p.sigma_a) ** 2, p.sigma_b ** 2])", "scenarios/free_motion.yaml"),
+    # the RFOB's identified inertia 40 % high (eq. 8-10, through the ZOH coefficients
+    # that Python packs for the C twin: shared code, run on both paths)
+    ("rfob-J-40pct-high/shared-py", "subtle", RF_PY,
+     "self.a1 = math.exp(-Ts * self.b / self.J)  # eq. 39",
+     "self.a1 = math.exp(-Ts * self.b / (1.4 * self.J))  # eq. 39", "scenarios/zero_force.yaml"),
+    ("rfob-J-40pct-high/shared-c", "subtle", RF_PY,
+     "self.a1 = math.exp(-Ts * self.b / self.J)  # eq. 39",
+     "self.a1 = math.exp(-Ts * self.b / (1.4 * self.J))  # eq. 39", "scenarios/zero_force.yaml"),
+    # ---- aaKF (eq. 98-103), free-motion trial
+    ("aakf-acc-gain-sign/py", "gross", AK_PY, "x1 = x1 + (k10 * e0 + k11 * e1)",
+     "x1 = x1 + (k10 * e0 - k11 * e1)", "scenarios/free_motion.yaml"),
+    ("aakf-acc-gain-sign/c", "gross", AK_C, "x1 = x1 + (K[2] * e0 + K[3] * e1);",
+     "x1 = x1 + (K[2] * e0 - K[3] * e1);", "scenarios/free_motion.yaml"),
+    ("aakf-bias-in-innovation-sign/py", "gross", AK_PY, "e1 = acc - (c2 * x2 + c3 * x3)",
+     "e1 = acc - (c2 * x2 - c3 * x3)", "scenarios/free_motion.yaml"),
+    ("aakf-bias-in-innovation-sign/c", "gross", AK_C, "double e1 = acc - (m[17] * x2 + m[18] * x3);",
+     "double e1 = acc - (m[17] * x2 - m[18] * x3);", "scenarios/free_motion.yaml"),
+    ("aakf-sigma_b-x3/shared-py", "subtle", AK_SHARED,
+     "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
+     "Qc = np.diag([p.sigma_a ** 2, (3.0 * p.sigma_b) ** 2])", "scenarios/free_motion.yaml"),
+    ("aakf-sigma_b-x3/shared-c", "subtle", AK_SHARED,
+     "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
+     "Qc = np.diag([p.sigma_a ** 2, (3.0 * p.sigma_b) ** 2])", "scenarios/free_motion.yaml"),
+    # ---- RLS (eq. 46-50; the chain's integral regression), start-up identification of
+    # the zero-force trial feeding the DOB/RFOB
+    ("rls-update-sign/py", "gross", RLS_PY, "self.theta = self.theta + e * g  # eq. 48",
+     "self.theta = self.theta - e * g  # eq. 48", "scenarios/zero_force.yaml"),
+    ("rls-coulomb-regressor-30pct-low/py", "subtle", RLS_PY,
+     "sgn_c * Ts * math.fsum(sgn_w)])", "0.7 * sgn_c * Ts * math.fsum(sgn_w)])",
+     "scenarios/zero_force.yaml"),
 ]
 
 _DRIVER = r"""
@@ -241,7 +324,8 @@ mv, me = metric_table(sc, views, infos)
 res = {}
 for q in sc.requirements:
     j = judge(q, mv, me, infos, q.case)
-    res[q.id] = {"value": j["value"], "held": j["held"], "rule": q.rule, "limit": q.limit}
+    res[q.id] = {"value": j["value"], "held": j["held"], "rule": q.rule, "limit": q.limit,
+                 "message": j["message"]}
 print("RESULT " + json.dumps(res))
 """
 
@@ -295,7 +379,7 @@ def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
                         ignore=shutil.ignore_patterns("__pycache__"))
         baselines: dict = {}
         for bug_id, severity, path, old, new, scen in bugs:
-            engine = "python" if path.endswith(".py") else "auto"
+            engine = "auto" if path.endswith(".c") or bug_id.endswith("-c") else "python"
             if (scen, engine) not in baselines:
                 baselines[(scen, engine)] = _run_scenario(base_root, scen, engine, tmp, timeout)
                 b = baselines[(scen, engine)]
@@ -313,16 +397,25 @@ def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
                 continue
             t0 = time.perf_counter()
             got = _run_scenario(root, scen, engine, tmp, timeout)
-            kills = []
+            kills, errors = [], []
             for rid, v in got.items():
                 if rid.startswith("_"):
                     continue
                 if base.get(rid, {}).get("held") and v["held"] is False:
                     kills.append((rid, v["value"], v["limit"], base[rid]["value"], _margin(v)))
+                elif base.get(rid, {}).get("held") and v["held"] is None:
+                    # the bug makes a run fail: the suite reports the requirement as an
+                    # error (a red verdict), which catches the bug too
+                    errors.append((rid, v.get("message") or ""))
+            errors.sort(key=lambda e: "run(s) failed" not in e[1])   # the cause first
+            if not kills and errors:
+                kills = [(rid, None, got[rid]["limit"], base[rid]["value"], None)
+                         for rid, _ in errors]
             outcome = "killed" if kills else ("ERROR" if "_error" in got else "SURVIVED")
             best = max(kills, key=lambda k: k[4] if k[4] is not None else -1) if kills else None
             rows.append({"id": bug_id, "severity": severity, "scenario": scen, "engine": engine,
                          "outcome": outcome, "seconds": round(time.perf_counter() - t0, 1),
+                         "run_errors": [{"req": r, "message": m[-300:]} for r, m in errors],
                          "kills": [{"req": k[0], "value": k[1], "limit": k[2], "baseline": k[3],
                                     "margin": k[4]} for k in kills],
                          "error": got.get("_error")})
@@ -333,7 +426,9 @@ def scenario_kills(only=None, timeout: float = 3000.0) -> list[dict]:
                             and base.get(r, {}).get("value")), reverse=True)
             rows[-1]["moved_most"] = moved[0][1:] if moved else None
             desc = (f"{best[0]} {best[1]:.4g} vs {best[2]} (baseline {best[3]:.4g}, "
-                    f"margin {100 * best[4]:.0f} %) +{len(kills) - 1}" if best else
+                    f"margin {100 * best[4]:.0f} %) +{len(kills) - 1}" if best and best[1] is not None
+                    else f"run error on {len(errors)} requirement(s), e.g. {errors[0][0]}: "
+                    f"{errors[0][1][-160:]}" if best else
                     f"moved most: {moved[0][1]} {moved[0][2]:.4g} -> {moved[0][3]:.4g} "
                     f"(limit {moved[0][4]})" if moved else
                     (got.get("_error") or "")[-120:].replace("\n", " "))

@@ -232,3 +232,24 @@ def test_bandwidth_limit_and_g_limit_metrics_on_known_sweeps():
         diff(p, SimpleNamespace(runs=[view("aakf", {}), view("encoder", enc)]))
     one = get("metric", "g_limit").obj
     assert one({"threshold": 0.05}, SimpleNamespace(values=view("x", enc).values)) == 500.0
+
+
+@pytest.mark.parametrize("compensation, expected", [(1.0, 0.0), (0.0, 1.0), (-1.0, 2.0)])
+def test_dob_residual_on_a_nominal_plant_with_known_disturbance(compensation, expected):
+    """ZF-8's metric on an independent integration of the nominal plant (nut speed,
+    v_k+1 = v_k + Ts (c I_tot,k + a_dist,k), c = Kt_n lead/(2 pi J_n)) with a known
+    disturbance: compensated exactly (I_cmp = -a_dist/c) 0, not at all 1, with the sign
+    reversed 2 (Sec. 2.1.2.1, Fig. 13)."""
+    from cosim.scenarios.registry import MetricContext
+    from cosim.trials.force_control import _dob_residual
+    Ts, Kt, J, lead = 1e-3, 0.0603, 1.7e-5, 0.01
+    c = Kt * lead / (2 * math.pi * J)
+    kf = 2 * math.pi * Kt / lead
+    t = np.arange(0.0, 3.0 + Ts / 2, Ts)
+    a_dist = 0.3 * np.sin(2 * math.pi * 2.0 * t) - 0.2 * np.sign(np.sin(2 * math.pi * 0.7 * t))
+    f_cntr = 0.5 * np.sin(2 * math.pi * 1.3 * t + 0.4)
+    i_tot = f_cntr / kf - compensation * a_dist / c
+    v = np.concatenate(([0.0], np.cumsum(Ts * (c * i_tot + a_dist))))[:-1]
+    ctx = MetricContext(signals={"time": t, "zf.i_cmd": i_tot, "zf.f_cntr": f_cntr, "rig.v": v},
+                        values={"obs_dob_J": J, "obs_dob_Kt": Kt}, runs=[])
+    assert _dob_residual({}, ctx) == pytest.approx(expected, abs=1e-9)

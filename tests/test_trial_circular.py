@@ -118,3 +118,23 @@ def test_table3_values_on_synthetic_signals():
     assert v["kp_ripple_bad_laps"] == pytest.approx(A / math.sqrt(2) / k0, rel=2e-3)
     assert v["hold_kp_fraction"] == pytest.approx(math.exp(-task.fit_s / tau), rel=1e-3)
     assert v["err_rms_first_lap_m"] == pytest.approx(0.003, rel=1e-12)
+
+
+def test_parameters_circle_sets_every_circle_stimulus_and_refuses_unknown_fields():
+    """A sweep of the circle (circular_speed_sweep.yaml) changes the one circle through
+    ``parameters.circle``: the target and the intent both take it; a typo or a
+    per-stimulus field is refused with the section's name."""
+    from cosim.scenarios.registry import BuildContext
+    from cosim.trials.circular import _circle_target
+    ctx = BuildContext(parameters={"circle": {"period_s": 6.0}})
+    rx = _circle_target({"component": "rx"}, ctx)
+    task = ctx.state["circle_task"]
+    assert task.period_s == 6.0 and task.omega == pytest.approx(2 * math.pi / 6.0)
+    # one lap (6 s) later the target is where it started, half a lap later it is not
+    assert rx(0.0) == pytest.approx(rx(6.0), abs=1e-12)
+    assert rx(0.0) != pytest.approx(rx(3.0), abs=1e-3)
+    hx = _circle_target({"component": "rx", "intent": True}, ctx)
+    assert ctx.state["circle_task"].period_s == 6.0 and callable(hx)
+    for bad in ({"periode_s": 6.0}, {"component": "ry"}):
+        with pytest.raises(ValueError, match="parameters.circle"):
+            _circle_target({"component": "rx"}, BuildContext(parameters={"circle": bad}))

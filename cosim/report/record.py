@@ -156,6 +156,9 @@ def sweep_figures(verdict: dict, sweep: dict) -> list:
             ax.axhline(float(lim), color="k", ls="--", lw=1,
                        label=f"limit ({r['rule']} {_plain(r['limit'])})" if i == 0 else None)
         unit = r.get("unit")
+        xs_all = [x for pts in series.values() for x, _ in pts]
+        if xs_all and min(xs_all) > 0 and max(xs_all) / min(xs_all) >= 20:
+            ax.set_xscale("log")            # a sweep over decades (a gain, a noise level)
         ax.set_xlabel(paths[0])
         ax.set_ylabel(f"{r['metric']}" + (f" [{unit}]" if unit else ""))
         ax.grid(alpha=0.3)

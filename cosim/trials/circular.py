@@ -361,8 +361,17 @@ def _circle_params(params) -> CircleTargetParams:
 
 @stimulus("circle_target", params=CircleTargetParams)
 def _circle_target(params, ctx):
-    """Circular target (Sec. 3.5) or the person's deliberately wrong aim (intent)."""
-    p = _circle_params(params)
+    """Circular target (Sec. 3.5) or the person's deliberately wrong aim (intent).
+    The run's ``parameters.circle`` (fields of :class:`CircleTargetParams` other than
+    ``component`` and ``intent``) applies to every circle stimulus of the run, so a
+    sweep changes the one circle (e.g. its period) in one place."""
+    shared = dict((ctx.parameters or {}).get("circle") or {})
+    bad = sorted(set(shared) - {f.name for f in dataclasses.fields(CircleTargetParams)}
+                 | set(shared) & {"component", "intent"})
+    if bad:
+        raise ValueError(f"parameters.circle: unknown or per-stimulus field(s) {bad} "
+                         f"(allowed: the fields of CircleTask, e.g. period_s)")
+    p = _circle_params({**params, **shared})
     ctx.state["circle_task"] = p.task()
     t = p.task()
     return (t.intent() if p.intent else t.target())[p.component]
@@ -380,7 +389,8 @@ def _circular_test(run, build, ctx):
     if not block.snapshot_every:
         block.snapshot_every = int(round(0.25 / block.params.Ts_s))
     hp = dict(system.params["human"])
-    res = Master(system, record).run(run.duration)
+    # the run ends with the task (the file's duration is the longest a sweep needs)
+    res = Master(system, record).run(min(run.duration, task.duration_s))
     sig = res.signals
     pr = dict(ctx.parameters or run.overrides.get("parameters") or {})
     m = circle_metrics(task, block.params, block.snapshots, sig,

@@ -140,6 +140,61 @@ def _hf_rms(params, ctx):
 
 
 @dataclass(frozen=True)
+class DobResidualParams:
+    """Parameters of ``dob_residual``: the recorded signals (total current applied over
+    the next tick, the outer loop's control force of Fig. 28, the true nut speed), the
+    run values naming the DOB's nominal J_n and Kt_n (absent: the DOB's Table 1
+    defaults), the window of the comparison (below g_DOB) and the start."""
+    i_total: str = "zf.i_cmd"
+    f_outer: str = "zf.f_cntr"
+    speed: str = "rig.v"
+    Jn_value: str = "obs_dob_J"
+    Ktn_value: str = "obs_dob_Kt"
+    lead_m: float = 0.01
+    window_s: float = 0.02
+    from_s: float = 1.0
+
+
+@metric("dob_residual", params=DobResidualParams)
+def _dob_residual(params, ctx):
+    """Share of the disturbance left uncompensated (Sec. 2.1.2.1, Fig. 13: below g_DOB
+    the plant with its DOB is seen as the nominal plant driven by the outer loop). Per
+    window (``window_s``, below g_DOB), in nut-speed changes, with c = Kt_n
+    lead/(2 pi J_n) the nominal plant: the disturbance d = dv - c Ts sum(I_tot) (how the
+    unit moved otherwise than its total current says) and the residual r = dv - c Ts
+    sum(I_outer), I_outer = f_cntr (2 pi)/(lead Kt_n) the outer loop's current (how it
+    moved otherwise than the outer loop asked). Returns RMS(r)/RMS(d): 0 = the
+    disturbance compensated, 1 = none (no compensation current), about 2 with the
+    compensation's sign reversed."""
+    from cosim.algorithms.dob import DOBParams
+    p = DobResidualParams(**params)
+    s, v = ctx.signals, ctx.values
+    t = np.asarray(s["time"])
+    Ts = float(t[1] - t[0])
+    # a run whose DOB is not fed identified values runs on its defaults (Table 1)
+    Jn = float(v.get(p.Jn_value, DOBParams.Jn_kg_m2))
+    Ktn = float(v.get(p.Ktn_value, DOBParams.Ktn_Nm_per_A))
+    kf = 2.0 * math.pi * Ktn / p.lead_m                # nut force per ampere [N/A]
+    c = kf / (2.0 * math.pi / p.lead_m) ** 2 / Jn      # nut acceleration per ampere
+    i_tot = np.asarray(s[p.i_total], dtype=float)
+    i_out = np.asarray(s[p.f_outer], dtype=float) / kf
+    vel = np.asarray(s[p.speed], dtype=float)
+    k0 = int(np.searchsorted(t, p.from_s))
+    n = max(1, int(round(p.window_s / Ts)))
+    m = (t.size - 1 - k0) // n
+    if m < 2:
+        raise ValueError(f"dob_residual: fewer than 2 windows of {p.window_s} s after {p.from_s} s")
+    idx = k0 + n * np.arange(m + 1)
+    dv = vel[idx[1:]] - vel[idx[:-1]]          # speed change over each window
+    # the current recorded at tick k is held over [t_k, t_k+1]
+    cs_tot = np.concatenate(([0.0], np.cumsum(i_tot)))
+    cs_out = np.concatenate(([0.0], np.cumsum(i_out)))
+    d = dv - c * Ts * (cs_tot[idx[1:]] - cs_tot[idx[:-1]])
+    r = dv - c * Ts * (cs_out[idx[1:]] - cs_out[idx[:-1]])
+    return float(np.sqrt(np.mean(r ** 2)) / np.sqrt(np.mean(d ** 2)))
+
+
+@dataclass(frozen=True)
 class CaseRatioParams:
     """Ratio of one run metric between two cases (scenario scope): the mean of
     ``metric`` (a run-scope metric name with its ``params``) over the runs of case
