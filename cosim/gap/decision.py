@@ -119,7 +119,8 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
        or compliance against ``unknown`` when the compliance fit passed but left the
        accelerometer unexplained, or when nothing passed but compliance or backlash
        explains ``ambiguity_min_explained`` of the fit logs' gap in-sample. ``selected``
-       keeps the better one (what is scored).
+       keeps the better one (what is scored): ``unknown``, or that look-alike when it
+       explains ``named_min_explained`` in-sample.
     """
     singles = ev.get("singles", {})
     pairs = ev.get("pairs", {})
@@ -230,6 +231,14 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
                                     f"heldout_pooled_reduction_{e}": verdicts.get(e, {}).get("pooled_reduction"),
                                     f"heldout_reduction_per_fold_{e}": singles.get(e, {}).get("reduction"),
                                     "base_signal_z": ev.get("base_z")}}
+                if expl[e] >= th.named_min_explained and e in singles:
+                    # the look-alike fits far better than anything else in-sample: named
+                    # (its held-out gap failed, see Thresholds.named_min_explained)
+                    selected, res["selected"] = [e], [e]
+                    res["effects_after"] = [e]
+                    res["test_after"] = float(singles[e]["test_after"])
+                    amb["evidence"]["named_min_explained"] = th.named_min_explained
+                    amb["effects"] = [e, "unknown"]
                 break
     if amb is not None:
         res["ambiguous"] = amb["effects"]
