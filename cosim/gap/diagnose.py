@@ -309,9 +309,6 @@ def _folds_for(device: GapDevice, folds, effects: Sequence[str]):
     extrapolation of a shape that varies along the travel (position-dependent friction)
     to a range it was never fitted on, so for such an effect only folds whose held-out
     trial lies mostly inside the fit part's travel count (all of them when none does)."""
-    shows = getattr(device, "heldout_can_show", None)
-    if shows is not None:               # a held-out trial where the effect cannot act tests nothing
-        folds = [fd for fd in folds if all(shows(e, fd[0], fd[1]) for e in effects)] or folds
     along = getattr(device, "varies_along_travel", None)
     if along is None or not any(along(e) for e in effects):
         return folds

@@ -515,12 +515,6 @@ class BallscrewDevice:
         """Whether the effect's shape varies along the travel (validated inside the fitted range)."""
         return CATALOGUE[effect].ballscrew.along_travel
 
-    def heldout_can_show(self, effect: str, fit_part: Sequence[TrialLog], heldout: Sequence[TrialLog]) -> bool:
-        """Whether ``effect``, fitted on ``fit_part``, can act on the ``heldout`` trials at all
-        (its form's ``heldout_can_show``; a fold where it cannot validates nothing)."""
-        f = CATALOGUE[effect].ballscrew.heldout_can_show
-        return True if f is None else bool(f([self._prep(lg) for lg in fit_part], [self._prep(lg) for lg in heldout]))
-
     @staticmethod
     def acts_on(effect: str) -> set[str]:
         """The comparison signals an effect changes."""

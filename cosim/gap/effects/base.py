@@ -93,11 +93,6 @@ class BallscrewForm:
     #: tell (e.g. a clip limit above every fitted command is "no clip seen": off, not a
     #: limit just above the fit part's peak that a faster held-out trial would hit)
     settle: Callable[[Mapping[str, float], Sequence[Any]], dict[str, float]] | None = None
-    #: ``heldout_can_show(fit_preps, heldout_preps)``: whether any shape the grid searches on
-    #: the fit part can act on the held-out trial (a clip searched at the fit commands'
-    #: upper quantiles cannot act on a trial whose commands all stay below them); a fold
-    #: whose held-out trial cannot show the effect validates nothing (None: always can)
-    heldout_can_show: Callable[[Sequence[Any], Sequence[Any]], bool] | None = None
 
 
 def _no_shape(prm: Mapping[str, float]) -> dict[str, float]:

@@ -8,23 +8,12 @@ def _terms(p, nl, nom):
     return Terms(y_map=lambda y, _l=nl["i_lim"]: np.clip(y, -_l, _l))
 
 
-_QUANTILES = [0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98, 0.99, 0.995, 0.999]
-
-
 def _grid(preps):
     # limits at high quantiles of the commanded current (a limit above it changes nothing)
     a = np.concatenate([np.abs(p.i) for p in preps])
     amax = float(a.max()) if a.size else 0.0
-    return [{"i_lim": float(q)} for q in np.quantile(a, _QUANTILES) if 0 < q < amax]
-
-
-def _can_show(fit_preps, heldout_preps):
-    # the lowest limit searched on the fit part must lie below the held-out trial's peak
-    a = np.concatenate([np.abs(p.i) for p in fit_preps])
-    if not a.size:
-        return True
-    peak = max((float(np.max(np.abs(p.i))) for p in heldout_preps if p.i.size), default=0.0)
-    return peak > float(np.quantile(a, _QUANTILES[0]))
+    return [{"i_lim": float(q)} for q in np.quantile(a, [0.8, 0.85, 0.9, 0.93, 0.95, 0.97, 0.98,
+                                                        0.99, 0.995, 0.999]) if 0 < q < amax]
 
 
 def _settle(nl, preps):
@@ -39,7 +28,7 @@ EFFECT = Effect(
     "current_saturation", "the driver clips the current at a limit", "CurrentSaturation", (BALLSCREW,),
     params(i_lim=("A", 1000.0, 0.01, 1000.0, "current limit (1000 A: never reached)")),
     BallscrewForm(_terms, grid=_grid, refine=("i_lim",), bounds={"i_lim": (1e-3, 1e3)}, driver_stage=2,
-                  settle=_settle, heldout_can_show=_can_show),
+                  settle=_settle),
     # clip at 1.1-1.5 x the command rms (0.15 A)
     lambda r: {"i_max_rms": uniform(r, 1.1, 1.5)},
 )
