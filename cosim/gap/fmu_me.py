@@ -179,6 +179,23 @@ class MePlant:
         return dx, y[:, :no]
 
     def _integrate(self, t, x, inputs, u, outputs, u_out, internal):
+        """Internal states whose derivative is exactly 0 at the first sample are held (no
+        Jacobian for them: a switched-off delay, lag or second body); if any of them moves later
+        the pass is repeated with all integrated (a held state's derivative is then zero at every
+        sample: it would not move under an explicit step either)."""
+        x0 = np.array(x, dtype=np.float64).reshape(int(t.size), self.nx)
+        z0 = self.states()
+        iz = list(internal)
+        x0[:, iz] = z0[iz]
+        d0, _ = self._pass(t[:1], x0[:1].copy(), inputs, u[:1], outputs, None if u_out is None else u_out[:1], [], z0)
+        active = [i for i in iz if d0[0, i] != 0.0]
+        dx, y = self._pass(t, x0.copy(), inputs, u, outputs, u_out, active, z0)
+        held = [i for i in iz if i not in active]
+        if held and np.any(dx[:, held] != 0.0):
+            dx, y = self._pass(t, x0.copy(), inputs, u, outputs, u_out, iz, z0)
+        return dx, y
+
+    def _pass(self, t, x, inputs, u, outputs, u_out, internal, z0):
         """:meth:`evaluate` with internal states integrated by linearly implicit Euler
         (Rosenbrock-Euler: z+ = z + h (I - h dfz/dz)^-1 f), the Jacobian of the internal block
         by forward differences at every sample. Why implicit: an internal state of a friction
@@ -190,10 +207,8 @@ class MePlant:
         x = np.array(x, dtype=np.float64).reshape(n, nx)
         u = np.ascontiguousarray(u, dtype=np.float64).reshape(n, ni)
         u2 = None if u_out is None else np.ascontiguousarray(u_out, dtype=np.float64).reshape(n, ni)
-        z0 = self.states()
         iz = np.asarray(internal, dtype=int)
         m = iz.size
-        x[0, iz] = z0[iz]
         dx = np.zeros((n, nx))
         y = np.zeros((n, max(no, 1)))
         vr_in = (ctypes.c_uint * max(ni, 1))(*[self.vars.vr(s) for s in inputs])
@@ -226,6 +241,8 @@ class MePlant:
                     bad |= sr(c, vin, ni, ua + k * ni * b)
             if k + 1 == n:
                 break
+            if m == 0:
+                continue
             h = tl[k + 1] - tl[k]
             xk = x[k]
             f = dx[k, iz]
