@@ -72,3 +72,18 @@ def test_internal_bristle_state_integrated_along_the_measured_motion(tmp_path):
     assert held > 3 * err, (held, err)
     # a 15 % inertia error is seen
     assert dev.gap_parts([lg], dict(nom, J=1.15 * NOM["J"]))[enc] > 3 * err
+
+
+def test_encoder_on_an_output_tied_to_a_state_is_mapped_with_its_ratio(tmp_path):
+    """An encoder bound to the nut position x = lead/(2 pi) theta (an output, not a state):
+    the position state theta and its ratio are read from the FMU."""
+    from cosim.gap.devices.fmu_plant import FmuPlantDevice, load_binding_any
+    txt = BINDING.read_text()
+    old = "    output: theta\n    unit: rad\n    sensor: {kind: encoder, resolution: 2.908882086657216e-4}"
+    assert old in txt
+    b = tmp_path / "nut.yaml"
+    b.write_text(txt.replace(old, "    output: x\n    unit: m\n    sensor: {kind: encoder, resolution: 4.6296e-7}"))
+    dev = FmuPlantDevice(load_binding_any(b, FMU), FMU)
+    assert dev.vars.states[dev.i_pos] == "theta" and dev.vars.states[dev.i_vel] == "friction.w"
+    assert dev.c_pos == pytest.approx(NOM["lead"] / (2 * np.pi), rel=1e-6)
+    assert dev.c_vel == pytest.approx(1.0, rel=1e-6)
