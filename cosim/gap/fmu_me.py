@@ -227,6 +227,9 @@ class MePlant:
         bad = 0
         eye = np.eye(m)
         izl = iz.tolist()
+        mx, mdx, mdp = x.reshape(-1).data, dx.reshape(-1).data, dp.data
+        j0 = izl[0] if m else 0
+        sc0 = float(scale[0]) if m else 0.0
         for k in range(n):
             bad |= st(c, tl[k])
             bad |= sx(c, xa + k * nx * b, nx)
@@ -244,24 +247,30 @@ class MePlant:
             if m == 0:
                 continue
             h = tl[k + 1] - tl[k]
-            xk = x[k]
-            f = dx[k, iz]
-            zk = xk[iz]
             if m == 1:
-                j0 = izl[0]
-                dz = 1e-6 * max(abs(zk[0]), scale[0])
-                xp[:] = xk
-                xp[j0] += dz
-                sx(c, xpa, nx)
+                # scalar path through memoryviews (no numpy per sample): the row's own state
+                # perturbed in place for the Jacobian, then restored
+                i0 = k * nx + j0
+                z = mx[i0]
+                f0 = mdx[i0]
+                dz = 1e-6 * max(abs(z), sc0)
+                mx[i0] = z + dz
+                sx(c, xa + k * nx * b, nx)
                 gd(c, dpa, nx)
-                jac = min((dp[j0] - f[0]) / dz, 0.0)   # only decaying modes are stiff
-                x[k + 1, j0] = zk[0] + h * f[0] / (1.0 - h * jac)
+                mx[i0] = z
+                jac = (mdp[j0] - f0) / dz
+                if jac > 0.0:                      # only decaying modes are stiff
+                    jac = 0.0
+                mx[i0 + nx] = z + h * f0 / (1.0 - h * jac)
             else:
+                xk = x[k]
+                f = dx[k, iz]
+                zk = xk[iz]
                 J = np.zeros((m, m))
-                for a_, j0 in enumerate(izl):
+                for a_, jj in enumerate(izl):
                     dz = 1e-6 * max(abs(zk[a_]), scale[a_])
                     xp[:] = xk
-                    xp[j0] += dz
+                    xp[jj] += dz
                     sx(c, xpa, nx)
                     gd(c, dpa, nx)
                     J[:, a_] = (dp[iz] - f) / dz
