@@ -1,15 +1,25 @@
 """Benchmark of the gap diagnosis of a user's own plant FMU (``cosim gap diagnose --plant``).
 
-foreign-dev (``../shared/data/independent/foreign-dev``): the lineardrive-1dof axis, its FMU
+Suites (``--suite``; default all three; each appends its section to the results file):
+
+* ``gap-dev``: ``../shared/data/independent/gap-dev`` (15 ball-screw devices) through the
+  package's own ``fmus/BallScrewUnit.fmu`` (LuGre friction: an internal state) with
+  ``examples/gap-own-plant/ballscrew-unit.yaml``, scored as below; the issue's target: top-1
+  within one of ``--device ballscrew-1dof`` (14/15), median shrink <= 0.35;
+* ``emps``: DATA_EMPS (fit) and DATA_EMPS_PULSES (held out) through ``fmus/EmpsAxis.fmu``
+  (eight states, six internal) with ``examples/gap-own-plant/emps-axis.yaml``: recalibrated
+  M, Fv, Fc against the publication's (target within 2 %), held-out gap before/after;
+* ``foreign-dev``: (``../shared/data/independent/foreign-dev``): the lineardrive-1dof axis, its FMU
 built at run time from the shared C source into a temporary folder (never into the repo),
 the binding ``examples/gap-own-plant/lineardrive-1dof.yaml`` written from its datasheet;
 each case run through the command line (as the judge does), scored by the rules of
 ``../shared/data/independent/README.md``: top-1 per case, median shrink over the cases with
 catalogue effects, failures (non-zero exit, 300 s timeout, no or non-finite gap).
 
-    .venv/bin/python bench/bench_gap_own_plant.py [--cases case-01 ...] [--workers 2] [--write]
+    .venv/bin/python bench/bench_gap_own_plant.py [--suite gap-dev emps foreign-dev]
+        [--cases case-01 ...] [--workers 2] [--write]
 
-``--write`` writes ``bench/results/gap_own_plant.txt``.
+``--write`` appends the sections to ``bench/results/gap_own_plant.txt``.
 """
 from __future__ import annotations
 
@@ -29,7 +39,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data" / "independent"
 FOREIGN = SHARED / "foreign-dev"
+GAPDEV = SHARED / "gap-dev"
 BINDING = ROOT / "examples" / "gap-own-plant" / "lineardrive-1dof.yaml"
+BS_FMU = ROOT / "fmus" / "BallScrewUnit.fmu"
+BS_BINDING = ROOT / "examples" / "gap-own-plant" / "ballscrew-unit.yaml"
+EMPS_FMU = ROOT / "fmus" / "EmpsAxis.fmu"
+EMPS_BINDING = ROOT / "examples" / "gap-own-plant" / "emps-axis.yaml"
 TIMEOUT_S = 300
 
 
@@ -50,8 +65,8 @@ def score(label: list[str], selected: list[str]) -> float:
     return 1.0 if selected[:1] == label else 0.0
 
 
-def run_case(case: str, lab: dict, fmu: Path, binding: Path, out_root: Path) -> dict:
-    d = FOREIGN / "cases" / case
+def run_case(case: str, lab: dict, fmu: Path, binding: Path, out_root: Path, data: Path = FOREIGN) -> dict:
+    d = data / "cases" / case
     out = out_root / case
     cmd = [str(ROOT / ".venv" / "bin" / "cosim"), "gap", "diagnose", "--plant", str(fmu), "--binding", str(binding),
            "--fit", *[str(d / (s + ".csv")) for s in lab["fit"]], "--test", *[str(d / (s + ".csv")) for s in lab["test"]],
@@ -78,24 +93,8 @@ def run_case(case: str, lab: dict, fmu: Path, binding: Path, out_root: Path) -> 
     return res
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--cases", nargs="*")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--write", action="store_true")
-    a = ap.parse_args(argv)
-    if not FOREIGN.is_dir():
-        print(f"no {FOREIGN}: nothing to do")
-        return 0
-    labels = json.loads((FOREIGN / "labels.json").read_text())
-    cases = a.cases or sorted(labels)
-    with tempfile.TemporaryDirectory(prefix="bench-own-plant-") as tmp:
-        fmu = build_foreign_fmu(Path(tmp) / "fmu")
-        with ThreadPoolExecutor(max_workers=max(1, min(a.workers, 2))) as ex:
-            rows = list(ex.map(lambda c: run_case(c, labels[c], fmu, BINDING, Path(tmp) / "out"), cases))
-    lines = ["# bench/bench_gap_own_plant.py: foreign-dev (lineardrive-1dof) through its own plant FMU",
-             f"# binding {BINDING.relative_to(ROOT)}; FMU built from ../shared/.../foreign-dev/fmu at run time",
-             f"{'case':8s} {'truth':42s} {'selected':42s} {'top1':>5s} {'shrink':>7s} {'time_s':>7s}"]
+def table(title: list[str], rows: list[dict]) -> str:
+    lines = title + [f"{'case':8s} {'truth':42s} {'selected':42s} {'top1':>5s} {'shrink':>7s} {'time_s':>7s}"]
     for r in rows:
         lines.append(f"{r['case']:8s} {','.join(r['truth']) or '[]':42s} "
                      f"{('FAILED' if r['failed'] else (','.join(r['selected']) or '[]')):42s} "
@@ -105,15 +104,89 @@ def main(argv=None) -> int:
     lines.append(f"top-1 {top1:g}/{len(rows)}, median shrink {float(np.median(eff)) if eff else float('nan'):.3f} "
                  f"(over {len(eff)} effect cases), failures {sum(r['failed'] for r in rows)}, "
                  f"median runtime {float(np.median([r['runtime_s'] for r in rows])):.1f} s")
-    txt = "\n".join(lines) + "\n"
-    print(txt)
     for r in rows:
         if r.get("error"):
             print(r["case"], "error:", r["error"], file=sys.stderr)
-    if a.write:
+    return "\n".join(lines) + "\n"
+
+
+def suite_cases(data: Path, fmu: Path, binding: Path, cases, workers: int, title: list[str]) -> str:
+    labels = json.loads((data / "labels.json").read_text())
+    cases = [c for c in (cases or sorted(labels)) if c in labels]
+    with tempfile.TemporaryDirectory(prefix="bench-own-plant-") as tmp:
+        with ThreadPoolExecutor(max_workers=max(1, min(workers, 2))) as ex:
+            rows = list(ex.map(lambda c: run_case(c, labels[c], fmu, binding, Path(tmp) / "out", data), cases))
+    return table(title, rows)
+
+
+def suite_emps() -> str:
+    from cosim.cli.data import default_emps_dir
+    from cosim.logs.emps import import_emps
+    from cosim.offline.emps import EMPS_PUBLISHED
+    with tempfile.TemporaryDirectory(prefix="bench-own-plant-emps-") as tmp:
+        tr, pu = import_emps(default_emps_dir(), tmp)
+        out = Path(tmp) / "out"
+        cmd = [str(ROOT / ".venv" / "bin" / "cosim"), "gap", "diagnose", "--plant", str(EMPS_FMU),
+               "--binding", str(EMPS_BINDING), "--fit", str(tr), "--test", str(pu), "--out", str(out), "--no-report"]
+        t0 = time.perf_counter()
+        r = subprocess.run(["nice", "-n", "10", *cmd], capture_output=True, text=True, timeout=900)
+        dt = time.perf_counter() - t0
+        if r.returncode != 0:
+            return f"# emps through {EMPS_FMU.name}: FAILED (exit {r.returncode}): {r.stderr[-400:]}\n"
+        dj = json.loads((out / "diagnosis.json").read_text())
+    pub = EMPS_PUBLISHED["idim_symmetric"]
+    rec = dj.get("recalibrated") or {}
+    lines = [f"# bench/bench_gap_own_plant.py: EMPS (DATA_EMPS fit, DATA_EMPS_PULSES held out) through "
+             f"{EMPS_FMU.relative_to(ROOT)}", f"# binding {EMPS_BINDING.relative_to(ROOT)}; {dt:.1f} s",
+             f"{'param':8s}{'ours':>12s}{'publication':>14s}{'diff':>9s}"]
+    for k in ("M", "Fv", "Fc", "offset"):
+        if k in rec:
+            lines.append(f"{k:8s}{rec[k]:12.4f}{pub[k]:14.4f}{100 * (rec[k] / pub[k] - 1):8.2f}%")
+    g = dj["gap"]
+    lines.append(f"selected {dj['selected']}; held-out gap {g['test_before']:.4f} -> {g['test_after']:.4f} "
+                 f"(shrink {g['test_after'] / g['test_before']:.3f}); fit gap {g['fit']:.4f}")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--suite", nargs="*", default=["gap-dev", "emps", "foreign-dev"])
+    ap.add_argument("--cases", nargs="*")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--write", action="store_true")
+    a = ap.parse_args(argv)
+    out = []
+    if "gap-dev" in a.suite and GAPDEV.is_dir() and BS_FMU.is_file():
+        sub = f" (subset: {' '.join(a.cases)})" if a.cases else ""
+        out.append(suite_cases(GAPDEV, BS_FMU, BS_BINDING, a.cases, a.workers,
+                               [f"# bench/bench_gap_own_plant.py: gap-dev (ballscrew-1dof) through "
+                                f"{BS_FMU.relative_to(ROOT)}{sub}", f"# binding {BS_BINDING.relative_to(ROOT)}"]))
+        print(out[-1])
+    if "emps" in a.suite and EMPS_FMU.is_file():
+        out.append(suite_emps())
+        print(out[-1])
+    if "foreign-dev" in a.suite:
+        out.append(main_foreign(a))
+        print(out[-1])
+    if a.write and out:
         (ROOT / "bench" / "results").mkdir(parents=True, exist_ok=True)
-        (ROOT / "bench" / "results" / "gap_own_plant.txt").write_text(txt)
+        with (ROOT / "bench" / "results" / "gap_own_plant.txt").open("a") as fh:
+            fh.write("\n" + "\n".join(out))
     return 0
+
+
+def main_foreign(a) -> str:
+    if not FOREIGN.is_dir():
+        return f"# no {FOREIGN}: foreign-dev not run\n"
+    labels = json.loads((FOREIGN / "labels.json").read_text())
+    cases = [c for c in (a.cases or sorted(labels)) if c in labels]
+    with tempfile.TemporaryDirectory(prefix="bench-own-plant-") as tmp:
+        fmu = build_foreign_fmu(Path(tmp) / "fmu")
+        with ThreadPoolExecutor(max_workers=max(1, min(a.workers, 2))) as ex:
+            rows = list(ex.map(lambda c: run_case(c, labels[c], fmu, BINDING, Path(tmp) / "out"), cases))
+    return table(["# bench/bench_gap_own_plant.py: foreign-dev (lineardrive-1dof) through its own plant FMU",
+                  f"# binding {BINDING.relative_to(ROOT)}; FMU built from ../shared/.../foreign-dev/fmu at run time"],
+                 rows)
 
 
 if __name__ == "__main__":

@@ -83,6 +83,7 @@ class MePlant:
         self._get_dx = dll.fmi2GetDerivatives
         self._set_real = dll.fmi2SetReal
         self._get_real = dll.fmi2GetReal
+        self._get_x = dll.fmi2GetContinuousStates
         vp, sz, dbl = ctypes.c_void_p, ctypes.c_size_t, ctypes.c_double
         # raw addresses as arguments: no pointer object per call
         self._set_time.argtypes = [vp, dbl]
@@ -90,7 +91,8 @@ class MePlant:
         self._get_dx.argtypes = [vp, vp, sz]
         self._set_real.argtypes = [vp, vp, sz, vp]
         self._get_real.argtypes = [vp, vp, sz, vp]
-        for f in (self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real):
+        self._get_x.argtypes = [vp, vp, sz]
+        for f in (self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real, self._get_x):
             f.restype = ctypes.c_int
 
     def close(self) -> None:
@@ -124,13 +126,26 @@ class MePlant:
         f.enterContinuousTimeMode()
         self._initialised = True
 
+    def states(self) -> np.ndarray:
+        """The continuous states of the initialised instance (after :meth:`initialise`)."""
+        x = np.zeros(max(self.nx, 1))
+        self._get_x(self._c, x.ctypes.data, self.nx)
+        return x[:self.nx]
+
     def evaluate(self, params: Mapping[str, float], t: np.ndarray, x: np.ndarray,
                  inputs: Sequence[str], u: np.ndarray, outputs: Sequence[str],
-                 u_out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 u_out: np.ndarray | None = None, internal: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray]:
         """State derivatives (n x nx) and ``outputs`` (n x no) at the n points
         (time ``t``, states ``x`` n x nx, ``inputs`` values ``u`` n x ni); with ``u_out`` the
-        outputs are read after setting the inputs to ``u_out`` instead (same point)."""
+        outputs are read after setting the inputs to ``u_out`` instead (same point).
+
+        ``internal``: indices of states the caller does not know (a friction bristle, a drive's
+        lag): their columns of ``x`` are ignored; they start at the FMU's initial values and are
+        integrated from sample to sample along the given (measured) states and inputs
+        (:meth:`_integrate`); ``x`` receives them."""
         self.initialise(params)
+        if len(internal):
+            return self._integrate(t, x, inputs, u, outputs, u_out, list(internal))
         n = int(t.size)
         nx, ni, no = self.nx, len(inputs), len(outputs)
         x = np.ascontiguousarray(x, dtype=np.float64).reshape(n, nx)
@@ -161,4 +176,109 @@ class MePlant:
         if bad > 1:                                   # fmi2OK = 0, fmi2Warning = 1
             raise RuntimeError(f"{self.vars.path.name}: an FMU call failed while evaluating the plant "
                                "point-wise (Model Exchange)")
+        return dx, y[:, :no]
+
+    def _integrate(self, t, x, inputs, u, outputs, u_out, internal):
+        """Internal states whose derivative is exactly 0 at the first sample are held (no
+        Jacobian for them: a switched-off delay, lag or second body); if any of them moves later
+        the pass is repeated with all integrated (a held state's derivative is then zero at every
+        sample: it would not move under an explicit step either)."""
+        x0 = np.array(x, dtype=np.float64).reshape(int(t.size), self.nx)
+        z0 = self.states()
+        iz = list(internal)
+        x0[:, iz] = z0[iz]
+        d0, _ = self._pass(t[:1], x0[:1].copy(), inputs, u[:1], outputs, None if u_out is None else u_out[:1], [], z0)
+        active = [i for i in iz if d0[0, i] != 0.0]
+        dx, y = self._pass(t, x0.copy(), inputs, u, outputs, u_out, active, z0)
+        held = [i for i in iz if i not in active]
+        if held and np.any(dx[:, held] != 0.0):
+            dx, y = self._pass(t, x0.copy(), inputs, u, outputs, u_out, iz, z0)
+        return dx, y
+
+    def _pass(self, t, x, inputs, u, outputs, u_out, internal, z0):
+        """:meth:`evaluate` with internal states integrated by linearly implicit Euler
+        (Rosenbrock-Euler: z+ = z + h (I - h dfz/dz)^-1 f), the Jacobian of the internal block
+        by forward differences at every sample. Why implicit: an internal state of a friction
+        or drive model is often far faster than the log's sample (a LuGre bristle at sliding
+        speed: microseconds); the implicit step takes it to its quasi-steady value instead of
+        diverging. The step from sample k uses the inputs and measured states of sample k."""
+        n = int(t.size)
+        nx, ni, no = self.nx, len(inputs), len(outputs)
+        x = np.array(x, dtype=np.float64).reshape(n, nx)
+        u = np.ascontiguousarray(u, dtype=np.float64).reshape(n, ni)
+        u2 = None if u_out is None else np.ascontiguousarray(u_out, dtype=np.float64).reshape(n, ni)
+        iz = np.asarray(internal, dtype=int)
+        m = iz.size
+        dx = np.zeros((n, nx))
+        y = np.zeros((n, max(no, 1)))
+        vr_in = (ctypes.c_uint * max(ni, 1))(*[self.vars.vr(s) for s in inputs])
+        vr_out = (ctypes.c_uint * max(no, 1))(*[self.vars.vr(s) for s in outputs])
+        c = self._c
+        st, sx, gd, sr, gr = self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real
+        b = 8
+        xa, ua, dxa, ya = x.ctypes.data, u.ctypes.data, dx.ctypes.data, y.ctypes.data
+        u2a = None if u2 is None else u2.ctypes.data
+        vin, vout = ctypes.addressof(vr_in), ctypes.addressof(vr_out)
+        tl = t.tolist()
+        xp = np.zeros(nx)
+        dp = np.zeros(nx)
+        xpa, dpa = xp.ctypes.data, dp.ctypes.data
+        scale = np.maximum(np.abs(z0[iz]), 1e-8)
+        bad = 0
+        eye = np.eye(m)
+        izl = iz.tolist()
+        mx, mdx, mdp = x.reshape(-1).data, dx.reshape(-1).data, dp.data
+        j0 = izl[0] if m else 0
+        sc0 = float(scale[0]) if m else 0.0
+        for k in range(n):
+            bad |= st(c, tl[k])
+            bad |= sx(c, xa + k * nx * b, nx)
+            if ni:
+                bad |= sr(c, vin, ni, ua + k * ni * b)
+            bad |= gd(c, dxa + k * nx * b, nx)
+            if no:
+                if u2a is not None and ni:
+                    bad |= sr(c, vin, ni, u2a + k * ni * b)
+                bad |= gr(c, vout, no, ya + k * no * b)
+                if u2a is not None and ni:
+                    bad |= sr(c, vin, ni, ua + k * ni * b)
+            if k + 1 == n:
+                break
+            if m == 0:
+                continue
+            h = tl[k + 1] - tl[k]
+            if m == 1:
+                # scalar path through memoryviews (no numpy per sample): the row's own state
+                # perturbed in place for the Jacobian, then restored
+                i0 = k * nx + j0
+                z = mx[i0]
+                f0 = mdx[i0]
+                dz = 1e-6 * max(abs(z), sc0)
+                mx[i0] = z + dz
+                sx(c, xa + k * nx * b, nx)
+                gd(c, dpa, nx)
+                mx[i0] = z
+                jac = (mdp[j0] - f0) / dz
+                if jac > 0.0:                      # only decaying modes are stiff
+                    jac = 0.0
+                mx[i0 + nx] = z + h * f0 / (1.0 - h * jac)
+            else:
+                xk = x[k]
+                f = dx[k, iz]
+                zk = xk[iz]
+                J = np.zeros((m, m))
+                for a_, jj in enumerate(izl):
+                    dz = 1e-6 * max(abs(zk[a_]), scale[a_])
+                    xp[:] = xk
+                    xp[jj] += dz
+                    sx(c, xpa, nx)
+                    gd(c, dpa, nx)
+                    J[:, a_] = (dp[iz] - f) / dz
+                if np.any(J):
+                    x[k + 1, iz] = zk + h * np.linalg.solve(eye - h * J, f)
+                else:
+                    x[k + 1, iz] = zk + h * f
+        if bad > 1:
+            raise RuntimeError(f"{self.vars.path.name}: an FMU call failed while integrating the plant's "
+                               "internal states along the measured motion (Model Exchange)")
         return dx, y[:, :no]

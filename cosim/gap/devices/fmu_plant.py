@@ -148,17 +148,7 @@ class FmuPlantDevice:
                                 "comparison sets the plant's states from the measured motion", binding.path,
                                 "measurements")
         self.enc = enc
-        self.i_pos = self.vars.state_of_output(enc.output)
-        if self.i_pos is None:
-            raise GapInputError(f"the encoder's output {enc.output!r} is not a continuous state of the FMU "
-                                f"(states: {', '.join(self.vars.states)})", binding.path, "measurements")
-        vname = self.vars.derivative_of[self.vars.states[self.i_pos]]
-        self.i_vel = self.vars.state_of_output(vname)
-        if self.i_vel is None:
-            raise GapInputError(f"the derivative of {enc.output!r} ({vname}) is not a continuous state: the "
-                                "plant must be second order in its measured position", binding.path)
         self.motion = binding.measurement("accelerometer") or binding.measurement("gyroscope")
-        self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
         self.forms = fmu_forms()
         names = []
         for n, f in self.forms.items():
@@ -177,6 +167,8 @@ class FmuPlantDevice:
         self._bounds = {p.name: (p.low, p.high) for p in binding.parameters}
         self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate
                        and not getattr(p, "same_as", None)}
+        self._map_states(binding)
+        self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
         self.recalibration_note = (
             "recalibrated " + ", ".join(self.rec_params) + " by Gauss-Newton on the equation error of the plant "
             "FMU (finite-difference sensitivities), within the binding's ranges; directions the fit logs do not "
@@ -202,6 +194,63 @@ class FmuPlantDevice:
         self._hints: dict[str, dict] = {}
         self._rec_cache: dict[tuple, dict] = {}
         self._rec_first: dict[str, float] | None = None
+
+    def _map_states(self, binding: PlantBinding) -> None:
+        """Which FMU states the measured motion sets, and the others (internal, integrated).
+
+        The encoder's output must be, or be tied linearly to, one continuous state
+        (``output = c_pos * state + d``), and that state's derivative to one other state
+        (``der(state) = c_vel * speed_state``): both relations are read from the FMU itself
+        by perturbing each state once at its initial point (a transmission ratio, a
+        derivative that is an alias rather than a state); every other state is internal
+        (``MePlant.evaluate(internal=...)``)."""
+        enc = self.enc
+        me = self._plant()
+        me.initialise(self._full_params({p.name: p.nominal for p in binding.parameters}))
+        x0 = me.states()
+        nx = x0.size
+        if nx < 2:
+            raise GapInputError(f"the plant has {nx} continuous state(s); the comparison needs a position "
+                                "and its speed", self.fmu_path)
+        vr_out = [self.vars.vr(enc.output)]
+        f = me.fmu
+        dbuf = np.zeros(nx)
+
+        def probe(x):
+            xx = np.ascontiguousarray(x, dtype=np.float64)
+            me._set_x(me._c, xx.ctypes.data, nx)
+            me._get_dx(me._c, dbuf.ctypes.data, nx)
+            return np.array(f.getReal(vr_out)), dbuf.copy()
+        y0, d0 = probe(x0)
+        Cy, Cd = np.zeros(nx), np.zeros((nx, nx))
+        for j in range(nx):
+            h = 1e-4 * max(abs(x0[j]), 1.0)
+            xp = x0.copy()
+            xp[j] += h
+            y1, d1 = probe(xp)
+            Cy[j] = (y1[0] - y0[0]) / h
+            Cd[:, j] = (d1 - d0) / h
+        probe(x0)
+        i_pos = self.vars.state_of_output(enc.output)
+        if i_pos is None:
+            nz = np.flatnonzero(np.abs(Cy) > 1e-9 * max(np.max(np.abs(Cy)), 1e-300))
+            if nz.size != 1:
+                raise GapInputError(f"the encoder's output {enc.output!r} is not a continuous state of the FMU "
+                                    f"nor proportional to one (states: {', '.join(self.vars.states)})",
+                                    binding.path, "measurements")
+            i_pos = int(nz[0])
+        c_pos = 1.0 if self.vars.state_of_output(enc.output) is not None else float(Cy[i_pos])
+        row = Cd[i_pos].copy()
+        row[i_pos] = 0.0
+        nz = np.flatnonzero(np.abs(row) > 1e-9 * max(np.max(np.abs(row)), 1e-300))
+        if nz.size != 1:
+            raise GapInputError(f"the derivative of {self.vars.states[i_pos]!r} (the encoder's state) is not "
+                                "proportional to one other continuous state: the plant must be second order "
+                                "in its measured position", binding.path)
+        self.i_pos, self.i_vel = i_pos, int(nz[0])
+        self.c_pos, self.c_vel = c_pos, float(row[self.i_vel])
+        self.pos_offset = float(y0[0] - c_pos * x0[i_pos])
+        self.internal = tuple(k for k in range(nx) if k not in (self.i_pos, self.i_vel))
 
     # ------------------------------------------------------------------ preparation
     def _col(self, log: TrialLog, name: str) -> np.ndarray:
@@ -335,11 +384,14 @@ class FmuPlantDevice:
         for k, s in enumerate(self.vars.states):
             st = self.vars.start(s)
             X[:, k] = st if st is not None else 0.0
-        X[:, self.i_pos] = p.x
-        X[:, self.i_vel] = p.v
+        # the measured motion in the states' terms (encoder output = c_pos * state + offset,
+        # der(state) = c_vel * speed state); internal states are integrated along it
+        X[:, self.i_pos] = (p.x - self.pos_offset) / self.c_pos
+        X[:, self.i_vel] = p.v / (self.c_pos * self.c_vel)
         outs = [self.motion.output] if self.motion is not None else []
-        dx, y = self._plant().evaluate(self._full_params(params), p.t, X, self.inputs, U, outs, U_out)
-        return dx[:, self.i_vel], (y[:, 0] if outs else None)
+        dx, y = self._plant().evaluate(self._full_params(params), p.t, X, self.inputs, U, outs, U_out,
+                                       internal=self.internal)
+        return self.c_pos * self.c_vel * dx[:, self.i_vel], (y[:, 0] if outs else None)
 
     def _eval(self, log: TrialLog, params: Mapping[str, float]) -> dict:
         """Predicted encoder acceleration and sensor reading at ``params`` (exact); their
