@@ -52,13 +52,15 @@ def simulate_log(tmp: Path, T=3.0, ts=1e-3, seed=3) -> Path:
 
 
 def test_internal_bristle_state_integrated_along_the_measured_motion(tmp_path):
-    from cosim.gap.devices.fmu_plant import FmuPlantDevice, load_binding_any, read_log_any
-    dev = FmuPlantDevice(load_binding_any(BINDING, FMU), FMU)
+    from cosim.gap.binding import load_binding
+    from cosim.gap.devices.fmu_plant import FmuPlantDevice
+    from cosim.logs.trial_log import read_trial_log
+    dev = FmuPlantDevice(load_binding(BINDING, FMU), FMU)
     # the encoder's state and its speed state found in the FMU (der(theta) is not a state itself)
     assert dev.vars.states[dev.i_pos] == "theta" and dev.vars.states[dev.i_vel] == "friction.w"
     assert dev.c_pos == pytest.approx(1.0) and dev.c_vel == pytest.approx(1.0)
     assert [dev.vars.states[k] for k in dev.internal] == ["friction.z"]
-    lg = read_log_any(simulate_log(tmp_path))
+    lg = read_trial_log(simulate_log(tmp_path))
     nom = {k: NOM[k] for k in dev.rec_params}
     enc = dev.sig_enc
     floor = dev.noise_floor([lg])[enc]
@@ -66,9 +68,9 @@ def test_internal_bristle_state_integrated_along_the_measured_motion(tmp_path):
     # the friction torque is ~20 % of the motor's here: without the bristle state the
     # Coulomb part is missing; integrated, the error is the encoder's quantisation noise
     assert err < 1.3 * floor, (err, floor)
-    dev2 = FmuPlantDevice(load_binding_any(BINDING, FMU), FMU)
+    dev2 = FmuPlantDevice(load_binding(BINDING, FMU), FMU)
     dev2.internal = ()                  # the bristle held at its start value (the old behaviour)
-    held = dev2.gap_parts([read_log_any(lg.csv_path)], nom)[enc]
+    held = dev2.gap_parts([read_trial_log(lg.csv_path)], nom)[enc]
     assert held > 3 * err, (held, err)
     # a 15 % inertia error is seen
     assert dev.gap_parts([lg], dict(nom, J=1.15 * NOM["J"]))[enc] > 3 * err
@@ -77,13 +79,14 @@ def test_internal_bristle_state_integrated_along_the_measured_motion(tmp_path):
 def test_encoder_on_an_output_tied_to_a_state_is_mapped_with_its_ratio(tmp_path):
     """An encoder bound to the nut position x = lead/(2 pi) theta (an output, not a state):
     the position state theta and its ratio are read from the FMU."""
-    from cosim.gap.devices.fmu_plant import FmuPlantDevice, load_binding_any
+    from cosim.gap.binding import load_binding
+    from cosim.gap.devices.fmu_plant import FmuPlantDevice
     txt = BINDING.read_text()
     old = "    output: theta\n    unit: rad\n    sensor: {kind: encoder, resolution: 2.908882086657216e-4}"
     assert old in txt
     b = tmp_path / "nut.yaml"
     b.write_text(txt.replace(old, "    output: x\n    unit: m\n    sensor: {kind: encoder, resolution: 4.6296e-7}"))
-    dev = FmuPlantDevice(load_binding_any(b, FMU), FMU)
+    dev = FmuPlantDevice(load_binding(b, FMU), FMU)
     assert dev.vars.states[dev.i_pos] == "theta" and dev.vars.states[dev.i_vel] == "friction.w"
     assert dev.c_pos == pytest.approx(NOM["lead"] / (2 * np.pi), rel=1e-6)
     assert dev.c_vel == pytest.approx(1.0, rel=1e-6)

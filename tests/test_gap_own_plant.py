@@ -80,13 +80,14 @@ def write_log(path: Path, rows, scenario="identification"):
 
 
 def device(fmu, tmp_path, noise_free=False):
-    from cosim.gap.devices.fmu_plant import FmuPlantDevice, load_binding_any
-    return FmuPlantDevice(load_binding_any(BINDING, fmu), fmu)
+    from cosim.gap.binding import load_binding
+    from cosim.gap.devices.fmu_plant import FmuPlantDevice
+    return FmuPlantDevice(load_binding(BINDING, fmu), fmu)
 
 
 def read(p):
-    from cosim.gap.devices.fmu_plant import read_log_any
-    return read_log_any(p)
+    from cosim.logs.trial_log import read_trial_log
+    return read_trial_log(p)
 
 
 def test_equation_error_matches_the_analytic_one_mass_model(fmu, tmp_path):

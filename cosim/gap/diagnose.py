@@ -622,23 +622,13 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
     engine's cross-validated ones (:data:`cosim.gap.devices.fmu_plant.THRESHOLDS_OF`) unless
     the binding's device has its own. Raises :class:`GapInputError` on bad input (nothing
     is written then)."""
-    from .devices.fmu_plant import THRESHOLDS_OF, FmuPlantDevice, load_binding_any, read_log_any
+    from .binding import load_binding
+    from .devices.fmu_plant import THRESHOLDS_OF, FmuPlantDevice
     fmu_path, binding_path = Path(fmu_path), Path(binding_path)
     if not fmu_path.is_file():
         raise GapInputError("no such plant FMU", fmu_path)
-    binding = load_binding_any(binding_path, fmu_path)
-    logs = {}
-    for role, paths in (("fit", fit_paths), ("test", test_paths)):
-        if not paths:
-            raise GapInputError(f"no --{role} logs given")
-        out_l = []
-        for p in paths:
-            try:
-                out_l.append(read_log_any(p))
-            except TrialLogError as e:
-                raise GapInputError(f"--{role} log is not a valid trial log: {e.reason}", e.file, e.column) from None
-        logs[role] = out_l
-    fit, test = logs["fit"], logs["test"]
+    binding = load_binding(binding_path, fmu_path)
+    fit, test = load_logs(fit_paths, "fit"), load_logs(test_paths, "test")
     from .binding import check_logs as check_bound_logs
     check_bound_logs(binding, fit + test)
     device = FmuPlantDevice(binding, fmu_path, progress=progress)

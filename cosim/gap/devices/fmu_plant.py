@@ -57,10 +57,9 @@ from ..effects import EFFECTS as CATALOGUE
 from ..effects.base import shift
 from ..fmu_me import FmuVariables, MePlant
 
-from ...logs.trial_log import read_trial_log as read_log_any
-from ..binding import PlantBinding, load_binding as load_binding_any
+from ..binding import PlantBinding
 
-__all__ = ["FmuPlantDevice", "fmu_forms", "THRESHOLDS_OF", "load_binding_any", "read_log_any"]
+__all__ = ["FmuPlantDevice", "fmu_forms", "THRESHOLDS_OF"]
 
 #: the decision thresholds a plant without its own use: the engine's cross-validated ones
 #: (``cosim/gap/thresholds.json``; the only set chosen by cross-validation over devices; this
