@@ -486,7 +486,11 @@ class ConstantParams:
 def _constant(params, ctx):
     """A constant value."""
     v = float(params.get("value", 0.0))
-    return lambda t: v
+
+    def value(t):
+        return v
+    value.vectorized = lambda t: v + 0.0 * t      # on an array of times (the engine's stimuli)
+    return value
 
 
 @dataclass(frozen=True)
