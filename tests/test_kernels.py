@@ -38,7 +38,7 @@ from cosim.algorithms.zero_force import ZeroForceController, ZeroForceParams
 from cosim.logs.synth import simulate_ballscrew
 
 KERNELS = ("aakf", "dob", "rfob", "zero_force", "encoder_diff", "bilateral",
-           "adaptive_compliance", "stability_1dof")
+           "adaptive_compliance", "stability_1dof", "rls")
 
 
 @pytest.fixture(scope="module")

@@ -94,6 +94,7 @@ interval mean, (theta_k + theta_k-1)/2.
 """
 from __future__ import annotations
 
+import ctypes
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -101,6 +102,7 @@ from typing import Mapping
 
 import numpy as np
 from scipy import signal
+from .ckernel import CKernel, KernelStruct, cached_library, fields
 from ..devices.ballscrew import KT_NM_PER_A
 
 
@@ -109,6 +111,23 @@ def speed_timing_for(speed: str) -> str:
     is the mean speed over the last interval; an estimator's (``"aakf"``) or the exact
     speed is the speed at t_k."""
     return "interval_mean" if speed == "encoder" else "sample"
+
+
+class RLSParamsC(KernelStruct):
+    """``rls_params`` of ``c/rls.c``: :class:`RLSIdentifier`'s parameters as its kernel
+    reads them (flags 0.0/1.0)."""
+    _fields_ = fields("Ts_s", "Kt_Nm_per_A", "forgetting_factor", "coulomb_regressor_sign",
+                      "i_cmd_is_previous", "skip_reversals", "w_min_rad_s", "integral",
+                      "window_samples", "interval_mean")
+
+
+class RLSStateC(KernelStruct):
+    """``rls_state`` of ``c/rls.c``: :class:`RLSIdentifier`'s state; tail: the integral
+    regression's histories w[N+2], theta_enc[N+2], tau[N+1], sign(w)[N+1] (oldest
+    first, the first ``n_w``/``n_w``/``n_tau``/``n_sgn`` of each in use)."""
+    _fields_ = fields(("theta", 3), ("P", 9), "e_pred", "w_prev_rad_s", "has_w_prev",
+                      "tau_prev_Nm", "has_tau_prev", "n_updates", ("Sxx", 9), ("Sxx2", 9),
+                      ("Sxy", 3), "Syy", "Sw", "Sw2", "run", "n_w", "n_sgn", "n_tau")
 
 
 @dataclass(frozen=True)
@@ -466,6 +485,104 @@ class RLSIdentifier:
             "e_pred": self.e_pred,
             "updated": float(informative),
         }
+
+
+    # --- compiled step (cosim/algorithms/c/rls.c; this class stays the reference) ---
+    def c_kernel(self, ticks: int | None = None) -> CKernel:
+        """The compiled step ``rls`` from the state now (equal to :meth:`step` to
+        rounding: numpy's 3x3 products; ``ticks`` unused)."""
+        p = self.params
+        N = p.window_samples
+        integral = p.regression == "integral"
+        tail: list[float] = []
+        nw = ns = nt = 0
+        if integral:
+            def pad(d, n):
+                return list(d) + [0.0] * (n - len(d))
+            nw, ns, nt = len(self._hist_w), len(self._hist_sgn), len(self._hist_tau)
+            tail = (pad(self._hist_w, N + 2) + pad(self._hist_th, N + 2)
+                    + pad(self._hist_tau, N + 1) + pad(self._hist_sgn, N + 1))
+        D3, D9 = ctypes.c_double * 3, ctypes.c_double * 9
+        st = RLSStateC(
+            theta=D3(*self.theta), P=D9(*self.P.ravel()), e_pred=self.e_pred,
+            w_prev_rad_s=0.0 if self._w_prev is None else self._w_prev,
+            has_w_prev=float(self._w_prev is not None),
+            tau_prev_Nm=0.0 if self._tau_prev is None else self._tau_prev,
+            has_tau_prev=float(self._tau_prev is not None), n_updates=float(self._n_updates),
+            Sxx=D9(*self._Sxx.ravel()), Sxx2=D9(*self._Sxx2.ravel()), Sxy=D3(*self._Sxy),
+            Syy=self._Syy, Sw=self._Sw, Sw2=self._Sw2, run=float(getattr(self, "_run", 0)),
+            n_w=float(nw), n_sgn=float(ns), n_tau=float(nt), tail=tail)
+        prm = RLSParamsC(
+            Ts_s=p.Ts_s, Kt_Nm_per_A=p.Kt_Nm_per_A, forgetting_factor=p.forgetting_factor,
+            coulomb_regressor_sign=p.coulomb_regressor_sign,
+            i_cmd_is_previous=float(p.i_cmd_is_previous), skip_reversals=float(p.skip_reversals),
+            w_min_rad_s=p.w_min_rad_s, integral=float(integral), window_samples=float(N),
+            interval_mean=float(p.speed_timing == "interval_mean"))
+        return CKernel(name="rls", params=prm, state=st, inputs=tuple(self.inputs), outputs=self.outputs)
+
+    def c_kernel_sync(self, state) -> None:
+        """Write the state of a compiled run back (later :meth:`step` and
+        :meth:`uncertainty` calls continue as if every step had run in Python)."""
+        s = RLSStateC.from_values(state)
+        self.theta = np.array(s.theta[:])
+        self.P = np.array(s.P[:]).reshape(3, 3)
+        self.e_pred = s.e_pred
+        self._w_prev = s.w_prev_rad_s if s.has_w_prev else None
+        self._tau_prev = s.tau_prev_Nm if s.has_tau_prev else None
+        self._n_updates = int(s.n_updates)
+        self._Sxx = np.array(s.Sxx[:]).reshape(3, 3)
+        self._Sxx2 = np.array(s.Sxx2[:]).reshape(3, 3)
+        self._Sxy = np.array(s.Sxy[:])
+        self._Syy, self._Sw, self._Sw2 = s.Syy, s.Sw, s.Sw2
+        if self.params.regression == "integral":
+            N, t = self.params.window_samples, s.tail
+            nw, ns, nt = int(s.n_w), int(s.n_sgn), int(s.n_tau)
+            self._run = int(s.run)
+            self._hist_w.clear(); self._hist_w.extend(t[:nw])
+            self._hist_th.clear(); self._hist_th.extend(t[N + 2:N + 2 + nw])
+            self._hist_tau.clear(); self._hist_tau.extend(t[2 * N + 4:2 * N + 4 + nt])
+            self._hist_sgn.clear(); self._hist_sgn.extend(t[3 * N + 5:3 * N + 5 + ns])
+
+    def c_kernel_error(self, code: int) -> Exception:
+        return RuntimeError(f"compiled RLS step returned {code} (it has no error codes)")
+
+    def run_compiled(self, i_cmd, w, theta_enc=None) -> np.ndarray:
+        """:meth:`step` over a whole record in one C call (``cosim_rls_run`` of
+        ``c/rls.c``): the offline fast path. ``i_cmd``, ``w``, ``theta_enc`` (integral
+        regression; ignored by eq. 44) are arrays of one value per tick; returns the
+        (n, 8) outputs in the order of :attr:`outputs` (``updated`` 0.0/1.0) and
+        leaves the object in the state the Python steps would have (equal to rounding)."""
+        w = np.asarray(w, dtype=float)
+        n = w.size
+        th = np.zeros(n) if theta_enc is None else np.asarray(theta_enc, dtype=float)
+        i = np.asarray(i_cmd, dtype=float)
+        if i.shape != (n,) or th.shape != (n,):
+            raise ValueError(f"RLS record: i_cmd {i.shape}, w {w.shape}, theta_enc {th.shape} "
+                             f"must be one value per tick each")
+        if self.params.regression == "integral" and theta_enc is None:
+            raise ValueError("RLS record: the integral regression needs theta_enc")
+        k = self.c_kernel()
+        prm = np.array(k.params, dtype=float)
+        st = np.array(k.state, dtype=float)
+        inp = np.ascontiguousarray(np.column_stack([i, w, th]))
+        out = np.empty((n, len(k.outputs)))
+        D = ctypes.POINTER(ctypes.c_double)
+        code = _rls_run()(prm.ctypes.data_as(D), st.ctypes.data_as(D), inp.ctypes.data_as(D),
+                          out.ctypes.data_as(D), n)
+        if code != 0:
+            raise self.c_kernel_error(int(code))
+        self.c_kernel_sync(st.tolist())
+        return out
+
+
+def _rls_run():
+    """``cosim_rls_run`` of ``c/rls.c`` (compiled once into the cache,
+    :func:`~cosim.algorithms.ckernel.cached_library`)."""
+    f = cached_library(["rls"]).cosim_rls_run
+    f.restype = ctypes.c_long
+    D = ctypes.POINTER(ctypes.c_double)
+    f.argtypes = [D, D, D, D, ctypes.c_long]
+    return f
 
 
 #: confidence of :func:`identification_verdict`'s test that a parameter is non-zero
