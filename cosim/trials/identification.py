@@ -45,6 +45,7 @@ the extension (``src`` aakf, encoder): ``max_abs_rel_err_src_ext``,
 from __future__ import annotations
 
 import math
+import os
 from typing import Mapping
 
 import numpy as np
@@ -91,7 +92,8 @@ def rls_history(i_held_A: np.ndarray, w_rad_s: np.ndarray, Ts_s: float, Kt_Nm_pe
     tick k), ``w_rad_s[k]`` the speed at t_k. With ``theta_enc_rad`` (encoder angle at
     t_k [rad]) the RLS uses its default integral regression (the viscous term from
     the encoder, :mod:`cosim.algorithms.rls`); without it, the thesis' one-step
-    regression of eq. 44 (``regression="eq44"``)."""
+    regression of eq. 44 (``regression="eq44"``). The RLS runs in its compiled twin
+    unless ``$COSIM_ENGINE`` is ``python`` (then in :class:`RLSIdentifier`'s steps)."""
     from cosim.algorithms.rls import RLSIdentifier, RLSParams
     if theta_enc_rad is None:
         rls_params = {"regression": "eq44", **rls_params}
@@ -100,6 +102,10 @@ def rls_history(i_held_A: np.ndarray, w_rad_s: np.ndarray, Ts_s: float, Kt_Nm_pe
         th = np.asarray(theta_enc_rad, dtype=float)
     rls = RLSIdentifier(RLSParams(Ts_s=Ts_s, Kt_Nm_per_A=Kt_Nm_per_A, i_cmd_is_previous=True,
                                   **rls_params))
+    if (os.environ.get("COSIM_ENGINE") or "auto") != "python":
+        # the compiled twin (c/rls.c), one C call for the record: equal to the class's
+        # steps to rounding (tests/test_rls_kernel.py); COSIM_ENGINE=python runs the class
+        return rls.run_compiled(i_held_A, w_rad_s, th)[:, :3]
     hist = np.empty((w_rad_s.size, 3))
     for k, (i, wk, tk) in enumerate(zip(np.asarray(i_held_A).tolist(),
                                         np.asarray(w_rad_s).tolist(), th.tolist())):
