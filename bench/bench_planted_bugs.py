@@ -160,9 +160,11 @@ BL_PY, BL_C = "cosim/algorithms/bilateral.py", "cosim/algorithms/c/bilateral.c"
 RF_PY, RF_C = "cosim/algorithms/dob.py", "cosim/algorithms/c/rfob.c"
 DB_C = "cosim/algorithms/c/dob.c"
 AK_PY, AK_C = "cosim/algorithms/fast/aakf_fast.py", "cosim/algorithms/c/aakf.c"
-#: code both paths share (the aaKF's gain sequence is computed in Python for the C twin;
-#: the RLS runs after the co-simulation, in Python only): planted once, run on both
-AK_SHARED, RLS_PY = "cosim/algorithms/aakf.py", "cosim/algorithms/rls.py"
+#: code both paths share (the aaKF's gain sequence is computed in Python for the C twin):
+#: planted once, run on both. The RLS runs after the co-simulation: in its class with
+#: COSIM_ENGINE=python, in its C twin otherwise (cosim.trials.identification.rls_history)
+AK_SHARED, RLS_PY, RLS_C = ("cosim/algorithms/aakf.py", "cosim/algorithms/rls.py",
+                            "cosim/algorithms/c/rls.c")
 
 #: scenario -> cases whose runs the bench executes (the others are skipped: their
 #: requirements report no value)
@@ -304,6 +306,11 @@ SCENARIO_BUGS: list[tuple[str, str, str, str, str, str]] = [
     ("rls-coulomb-regressor-30pct-low/py", "subtle", RLS_PY,
      "sgn_c * Ts * math.fsum(sgn_w)])", "0.7 * sgn_c * Ts * math.fsum(sgn_w)])",
      "scenarios/zero_force.yaml"),
+    ("rls-update-sign/c", "gross", RLS_C, "s->theta[i] = s->theta[i] + e * g[i];",
+     "s->theta[i] = s->theta[i] - e * g[i];", "scenarios/zero_force.yaml"),
+    ("rls-coulomb-regressor-30pct-low/c", "subtle", RLS_C,
+     "x[2] = sgn_c * Ts * fsum(hsg + ns - N, N);",
+     "x[2] = 0.7 * sgn_c * Ts * fsum(hsg + ns - N, N);", "scenarios/zero_force.yaml"),
 ]
 
 _DRIVER = r"""
