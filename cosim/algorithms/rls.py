@@ -518,7 +518,8 @@ class RLSIdentifier:
             i_cmd_is_previous=float(p.i_cmd_is_previous), skip_reversals=float(p.skip_reversals),
             w_min_rad_s=p.w_min_rad_s, integral=float(integral), window_samples=float(N),
             interval_mean=float(p.speed_timing == "interval_mean"))
-        return CKernel(name="rls", params=prm, state=st, inputs=tuple(self.inputs), outputs=self.outputs)
+        return CKernel(name="rls", params=prm, state=st, inputs=tuple(self.inputs),
+                       outputs=self.outputs)
 
     def c_kernel_sync(self, state) -> None:
         """Write the state of a compiled run back (later :meth:`step` and

@@ -1,9 +1,9 @@
 /* rls.c: compiled twin of cosim.algorithms.rls.RLSIdentifier, the recursive least
  * squares identification of J, b, fc of thesis Sec. 2.3 (eq. 32-53), both regressions:
  * the thesis' one-step ZOH regression (eq. 44) and the package's integral regression
- * (see rls.py). The same operations in the same order as RLSIdentifier.step, except
- * numpy's 3x3 products (left to right here) and math.fsum (Shewchuk's exact sum, as
- * CPython's, ported below): tested to 1e-12 relative (tests/test_rls_kernel.py).
+ * (see rls.py). The same operations in the same order as RLSIdentifier.step (math.fsum
+ * is CPython's exact summation, ported below), except numpy's 3x3 products (left to
+ * right here): tested to 1e-12 relative (tests/test_rls_kernel.py).
  *
  * The RLS runs offline on a recorded array: cosim_rls_run below is the fast path (one
  * call for the whole record).
@@ -13,7 +13,6 @@
  *      theta_b0 [rad/s per N m], theta_fcb0 [rad/s], e_pred, updated [-]
  */
 #include <math.h>
-#include <string.h>
 #include "cosim_kernel.h"
 
 typedef struct {                 /* rls.RLSParamsC */
@@ -51,7 +50,8 @@ typedef struct {                 /* rls.RLSStateC */
     double history[];            /* integral: w[N+2], theta[N+2], tau[N+1], sign[N+1], oldest first */
 } rls_state;
 
-/* math.fsum: Shewchuk's exact summation with CPython's final correctly rounded step */
+/* math.fsum: Shewchuk's exact summation with CPython's final correctly rounded step
+ * (finite values; 64 partials are far more than a sum of doubles of one record needs) */
 static double fsum(const double *v, long n)
 {
     double p[64], x, y, t, hi = 0.0, lo = 0.0, yr;
@@ -108,7 +108,8 @@ static long push(double *a, long n, long cap, double v)
         a[n] = v;
         return n + 1;
     }
-    memmove(a, a + 1, (size_t)(cap - 1) * sizeof(double));
+    for (long j = 1; j < cap; j++)
+        a[j - 1] = a[j];
     a[cap - 1] = v;
     return cap;
 }
