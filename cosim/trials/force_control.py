@@ -286,6 +286,82 @@ def _rendered_mass_over_design(params, ctx):
     return fit["mass"] * p.force_gain / m_n
 
 
+def second_order_fit(x: np.ndarray, Ts: float) -> tuple[float, float]:
+    """Natural frequency [rad/s] and damping ratio of a sampled free response ``x`` of a
+    second-order system: least-squares AR(2) ``x_k = a1 x_k-1 + a2 x_k-2``, whose roots
+    are the discrete poles z = exp(s Ts); omega_n = sqrt(|s1 s2|), zeta = -Re(s1 + s2) /
+    (2 omega_n). Exact for a noise-free free response (complex or real poles)."""
+    x = np.asarray(x, dtype=float)
+    if x.size < 6 or not np.any(x):
+        raise ValueError(f"second_order_fit: need >= 6 samples of a non-zero response ({x.size})")
+    X = np.column_stack([x[1:-1], x[:-2]])
+    a, *_ = np.linalg.lstsq(X, x[2:], rcond=None)
+    z = np.roots([1.0, -a[0], -a[1]]).astype(complex)
+    if np.any(np.abs(z) >= 1.0) or np.any(z == 0):
+        raise ValueError(f"second_order_fit: the response is not a decaying free response "
+                         f"(discrete poles {z})")
+    s = np.log(z) / Ts
+    wn = float(np.sqrt(abs(s[0] * s[1])))
+    return wn, float(-(s[0] + s[1]).real / (2.0 * wn))
+
+
+@dataclass(frozen=True)
+class DifferentialModeParams:
+    """Parameters of ``differential_mode_fit``: the master and slave positions [m], the
+    wall force [N] whose first contact excites the differential mode, the contact
+    threshold [N], the start of the fit after the slave leaves the wall (its first
+    bounce) and the fit's length [s], the designed position gain Kp [1/s^2] (the
+    scenario's, not the one the run used) and the term: ``wn_over_design`` (identified
+    omega_n / sqrt(Kp)) or ``zeta``."""
+    master: str = "master.x"
+    slave: str = "slave.x"
+    contact: str = "slave.f_wall"
+    threshold_N: float = 0.05
+    skip_s: float = 0.002
+    window_s: float = 0.04
+    Kp_per_s2: float = 3.6e4
+    term: str = "wn_over_design"
+
+
+def differential_mode_after_contact(t, x_m, x_s, f_wall, p: DifferentialModeParams):
+    """(omega_n, zeta) of x_m - x_s identified in the free flight after the slave's first
+    impact on the wall: from ``skip_s`` after it leaves the wall, for ``window_s``, which
+    must end before it touches the wall again. In free flight both units are free, so
+    with the DOB the differential mode is the designed loop s^2 + Kv s + Kp."""
+    t = np.asarray(t, dtype=float)
+    Ts = float(t[1] - t[0])
+    on = np.abs(np.asarray(f_wall, dtype=float)) > p.threshold_N
+    hit = np.flatnonzero(on)
+    if hit.size == 0:
+        raise ValueError(f"differential_mode_fit: the wall force never exceeds {p.threshold_N} N")
+    off = np.flatnonzero(~on[hit[0]:])
+    if off.size == 0:
+        raise ValueError("differential_mode_fit: the slave never leaves the wall after its "
+                         "first contact (no free flight to identify the loop in)")
+    k1 = hit[0] + off[0] + int(round(p.skip_s / Ts))
+    k_end = k1 + int(round(p.window_s / Ts))
+    again = np.flatnonzero(on[hit[0] + off[0]:])
+    if k_end > len(t) or (again.size and hit[0] + off[0] + again[0] < k_end):
+        raise ValueError(f"differential_mode_fit: the free flight after the first contact "
+                         f"(from t = {t[k1]:.3f} s) is shorter than {p.window_s} s")
+    xd = np.asarray(x_m, dtype=float)[k1:k_end] - np.asarray(x_s, dtype=float)[k1:k_end]
+    return second_order_fit(xd, Ts)
+
+
+@metric("differential_mode_fit", params=DifferentialModeParams)
+def _differential_mode_fit(params, ctx):
+    """The bilateral differential mode (eq. 54) identified after the wall contact:
+    omega_n over the design sqrt(Kp), or the damping ratio."""
+    p = DifferentialModeParams(**params)
+    if p.term not in ("wn_over_design", "zeta"):
+        raise ValueError(f"differential_mode_fit: term must be wn_over_design or zeta, got {p.term!r}")
+    if p.Kp_per_s2 <= 0:
+        raise ValueError(f"differential_mode_fit: Kp_per_s2 must be > 0, got {p.Kp_per_s2}")
+    s = ctx.signals
+    wn, zeta = differential_mode_after_contact(s["time"], s[p.master], s[p.slave], s[p.contact], p)
+    return wn / math.sqrt(p.Kp_per_s2) if p.term == "wn_over_design" else zeta
+
+
 @dataclass(frozen=True)
 class CaseRatioParams:
     """Ratio of one run metric between two cases (scenario scope): the mean of
