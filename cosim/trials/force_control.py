@@ -195,6 +195,174 @@ def _dob_residual(params, ctx):
 
 
 @dataclass(frozen=True)
+class InteractionFitParams:
+    """Parameters of ``interaction_fit``: the recorded force the unit exerts on its
+    partner (eq.-10 convention, so the partner pushes with its negative), the unit's
+    nut speed, the window, and the term returned: ``mass`` [kg], ``viscous`` [N s/m],
+    ``coulomb`` [N]."""
+    force: str = "rig.f_lc"
+    speed: str = "rig.v"
+    from_s: float = 1.0
+    to_s: float | None = None
+    term: str = "coulomb"
+
+    def validate(self):
+        if self.term not in INTERACTION_TERMS:
+            raise ValueError(f"interaction_fit: term {self.term!r} is not one of "
+                             f"{sorted(INTERACTION_TERMS)}")
+
+
+#: the regressors of :func:`interaction_fit`, in order
+INTERACTION_TERMS = {"mass": 0, "viscous": 1, "coulomb": 2, "offset": 3}
+
+
+def interaction_fit(force_on_unit: np.ndarray, speed: np.ndarray, Ts: float) -> dict:
+    """What the partner's push is spent on (Sec. 2.5.3: "friction disturbances are
+    correctly compensated and human effort is used only to beat inertia forces"): the
+    least-squares fit ``f = M a + B v + C sign(v) + f0`` of the force on the unit
+    [N] on its nut speed ``v`` [m/s] and acceleration ``a`` (central differences)
+    [m/s^2]. Returns ``mass`` M [kg], ``viscous`` B [N s/m], ``coulomb`` C [N],
+    ``offset`` f0 [N] and ``residual_rms`` [N]."""
+    f = np.asarray(force_on_unit, dtype=float)
+    v = np.asarray(speed, dtype=float)
+    if f.shape != v.shape or f.size < 10:
+        raise ValueError(f"interaction_fit: need >= 10 samples of equal length "
+                         f"(force {f.shape}, speed {v.shape})")
+    a = np.gradient(v, Ts)
+    X = np.column_stack([a, v, np.sign(v), np.ones_like(v)])
+    if np.linalg.matrix_rank(X) < X.shape[1]:
+        raise ValueError("interaction_fit: the motion does not excite mass, viscosity and "
+                         "Coulomb friction separately (regressors are dependent)")
+    theta, *_ = np.linalg.lstsq(X, f, rcond=None)
+    out = {k: float(theta[i]) for k, i in INTERACTION_TERMS.items()}
+    out["residual_rms"] = float(np.sqrt(np.mean((f - X @ theta) ** 2)))
+    return out
+
+
+def _interaction_window(p, ctx):
+    t = np.asarray(ctx.signals["time"])
+    sel = (t >= p.from_s) & (t <= (t[-1] if p.to_s is None else p.to_s))
+    # the partner pushes the unit with minus the force the unit exerts on it (eq. 10)
+    return interaction_fit(-np.asarray(ctx.signals[p.force])[sel],
+                           np.asarray(ctx.signals[p.speed])[sel], float(t[1] - t[0]))
+
+
+@metric("interaction_fit", params=InteractionFitParams)
+def _interaction_fit(params, ctx):
+    """One term (mass, viscous, Coulomb) of the force the partner spends on the unit."""
+    p = InteractionFitParams(**params)
+    p.validate()
+    return _interaction_window(p, ctx)[p.term]
+
+
+@dataclass(frozen=True)
+class RenderedMassParams:
+    """Parameters of ``rendered_mass_over_design``: the fit window and signals of
+    :class:`InteractionFitParams`, the designed force gain Kf_p of Fig. 28 [N/N] (the
+    scenario's, not the one the run used), the run value naming the DOB's nominal J_n
+    (absent: Table 1) and the screw lead [m]."""
+    force: str = "rig.f_lc"
+    speed: str = "rig.v"
+    from_s: float = 1.0
+    to_s: float | None = None
+    force_gain: float = 3.0
+    Jn_value: str = "obs_dob_J"
+    lead_m: float = 0.01
+
+
+@metric("rendered_mass_over_design", params=RenderedMassParams)
+def _rendered_mass_over_design(params, ctx):
+    """Mass the partner feels (``interaction_fit``) over the design of the sensorless
+    zero-force loop: with the DOB the unit is the nominal plant m_n = J_n (2 pi/lead)^2
+    (eq. 5-7) driven by Fig. 28's f_cntr = -Kf_p f_hat, so m_n x'' = -Kf_p f and the
+    partner feels m_n / Kf_p. 1 = as designed."""
+    from cosim.algorithms.dob import DOBParams
+    p = RenderedMassParams(**params)
+    if p.force_gain <= 0:
+        raise ValueError(f"rendered_mass_over_design: force_gain must be > 0, got {p.force_gain}")
+    Jn = float(ctx.values.get(p.Jn_value, DOBParams.Jn_kg_m2))
+    m_n = Jn * (2.0 * math.pi / p.lead_m) ** 2
+    fit = _interaction_window(InteractionFitParams(p.force, p.speed, p.from_s, p.to_s), ctx)
+    return fit["mass"] * p.force_gain / m_n
+
+
+def second_order_fit(x: np.ndarray, Ts: float) -> tuple[float, float]:
+    """Natural frequency [rad/s] and damping ratio of a sampled free response ``x`` of a
+    second-order system: least-squares AR(2) ``x_k = a1 x_k-1 + a2 x_k-2``, whose roots
+    are the discrete poles z = exp(s Ts); omega_n = sqrt(|s1 s2|), zeta = -Re(s1 + s2) /
+    (2 omega_n). Exact for a noise-free free response (complex or real poles)."""
+    x = np.asarray(x, dtype=float)
+    if x.size < 6 or not np.any(x):
+        raise ValueError(f"second_order_fit: need >= 6 samples of a non-zero response ({x.size})")
+    X = np.column_stack([x[1:-1], x[:-2]])
+    a, *_ = np.linalg.lstsq(X, x[2:], rcond=None)
+    z = np.roots([1.0, -a[0], -a[1]]).astype(complex)
+    if np.any(np.abs(z) >= 1.0) or np.any(z == 0):
+        raise ValueError(f"second_order_fit: the response is not a decaying free response "
+                         f"(discrete poles {z})")
+    s = np.log(z) / Ts
+    wn = float(np.sqrt(abs(s[0] * s[1])))
+    return wn, float(-(s[0] + s[1]).real / (2.0 * wn))
+
+
+@dataclass(frozen=True)
+class DifferentialModeParams:
+    """Parameters of ``differential_mode_fit``: the master and slave positions [m], the
+    wall force [N] whose first contact excites the differential mode, the contact
+    threshold [N], the start of the fit after the slave leaves the wall (its first
+    bounce) and the fit's length [s], the designed position gain Kp [1/s^2] (the
+    scenario's, not the one the run used) and the term: ``wn_over_design`` (identified
+    omega_n / sqrt(Kp)) or ``zeta``."""
+    master: str = "master.x"
+    slave: str = "slave.x"
+    contact: str = "slave.f_wall"
+    threshold_N: float = 0.05
+    skip_s: float = 0.002
+    window_s: float = 0.04
+    Kp_per_s2: float = 3.6e4
+    term: str = "wn_over_design"
+
+
+def differential_mode_after_contact(t, x_m, x_s, f_wall, p: DifferentialModeParams):
+    """(omega_n, zeta) of x_m - x_s identified in the free flight after the slave's first
+    impact on the wall: from ``skip_s`` after it leaves the wall, for ``window_s``, which
+    must end before it touches the wall again. In free flight both units are free, so
+    with the DOB the differential mode is the designed loop s^2 + Kv s + Kp."""
+    t = np.asarray(t, dtype=float)
+    Ts = float(t[1] - t[0])
+    on = np.abs(np.asarray(f_wall, dtype=float)) > p.threshold_N
+    hit = np.flatnonzero(on)
+    if hit.size == 0:
+        raise ValueError(f"differential_mode_fit: the wall force never exceeds {p.threshold_N} N")
+    off = np.flatnonzero(~on[hit[0]:])
+    if off.size == 0:
+        raise ValueError("differential_mode_fit: the slave never leaves the wall after its "
+                         "first contact (no free flight to identify the loop in)")
+    k1 = hit[0] + off[0] + int(round(p.skip_s / Ts))
+    k_end = k1 + int(round(p.window_s / Ts))
+    again = np.flatnonzero(on[hit[0] + off[0]:])
+    if k_end > len(t) or (again.size and hit[0] + off[0] + again[0] < k_end):
+        raise ValueError(f"differential_mode_fit: the free flight after the first contact "
+                         f"(from t = {t[k1]:.3f} s) is shorter than {p.window_s} s")
+    xd = np.asarray(x_m, dtype=float)[k1:k_end] - np.asarray(x_s, dtype=float)[k1:k_end]
+    return second_order_fit(xd, Ts)
+
+
+@metric("differential_mode_fit", params=DifferentialModeParams)
+def _differential_mode_fit(params, ctx):
+    """The bilateral differential mode (eq. 54) identified after the wall contact:
+    omega_n over the design sqrt(Kp), or the damping ratio."""
+    p = DifferentialModeParams(**params)
+    if p.term not in ("wn_over_design", "zeta"):
+        raise ValueError(f"differential_mode_fit: term must be wn_over_design or zeta, got {p.term!r}")
+    if p.Kp_per_s2 <= 0:
+        raise ValueError(f"differential_mode_fit: Kp_per_s2 must be > 0, got {p.Kp_per_s2}")
+    s = ctx.signals
+    wn, zeta = differential_mode_after_contact(s["time"], s[p.master], s[p.slave], s[p.contact], p)
+    return wn / math.sqrt(p.Kp_per_s2) if p.term == "wn_over_design" else zeta
+
+
+@dataclass(frozen=True)
 class CaseRatioParams:
     """Ratio of one run metric between two cases (scenario scope): the mean of
     ``metric`` (a run-scope metric name with its ``params``) over the runs of case
