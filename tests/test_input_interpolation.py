@@ -107,7 +107,7 @@ def test_interpolation_is_second_order(spring_fmu):
         # the input at t_k+1 is the line's end, the stimulus' own value
         assert np.max(np.abs(r["sd.u"] - u_of(t))) < 1e-15
         zoh = -K * Ts * A * W                     # the hold's error amplitude, first term
-        assert errs[Ts] < 0.02 * abs(zoh)
+        assert errs[Ts] < 0.005 * abs(zoh)
     # O(Ts^2): halving the step divides the error by about 4
     assert 3.0 < errs[1e-3] / errs[5e-4] < 5.0, errs
     # and it is the linear interpolation's: |u''| Ts^2 / 8 k at most, about

@@ -23,7 +23,10 @@ k = 0 .. N with N = duration / Ts (which must be an integer). In tick k:
    k = 0): wiring a controller to a later one is a unit delay;
 4. record row k (time first, then the requested signals);
 5. (k < N) set every FMU input (connections, controller outputs, stimuli) to its
-   tick-k value, held over [t_k, t_{k+1}) (zero-order hold);
+   tick-k value, held over [t_k, t_{k+1}) (zero-order hold); an interpolated input
+   (``System.interpolate_inputs`` / ``connect(interpolate=)``: a stimulus into an FMU
+   that can interpolate inputs) also gets its slope (x(t_{k+1}) - x(t_k)) / Ts and
+   moves along that line over the step (:func:`cosim.master.loop.interpolated`);
 6. (k < N) doStep every FMU from t_k to t_{k+1}, in the order the roles were added
    (Jacobi: all FMUs see the inputs of tick k, none sees another's state at
    t_{k+1}), except the inputs of ``sequential`` connections (Gauss-Seidel, for a
@@ -38,7 +41,8 @@ last role, and the connections between them are continuous inside the step
 
 Hence a connection FMU A -> FMU B carries A's value at t_k into B over
 [t_k, t_{k+1}): B's outputs first reflect A(t_k) at tick k + 1 (one step of delay),
-and B's input, if read back, shows A(t_k) at tick k + 1. A controller output of
+and B's input, if read back, shows A(t_k) at tick k + 1 (an interpolated stimulus:
+its own value at t_{k+1}, and direct-feedthrough outputs read at t_{k+1} use it). A controller output of
 tick k acts on the plant over [t_k, t_{k+1}) and is first seen in the plant's
 outputs at tick k + 1.
 
