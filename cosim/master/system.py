@@ -474,8 +474,9 @@ class System:
         (whose value at t_{k+1} is known) drives the input as the line from its value at
         t_k to its value at t_{k+1} over the step, through fmi2SetRealInputDerivatives,
         instead of holding it; only an FMI 2.0 Co-Simulation FMU that declares
-        canInterpolateInputs takes it (others hold the value, and the run's messages
-        say so). ``False`` holds the input (zero-order hold)."""
+        canInterpolateInputs takes it (others hold the value; where the connection
+        itself asked, ``RunResult.notes`` says so). ``False`` holds the input
+        (zero-order hold)."""
         for c in self._connections:
             if c.dest == dest:
                 raise SystemError_(f"{dest} is already driven by {c.source}")
