@@ -101,3 +101,37 @@ def test_bad_input_is_an_error():
         ai.etfe(np.zeros(100), np.zeros(99), 1000.0, 0.05)
     with pytest.raises(ValueError, match="usable bins"):
         ai.fit_second_order(F, ai.second_order_impedance(F, 1, 1, 1), (30.0, 40.0))
+
+
+def test_random_motion_blocks_equal_the_sample_by_sample_recursion():
+    """The blocked state sequence is the recursion z_{k+1} = Ad z_k + Bd u_k summed in
+    another order: equal to rounding, for a length that is not a multiple of the block."""
+    from cosim.trials.human_arm import _state_sequence
+    rng = np.random.default_rng(7)
+    th = 2 * np.pi * 20.0 * 2e-4                   # a lightly damped rotation + a slow pole
+    Ad = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0],
+                   [0.0, 0.0, 0.999]]) * 0.9995
+    Bd = np.array([1e-3, 2e-3, 5e-4])
+    u = rng.standard_normal(1000)
+    z, ref = np.zeros(3), np.empty((1000, 3))
+    for k in range(1000):
+        ref[k] = z
+        z = Ad @ z + Bd * u[k]
+    for block in (1, 7, 128, 5000):
+        got = _state_sequence(Ad, Bd, u, block)
+        assert got.shape == ref.shape and np.all(got[0] == 0.0)
+        assert np.max(np.abs(got - ref)) <= 1e-13 * np.max(np.abs(ref))
+
+
+def test_random_motion_and_constant_stimuli_vectorized_equal_per_tick():
+    """The engine evaluates stimuli with ``fn.vectorized`` on the run's time array: the
+    values must be the per-tick function's, bit for bit."""
+    from cosim.scenarios import registry as reg
+    ctx = reg.BuildContext(seed=3, step_s=2e-4, duration_s=0.5)
+    t = np.arange(2501) * 2e-4
+    for spec in ({"type": "random_motion", "params": {"component": "x", "offset_m": 0.1}},
+                 {"type": "random_motion", "params": {"component": "v", "stream": 1}},
+                 {"type": "constant", "params": {"value": -0.25}}):
+        fn = reg.get("stimulus", spec["type"]).obj(spec["params"], ctx)
+        vec = np.asarray(fn.vectorized(t), dtype=float)
+        assert np.array_equal(vec, np.array([fn(x) for x in t]))

@@ -48,19 +48,29 @@ def test_table_constants_are_written_once():
 
 
 def test_modelica_defaults_are_table_1():
-    """The Modelica ball-screw unit carries the same Table 1 values as its parameter
-    defaults (Modelica cannot import them): checked here so the two cannot drift."""
+    """The Modelica models take Table 1's values from one package of constants
+    (``RehabSim.Table1``), which carries the same values as cosim/devices/ballscrew.py
+    (Modelica cannot import Python): checked here so the two cannot drift, and no other
+    Modelica file writes the numbers."""
     from cosim.devices import ballscrew as bs
-    mo = (REPO / "modelica" / "RehabSim" / "BallScrewUnit.mo").read_text()
+    mo_dir = REPO / "modelica" / "RehabSim"
+    table = (mo_dir / "Table1.mo").read_text()
 
-    def default(par):
-        m = re.search(rf"parameter Real {par}\([^)]*\) = ([-+0-9.eE]+)", mo)
-        assert m, f"BallScrewUnit.mo: parameter {par} not found"
+    def constant(name):
+        m = re.search(rf"constant Real {name}\([^)]*\) = ([-+0-9.eE]+)", table)
+        assert m, f"Table1.mo: constant {name} not found"
         return float(m.group(1))
-    assert default("J") == bs.J_KG_M2
-    assert default("Kt") == bs.KT_NM_PER_A
-    assert math.isclose(default("delta_enc"), bs.ENCODER_RESOLUTION_RAD, rel_tol=1e-12)
+    assert constant("J") == bs.J_KG_M2
+    assert constant("Kt") == bs.KT_NM_PER_A
+    assert math.isclose(constant("delta_enc"), bs.ENCODER_RESOLUTION_RAD, rel_tol=1e-12)
     assert math.isclose(bs.ENCODER_RESOLUTION_RAD, 2 * math.pi / 21600, rel_tol=0)
+    unit = (mo_dir / "BallScrewUnit.mo").read_text()
+    for par in ("J", "Kt", "delta_enc"):
+        assert re.search(rf"parameter Real {par}\([^)]*\) = RehabSim\.Table1\.{par} ", unit), par
+    literal = re.compile(r"(?<![\w.])(0\.0603|1\.7e-5|2\.908882086657216e-4)(?![\w])")
+    hits = [f"{p.relative_to(REPO)}:{k}" for p in sorted(mo_dir.rglob("*.mo"))
+            for k, line in enumerate(p.read_text().splitlines(), 1) if literal.search(line)]
+    assert all(h.startswith("modelica/RehabSim/Table1.mo:") for h in hits), hits
 
 
 _PROBE = """

@@ -537,3 +537,23 @@ def test_negative_control_duration_override_reaches_the_run(tmp_path):
     t = pd.read_parquet(tmp_path / "out" / "runs" / "nc.half_current_default_seed1"
                         / "main.parquet")["time"]
     assert t.iloc[-1] == pytest.approx(0.05)
+
+
+def test_registry_fills_once_when_threads_look_up_at_the_same_time():
+    """Eight threads asking for a procedure in a fresh interpreter all find it: the
+    lazy import of the trial modules is not seen half done (it was: 7 of 8 threads got
+    'unknown procedure' before the lock)."""
+    import subprocess
+    import sys
+    code = (
+        "import threading\n"
+        "from cosim.scenarios import registry as r\n"
+        "found = []\n"
+        "def look():\n"
+        "    found.append(r.get('procedure', 'startup_identification') is not None)\n"
+        "ts = [threading.Thread(target=look) for _ in range(8)]\n"
+        "[t.start() for t in ts]; [t.join() for t in ts]\n"
+        "print(sum(found))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "8", out.stdout + out.stderr

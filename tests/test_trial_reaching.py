@@ -109,9 +109,10 @@ def test_motors_off_training_applies_no_force_and_still_maps(fmus):
     assert np.max(np.abs(on.signals["ac.f_x"])) > 0.01      # the same run with motors ON pushes
     # same system with the controller's forces scaled to zero by hand: identical motion
     from cosim.master import Master
-    from cosim.trials.reaching import RECORD, build_table_system
+    from cosim.trials.reaching import RECORD, TABLE_SOLVER, build_table_system
     c = AdaptiveComplianceController(dataclasses.replace(p, motors_on=True))
-    sysm = build_table_system(hp, c, path.functions(), start_m=path.start_m)
+    sysm = build_table_system(hp, c, path.functions(), start_m=path.start_m,
+                              table_params=TABLE_SOLVER)     # as run_training's table
     sysm._connections = [dataclasses.replace(k, scale=0.0) if k.source.startswith("ac.") else k
                          for k in sysm._connections]
     free = Master(sysm, RECORD).run(off.duration_s)

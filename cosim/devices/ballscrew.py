@@ -2,8 +2,9 @@
 
 A Maxon DC motor turns a ball screw; the handle and the accelerometer sit on the nut.
 Two identical units make the bilateral master/slave pair. The Modelica models
-(``modelica/RehabSim/BallScrewUnit.mo`` and the rigs built on it) carry the same
-values as parameter defaults; ``tests/test_cli_layout.py`` checks that they agree.
+(``modelica/RehabSim/BallScrewUnit.mo`` and the rigs built on it) take the same
+values from the package of constants ``modelica/RehabSim/Table1.mo``;
+``tests/test_cli_layout.py`` checks that the two agree.
 
 Table 1 prints the inertia in kg/m^2 and the viscous friction in N s; the units below
 are the physically consistent ones (thesis digest, "Table 1 units").

@@ -38,7 +38,7 @@ WRAPPER = WRAPPERS["2.0"]
 FMI_VERSIONS = tuple(WRAPPERS)
 FMI_HEADERS = {"2.0": ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
                "3.0": ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h")}
-CFLAGS = ["-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-std=gnu99",
+CFLAGS = ["-O3", "-fPIC", "-shared", "-fvisibility=hidden", "-std=gnu99",
           "-Wall", "-Wno-unused-variable", "-Wno-unused-function", "-Wno-unused-but-set-variable"]
 LTI_NMAX = 8   # = LTI_NMAX of c/model_core.h: largest LTI model integrated exactly
 SOLVER_PARAMS = [

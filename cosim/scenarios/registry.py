@@ -96,6 +96,7 @@ import importlib
 import inspect
 import math
 import pkgutil
+import threading
 import types
 import typing
 from dataclasses import dataclass
@@ -336,32 +337,52 @@ def figures(name: str):
 
 # --------------------------------------------------------------------------- lookup
 _loaded = False
+#: guards the one-time import below: two threads running scenarios at once (a test
+#: or a threaded suite) must not see the registry half filled. Re-entrant because a
+#: trial module may look up an entry while it is being imported.
+_load_lock = threading.RLock()
 
 
 def load_trials() -> list[str]:
     """Import the built-in registrations and every module of :mod:`cosim.trials`
-    (once). A trial module that fails to import is an error naming the module."""
+    (once, thread-safe). A trial module that fails to import is an error naming the
+    module."""
     global _loaded
     if _loaded:
         return []
-    _loaded = True
-    if "aakf" not in _REG["controller"]:
-        _register_algorithms()           # the blocks of cosim.algorithms (below)
-    # the built-in step/error/frequency metrics, then the installed plug-ins (entry
-    # points); imported by name as the trials are: both register into this module
-    importlib.import_module("cosim.scenarios.metrics")
-    importlib.import_module("cosim.scenarios.plugins").load_entry_points()
-    import cosim.trials as pkg
-    names = []
-    for info in pkgutil.iter_modules(pkg.__path__):
-        try:
-            importlib.import_module(f"cosim.trials.{info.name}")
-        except Exception as exc:
-            _loaded = False
-            raise RegistryError(f"trial module cosim.trials.{info.name} failed to import: "
-                                f"{type(exc).__name__}: {exc}") from exc
-        names.append(info.name)
-    return names
+    with _load_lock:
+        if _loaded or _loading:      # _loading: this thread is inside the import
+            return []
+        return _load_trials_locked()
+
+
+_loading = False
+
+
+def _load_trials_locked() -> list[str]:
+    global _loaded, _loading
+    _loading = True
+    try:
+        if "aakf" not in _REG["controller"]:
+            _register_algorithms()           # the blocks of cosim.algorithms (below)
+        # the built-in step/error/frequency metrics, then the installed plug-ins (entry
+        # points); imported by name as the trials are: both register into this module
+        importlib.import_module("cosim.scenarios.metrics")
+        importlib.import_module("cosim.scenarios.plugins").load_entry_points()
+        import cosim.trials as pkg
+        names = []
+        for info in pkgutil.iter_modules(pkg.__path__):
+            try:
+                importlib.import_module(f"cosim.trials.{info.name}")
+            except Exception as exc:
+                raise RegistryError(f"trial module cosim.trials.{info.name} failed to "
+                                    f"import: {type(exc).__name__}: {exc}") from exc
+            names.append(info.name)
+        # only now: another thread waiting on the lock must find the registry full
+        _loaded = True
+        return names
+    finally:
+        _loading = False
 
 
 def get(kind: str, name: str) -> Entry | None:
@@ -465,7 +486,11 @@ class ConstantParams:
 def _constant(params, ctx):
     """A constant value."""
     v = float(params.get("value", 0.0))
-    return lambda t: v
+
+    def value(t):
+        return v
+    value.vectorized = lambda t: v + 0.0 * t      # on an array of times (the engine's stimuli)
+    return value
 
 
 @dataclass(frozen=True)

@@ -186,7 +186,12 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
     (None: :data:`.isolate.DEFAULT_TIMEOUT_S`; 0: none). ``ship``: send the scenario text and the
     FMU bytes to the workers and write the returned results here (:mod:`.ship`; for
     workers without this machine's filesystem); default: with ``scheduler`` only (a
-    local cluster shares this filesystem and reads/writes the paths itself)."""
+    local cluster shares this filesystem and reads/writes the paths itself).
+
+    The steps: load every file (a bad one stops the suite before any run), plan the
+    runs the cache does not hold, check the scenarios against their FMUs (while a
+    local cluster starts), run, store, then judge every scenario from its stored
+    results and write ``summary.json`` and ``junit.xml``."""
     if ship is None:
         ship = scheduler is not None
     t0 = time.perf_counter()
@@ -194,13 +199,78 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
     # a relative name against its own working directory
     out_dir = Path(out_dir).resolve()
     fmu_dir = Path(fmu_dir).resolve() if fmu_dir else None
-    files = collect(paths)
+    scenarios, sc_time = _load_all(collect(paths), fmu_dir, fmu_swaps)
+    todo, cached = _plan(scenarios, out_dir, fmu_dir, fmu_swaps, use_cache, isolation,
+                         timeout_s)
+
+    def check_all():
+        for sc in scenarios:                  # contracts, FMU variable names
+            t1 = time.perf_counter()
+            check_build(sc, fmu_dir, _swaps_of(sc, fmu_swaps), runs=all_runs(sc))
+            sc_time[sc.name]["check_s"] = time.perf_counter() - t1
+
+    timing: dict = {}
+    client = cluster = None
+    if todo and not serial and scheduler is None:
+        client, cluster = _start_cluster_while(check_all, scheduler, workers, timing)
+    else:
+        check_all()
+    cluster_desc = "serial (this process)"
+    done: dict = {}                    # (scenario, label) -> {"wall_s", "start", "end", "worker"}
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        clean_run_tmp(out_dir)                # what a killed process left
+        timing["load_and_check_s"] = time.perf_counter() - t0
+        history = read_durations(out_dir)
+        bar = _Progress(len(todo), progress)
+        if todo and not serial:
+            if client is None:
+                t1 = time.perf_counter()
+                client, cluster = _client(scheduler, workers)
+                timing["cluster_start_s"] = time.perf_counter() - t1
+            cluster_desc = (f"Dask scheduler {scheduler}" if scheduler else
+                            f"local Dask cluster, {len(client.scheduler_info()['workers'])} "
+                            f"worker process(es)")
+            _run_on_dask(client, todo, scenarios, fmu_dir, ship, history, bar, done, timing)
+        else:
+            _run_serial(todo, fmu_dir, bar, done, timing)
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    write_durations(out_dir, history, done)
+    summary = _summarise(scenarios, out_dir, fmu_swaps, operator, done, cached, sc_time)
+    summary.update({"runs_executed": len(todo), "runs_cached": sum(cached.values()),
+                    "wall_s": time.perf_counter() - t0, "cluster": cluster_desc,
+                    "versions": versions()})
+    summary["timing"] = {**timing, **summary["timing"]}
+    summary = {k: summary[k] for k in _SUMMARY_ORDER}
+    atomic_write(out_dir / "summary.json", json.dumps(summary, indent=1, default=str))
+    atomic_write(out_dir / "junit.xml", junit_xml(summary))
+    return summary
+
+
+#: the keys of summary.json, in the order a reader meets them
+_SUMMARY_ORDER = ("status", "counts", "verdicts", "by_kind", "runs_executed", "runs_cached",
+                  "wall_s", "cluster", "versions", "record", "timing", "scenarios")
+
+
+def _swaps_of(sc: Scenario, fmu_swaps: dict | None) -> dict:
+    """The ``--fmu`` swaps that concern this scenario's roles."""
+    return {r: p for r, p in (fmu_swaps or {}).items() if r in sc.data["system"]["fmus"]}
+
+
+def _load_all(files, fmu_dir, fmu_swaps) -> tuple[list[Scenario], dict]:
+    """Every scenario file, loaded (a bad file is bad input: it stops the suite before
+    any run), with its load time; two scenarios of one name or a swap of a role no
+    scenario has are refused."""
     scenarios: list[Scenario] = []
     names = {}
     sc_time: dict[str, dict] = {}          # per scenario: wall times [s]
     for f in files:
         t1 = time.perf_counter()
-        sc = load(f, fmu_dir)              # a bad file is bad input: stop before running
+        sc = load(f, fmu_dir)
         if sc.name in names:
             raise SuiteError(f"{f}: scenario name {sc.name!r} is also used by {names[sc.name]}")
         names[sc.name] = f
@@ -211,12 +281,19 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
         unknown = sorted(set(fmu_swaps) - used)
         if unknown:
             raise SuiteError(f"--fmu: no scenario has role(s) {unknown} (roles: {sorted(used)})")
-    todo = []          # (scenario, run, key, scenario dir, swaps, isolation, timeout)
+    return scenarios, sc_time
+
+
+def _plan(scenarios, out_dir, fmu_dir, fmu_swaps, use_cache, isolation, timeout_s):
+    """The runs to execute, as (scenario, run, key, scenario dir, swaps, isolation,
+    timeout) tuples (the negative controls' runs too; a run whose stored result has
+    the same key is skipped), and the number skipped per scenario."""
+    todo = []
     cached = {sc.name: 0 for sc in scenarios}
     for sc in scenarios:
         sdir = out_dir / safe_name(sc.name)
-        swaps = {r: p for r, p in (fmu_swaps or {}).items() if r in sc.data["system"]["fmus"]}
-        for run in all_runs(sc):              # the negative controls' runs too
+        swaps = _swaps_of(sc, fmu_swaps)
+        for run in all_runs(sc):
             key = run_key(sc, run, fmu_dir, swaps)
             if use_cache and run_done(sdir, run, key):
                 cached[sc.name] += 1
@@ -224,139 +301,124 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
             iso = ("process" if wants_process(isolation, run_fmu_paths(sc, run, fmu_dir, swaps)
                                               .values()) else "none")
             todo.append((sc, run, key, sdir, swaps, iso, run_timeout(sc, timeout_s)))
+    return todo, cached
 
-    def check_all():
-        for sc in scenarios:                  # contracts, FMU variable names
-            t1 = time.perf_counter()
-            check_build(sc, fmu_dir, {r: p for r, p in (fmu_swaps or {}).items()
-                                      if r in sc.data["system"]["fmus"]}, runs=all_runs(sc))
-            sc_time[sc.name]["check_s"] = time.perf_counter() - t1
 
-    timing: dict = {}
+def _start_cluster_while(check_all, scheduler, workers, timing):
+    """The local workers start (processes importing numpy, scipy, FMPy, the trials)
+    while this process checks the scenarios: on a 2-core machine the two overlap. A
+    bad scenario closes the cluster again: no run starts."""
+    from concurrent.futures import ThreadPoolExecutor
     client = cluster = None
-    if todo and not serial and scheduler is None:
-        # the local workers start (processes importing numpy, scipy, FMPy, the trials)
-        # while this process checks the scenarios: on a 2-core machine the two overlap
-        from concurrent.futures import ThreadPoolExecutor
-        with ThreadPoolExecutor(1) as ex:
-            checking = ex.submit(check_all)
-            t1 = time.perf_counter()
-            try:
-                client, cluster = _client(scheduler, workers)
-                timing["cluster_start_s"] = time.perf_counter() - t1
-                timing["cluster_start_overlapped"] = True
-                checking.result()              # a bad scenario: no run starts
-            except BaseException:
-                if client is not None:
-                    client.close()
-                if cluster is not None:
-                    cluster.close()
-                raise
-    else:
-        check_all()
-    cluster_desc = "serial (this process)"
-    done: dict = {}                    # (scenario, label) -> {"wall_s", "start", "end", "worker"}
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        clean_run_tmp(out_dir)                # what a killed process left
-        timing["load_and_check_s"] = time.perf_counter() - t0
-        history = read_durations(out_dir)
-        est = estimates([(sc, run) for sc, run, *_ in todo], history)
-        bar = _Progress(len(todo), progress)
-        if todo and not serial:
-            if client is None:
-                t1 = time.perf_counter()
-                client, cluster = _client(scheduler, workers)
-                timing["cluster_start_s"] = time.perf_counter() - t1
-            cluster_desc = (f"Dask scheduler {scheduler}" if scheduler else
-                            f"local Dask cluster, {len(client.scheduler_info()['workers'])} "
-                            f"worker process(es)")
-            from distributed import as_completed
-            t1 = time.perf_counter()
-            futs = {}
-            if ship:      # values in, values out: the workers need no shared filesystem
-                fmus = {(sc.name, run.label): run_fmus(sc, run, fmu_dir, swaps)
-                        for sc, run, key, sdir, swaps, *_ in todo}
-                incl = {sc.name: {ref: (_fmu_sha(p), str(p)) for ref, p in
-                                  included_files(sc.path, sc.text).items()}
-                        for sc in scenarios}
-                blobs = scatter_fmus(client, [v for pair in fmus.values() for t in pair
-                                              for v in t.values()]
-                                     + [v for t in incl.values() for v in t.values()])
-            # longest first (estimated: this folder's or the last suite's measured
-            # durations, else the procedure's simulated time), so that the workers
-            # finish together instead of one running the longest runs at the end
-            order = sorted(range(len(todo)), key=lambda i: -est[i])
-            t_sub = time.time()
-            for rank, i in enumerate(order):
-                sc, run, key, sdir, swaps, iso, tmo = todo[i]
-                tkey = f"run-{safe_name(sc.name)}-{safe_name(run.label)}-{key[:8]}"
-                if ship:
-                    by_spec, by_swap = ({n: (sha, blobs[sha], path)
-                                         for n, (sha, path) in t.items()}
-                                        for t in fmus[sc.name, run.label])
-                    f = client.submit(_timed, execute_shipped, str(sc.path), sc.text,
-                                      run.label, by_spec, by_swap, key, pure=False, key=tkey,
-                                      priority=len(todo) - rank,
-                                      isolation=iso, timeout_s=tmo,
-                                      files={r: (sha, blobs[sha], p) for r, (sha, p)
-                                             in incl[sc.name].items()})
-                else:
-                    f = client.submit(_timed, execute_run, str(sc.path), run.label, str(sdir),
-                                      swaps, str(fmu_dir) if fmu_dir else None, key,
-                                      pure=False, key=tkey, priority=len(todo) - rank,
-                                      isolation=iso, timeout_s=tmo)
-                futs[f] = (sc, run, sdir)
-            for f in as_completed(futs):
-                sc, run, sdir = futs[f]
-                try:
-                    res = f.result()
-                except Exception as exc:     # the worker died (crash in native code)
-                    _record_crash(sdir, run, key=None, exc=exc, scenario=sc.name)
-                    bar.step(f"{sc.name}:{run.label}")
-                    continue
-                out = res.pop("out")
-                try:
-                    if ship:
-                        store_run_files(sdir, run.label, out["files"])
-                    elif not (sdir / "runs" / safe_name(run.label) / "run.json").is_file():
-                        raise FileNotFoundError(
-                            f"the worker {res.get('worker')} finished it but its results are "
-                            f"not in {sdir / 'runs'} (a worker that does not see this "
-                            f"machine's files: drop --shared-fs so that the results are "
-                            f"shipped back)")
-                    done[sc.name, run.label] = res
-                except Exception as exc:     # a result that cannot be stored here
-                    _record_error(sdir, run, f"run {run.label} of {sc.name}: its result "
-                                             f"could not be stored: {type(exc).__name__}: "
-                                             f"{exc}")
-                bar.step(f"{sc.name}:{run.label}")
-            timing["runs_s"] = time.perf_counter() - t1
-            timing.update(worker_stats(done.values(), t_sub, time.time()))
+    with ThreadPoolExecutor(1) as ex:
+        checking = ex.submit(check_all)
+        t1 = time.perf_counter()
+        try:
+            client, cluster = _client(scheduler, workers)
+            timing["cluster_start_s"] = time.perf_counter() - t1
+            timing["cluster_start_overlapped"] = True
+            checking.result()
+        except BaseException:
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+            raise
+    return client, cluster
+
+
+def _run_on_dask(client, todo, scenarios, fmu_dir, ship, history, bar, done, timing):
+    """Submit every planned run to the Dask workers, longest first, and store each
+    result as it arrives (a worker that died leaves a crash record for its run)."""
+    from distributed import as_completed
+    t1 = time.perf_counter()
+    futs = {}
+    if ship:      # values in, values out: the workers need no shared filesystem
+        fmus = {(sc.name, run.label): run_fmus(sc, run, fmu_dir, swaps)
+                for sc, run, key, sdir, swaps, *_ in todo}
+        incl = {sc.name: {ref: (_fmu_sha(p), str(p)) for ref, p in
+                          included_files(sc.path, sc.text).items()}
+                for sc in scenarios}
+        blobs = scatter_fmus(client, [v for pair in fmus.values() for t in pair
+                                      for v in t.values()]
+                             + [v for t in incl.values() for v in t.values()])
+    # longest first (estimated: this folder's or the last suite's measured durations,
+    # else the procedure's simulated time), so that the workers finish together
+    # instead of one running the longest runs at the end
+    est = estimates([(sc, run) for sc, run, *_ in todo], history)
+    order = sorted(range(len(todo)), key=lambda i: -est[i])
+    t_sub = time.time()
+    for rank, i in enumerate(order):
+        sc, run, key, sdir, swaps, iso, tmo = todo[i]
+        tkey = f"run-{safe_name(sc.name)}-{safe_name(run.label)}-{key[:8]}"
+        if ship:
+            by_spec, by_swap = ({n: (sha, blobs[sha], path)
+                                 for n, (sha, path) in t.items()}
+                                for t in fmus[sc.name, run.label])
+            f = client.submit(_timed, execute_shipped, str(sc.path), sc.text,
+                              run.label, by_spec, by_swap, key, pure=False, key=tkey,
+                              priority=len(todo) - rank,
+                              isolation=iso, timeout_s=tmo,
+                              files={r: (sha, blobs[sha], p) for r, (sha, p)
+                                     in incl[sc.name].items()})
         else:
-            t1 = time.perf_counter()
-            for sc, run, key, sdir, swaps, iso, tmo in todo:
-                done[sc.name, run.label] = _timed(execute_run, str(sc.path), run.label,
-                                                  str(sdir), swaps,
-                                                  str(fmu_dir) if fmu_dir else None, key,
-                                                  isolation=iso, timeout_s=tmo)
-                done[sc.name, run.label].pop("out")
-                bar.step(f"{sc.name}:{run.label}")
-            timing["runs_s"] = time.perf_counter() - t1
-    finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
-    write_durations(out_dir, history, done)
+            f = client.submit(_timed, execute_run, str(sc.path), run.label, str(sdir),
+                              swaps, str(fmu_dir) if fmu_dir else None, key,
+                              pure=False, key=tkey, priority=len(todo) - rank,
+                              isolation=iso, timeout_s=tmo)
+        futs[f] = (sc, run, sdir)
+    for f in as_completed(futs):
+        sc, run, sdir = futs[f]
+        try:
+            res = f.result()
+        except Exception as exc:     # the worker died (crash in native code)
+            _record_crash(sdir, run, key=None, exc=exc, scenario=sc.name)
+            bar.step(f"{sc.name}:{run.label}")
+            continue
+        out = res.pop("out")
+        try:
+            if ship:
+                store_run_files(sdir, run.label, out["files"])
+            elif not (sdir / "runs" / safe_name(run.label) / "run.json").is_file():
+                raise FileNotFoundError(
+                    f"the worker {res.get('worker')} finished it but its results are "
+                    f"not in {sdir / 'runs'} (a worker that does not see this "
+                    f"machine's files: drop --shared-fs so that the results are "
+                    f"shipped back)")
+            done[sc.name, run.label] = res
+        except Exception as exc:     # a result that cannot be stored here
+            _record_error(sdir, run, f"run {run.label} of {sc.name}: its result "
+                                     f"could not be stored: {type(exc).__name__}: "
+                                     f"{exc}")
+        bar.step(f"{sc.name}:{run.label}")
+    timing["runs_s"] = time.perf_counter() - t1
+    timing.update(worker_stats(done.values(), t_sub, time.time()))
+
+
+def _run_serial(todo, fmu_dir, bar, done, timing):
+    """Every planned run in this process, one after the other (the baseline)."""
+    t1 = time.perf_counter()
+    for sc, run, key, sdir, swaps, iso, tmo in todo:
+        done[sc.name, run.label] = _timed(execute_run, str(sc.path), run.label,
+                                          str(sdir), swaps,
+                                          str(fmu_dir) if fmu_dir else None, key,
+                                          isolation=iso, timeout_s=tmo)
+        done[sc.name, run.label].pop("out")
+        bar.step(f"{sc.name}:{run.label}")
+    timing["runs_s"] = time.perf_counter() - t1
+
+
+def _summarise(scenarios, out_dir, fmu_swaps, operator, done, cached, sc_time) -> dict:
+    """Judge every scenario from its stored results and count the verdicts (overall,
+    and per kind: thesis claims apart from the package's extensions, preconditions
+    and a user's own requirements)."""
     t1 = time.perf_counter()
     record = run_record(operator)
     results = []
     for sc in scenarios:
         sdir = out_dir / safe_name(sc.name)
-        swaps = {r: p for r, p in (fmu_swaps or {}).items() if r in sc.data["system"]["fmus"]}
         t2 = time.perf_counter()
-        v = finish_scenario(sc, sdir, swaps, record=record)
+        v = finish_scenario(sc, sdir, _swaps_of(sc, fmu_swaps), record=record)
         walls = [d["wall_s"] for (name, _), d in done.items() if name == sc.name]
         v["timing"] = {**sc_time[sc.name], "runs_executed": len(walls),
                        "runs_wall_s": sum(walls), "longest_run_s": max(walls, default=0.0),
@@ -367,25 +429,20 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
     for v in results:
         v["requirements"] = [summary_row(r) for r in v["requirements"]]
     verdicts = [r["verdict"] for v in results for r in v["requirements"]]
-    summary = {
+    kinds = ("pass", "fail", "cannot-fail", "thesis-inconsistent", "error")
+    return {
         "status": "error" if "error" in statuses else "fail" if "fail" in statuses else "pass",
         "counts": {"scenarios": len(results), "pass": statuses.count("pass"),
                    "fail": statuses.count("fail"), "error": statuses.count("error"),
                    "requirements": sum(len(v["requirements"]) for v in results)},
-        "verdicts": {k: verdicts.count(k) for k in ("pass", "fail", "cannot-fail",
-                                                      "thesis-inconsistent", "error")},
-        # verdicts per kind of requirement: thesis claims counted apart from the package's
-        # extensions, preconditions and a user's own requirements
+        "verdicts": {k: verdicts.count(k) for k in kinds},
         "by_kind": {kind: {k: sum(1 for v in results for r in v["requirements"]
                                   if r.get("kind", "user") == kind and r["verdict"] == k)
-                           for k in ("pass", "fail", "cannot-fail", "thesis-inconsistent",
-                                     "error")}
+                           for k in kinds}
                     for kind in sorted({r.get("kind", "user") for v in results
                                         for r in v["requirements"]})},
-        "runs_executed": len(todo), "runs_cached": sum(cached.values()),
-        "wall_s": time.perf_counter() - t0, "cluster": cluster_desc, "versions": versions(),
         "record": record,
-        "timing": {**timing, "verdicts_s": time.perf_counter() - t1,
+        "timing": {"verdicts_s": time.perf_counter() - t1,
                    "runs_wall_s": sum(d["wall_s"] for d in done.values())},
         "scenarios": [{k: v.get(k) for k in ("scenario", "file", "status", "errors",
                                              "control_errors", "requirements", "runs",
@@ -393,9 +450,6 @@ def run_suite(paths, out_dir, scheduler: str | None = None, workers: int | None 
                                              "timing", "configuration")}
                       for v in results],
     }
-    atomic_write(out_dir / "summary.json", json.dumps(summary, indent=1, default=str))
-    atomic_write(out_dir / "junit.xml", junit_xml(summary))
-    return summary
 
 
 def _timed(fn, *args, **kwargs) -> dict:

@@ -95,19 +95,43 @@ def random_motion(n: int, Ts_s: float, cutoff_hz: float, rms_m: float, rng,
     Ed = expm(E)
     Ad, Bd = Ed[:order, :order], Ed[:order, order]
     u = rng.standard_normal(n)
-    # the recursion z <- Ad z + Bd u_k with the same numpy operations as before (bit
-    # for bit: Ad @ z is the same BLAS call; Bd * u_k is the outer product's element),
-    # with the products Bd u_k formed at once and the states stored whole
-    Bu = u[:, None] * Bd[None, :]
-    Z = np.empty((n, order))
-    z = np.zeros(order)
-    matmul = np.matmul
-    for k in range(n):
-        Z[k] = z
-        z = matmul(Ad, z) + Bu[k]
+    Z = _state_sequence(Ad, Bd, u)
     out = Z[:, :3].copy()
     rms = float(np.sqrt(np.mean(out[:, 0] ** 2)))
     return out * (rms_m / rms if rms > 0 else 0.0)
+
+
+def _state_sequence(Ad: np.ndarray, Bd: np.ndarray, u: np.ndarray, block: int = 128) -> np.ndarray:
+    """States z_k of z_{k+1} = Ad z_k + Bd u_k from z_0 = 0, shape (n, order), in blocks
+    of ``block`` samples: inside a block z_{b+j} = Ad^j z_b + sum_{i<j} Ad^{j-1-i} Bd
+    u_{b+i} for every block at once (one product with the impulse response), and only
+    the block starts z_b are carried from block to block. The same sums as the
+    sample-by-sample recursion in another order: a stable filter (|eig Ad| < 1) keeps
+    the difference at rounding level."""
+    n, order = u.size, Ad.shape[0]
+    m = max(1, min(block, n))
+    nb = -(-n // m)
+    up = np.zeros(nb * m)
+    up[:n] = u
+    U = up.reshape(nb, m)
+    P = np.empty((m + 1, order, order))       # Ad^j, j = 0..m
+    P[0] = np.eye(order)
+    for j in range(m):
+        P[j + 1] = Ad @ P[j]
+    g = P[:m] @ Bd                            # impulse response Ad^l Bd, (m, order)
+    # T[i, j] = Ad^(j-1-i) Bd for i < j (the input i's share of the state j), else 0
+    T = np.zeros((m, m + 1, order))
+    for i in range(m):
+        T[i, i + 1:] = g[:m - i]
+    inside = (U @ T.reshape(m, -1)).reshape(nb, m + 1, order)   # from a zero block start
+    starts = np.empty((nb, order))
+    z = np.zeros(order)
+    Am = P[m]
+    for b in range(nb):
+        starts[b] = z
+        z = Am @ z + inside[b, m]
+    Z = (starts @ P[:m].reshape(m * order, order).T).reshape(nb, m, order) + inside[:, :m]
+    return Z.reshape(nb * m, order)[:n]
 
 
 @stimulus("random_motion", params=RandomMotionParams)
@@ -137,6 +161,15 @@ def _random_motion(params, ctx):
         if not values:
             draw()
         return values[min(int(t / Ts + 1e-6), n - 1)]
+
+    def vectorized(t):
+        """The same values on an array of times (the compiled master evaluates the
+        stimuli of every tick before the run: cosim.master.fast.engine)."""
+        if not values:
+            draw()
+        i = np.minimum((np.asarray(t, dtype=float) / Ts + 1e-6).astype(np.int64), n - 1)
+        return np.asarray(values)[i]
+    value.vectorized = vectorized
     return value
 
 

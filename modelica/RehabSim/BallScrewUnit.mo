@@ -1,6 +1,6 @@
 within RehabSim;
 model BallScrewUnit "One unit of the single-DOF force transceiver: Maxon DC motor + ball screw, current driven, LuGre friction (thesis Sec. 2.4, Table 1)"
-  parameter Real J(unit = "kg.m2", min = 0) = 1.7e-5 "total inertia at the motor shaft, J = Jm + Jbs = 1.37e-5 + 0.33e-5 (Table 1)";
+  parameter Real J(unit = "kg.m2", min = 0) = RehabSim.Table1.J "total inertia at the motor shaft, J = Jm + Jbs (Table 1)";
   parameter Real b(unit = "N.m.s/rad", min = 0) = 1.6e-5 "viscous friction coefficient (Table 1)";
   parameter Real fc(unit = "N.m", min = 0) = 3e-3 "Coulomb friction torque (Table 1)";
   parameter Real fs(unit = "N.m", min = 0) = 3e-3 "static (breakaway) friction torque; = fc for the nominal device (no Stribeck effect)";
@@ -8,10 +8,10 @@ model BallScrewUnit "One unit of the single-DOF force transceiver: Maxon DC moto
   parameter Real sigma0(unit = "N.m/rad", min = 0) = 200 "LuGre bristle stiffness: bristle deflection at breakaway fs/sigma0 = 1.5e-5 rad, 0.05 encoder count";
   parameter Real sigma1(unit = "N.m.s/rad", min = 0) = 0.117 "LuGre bristle damping at rest, about 2 sqrt(sigma0 J) (critical damping of the presliding mode)";
   parameter Real wd(unit = "rad/s", min = 1e-9) = 0.1 "speed over which the bristle damping fades (keeps the friction passive while sliding)";
-  parameter Real Kt(unit = "N.m/A", min = 0) = 0.0603 "motor torque constant (Table 1, 60.3 mNm/A)";
+  parameter Real Kt(unit = "N.m/A", min = 0) = RehabSim.Table1.Kt "motor torque constant (Table 1, 60.3 mNm/A)";
   parameter Real lead(unit = "m", min = 0) = 0.01 "ball screw lead: nut travel per motor revolution (Table 1, Kg = 0.01/(2 pi) m/rad)";
   parameter Real r(unit = "m/rad") = lead / (2 * 3.141592653589793) "transmission ratio x/theta = lead/(2 pi)";
-  parameter Real delta_enc(unit = "rad", min = 0) = 2.908882086657216e-4 "encoder resolution, 2 pi/21600 rad: 21600 pulses/rev (Table 1)";
+  parameter Real delta_enc(unit = "rad", min = 0) = RehabSim.Table1.delta_enc "encoder resolution (Table 1)";
   parameter Real theta0(unit = "rad") = 0 "initial motor angle";
   parameter Real w0(unit = "rad/s") = 0 "initial motor speed";
   input Real i(unit = "A") "motor current (the current driver is ideal: current = command)";

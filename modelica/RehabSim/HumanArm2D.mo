@@ -53,7 +53,9 @@ model HumanArm2D "Human arm in the plane: hand mass pulled towards the target by
   Real fy_arm(unit = "N") "force of the arm on the hand along y";
   Real f_trem(unit = "N") "tremor force magnitude (signed) along tremor_angle";
 equation
-  att = 1 - (1 - att_min) * (if time >= lapse_start and (time - lapse_start) - lapse_period * floor((time - lapse_start) / lapse_period) < lapse_duration then 0.5 - 0.5 * cos(2 * 3.141592653589793 * ((time - lapse_start) - lapse_period * floor((time - lapse_start) / lapse_period)) / max(lapse_duration, 1e-9)) else 0);
+  // the window's phase is divided by 1 when there are no lapses: CasADi evaluates both
+  // branches of the if, and a phase over 1e-9 s is a cosine of 1e11 rad (the slow path of libm)
+  att = 1 - (1 - att_min) * (if time >= lapse_start and (time - lapse_start) - lapse_period * floor((time - lapse_start) / lapse_period) < lapse_duration then 0.5 - 0.5 * cos(2 * 3.141592653589793 * ((time - lapse_start) - lapse_period * floor((time - lapse_start) / lapse_period)) / (if lapse_duration > 0 then lapse_duration else 1)) else 0);
   impairment = exp(-0.5 * ((x_hand - imp_cx) ^ 2 + (y_hand - imp_cy) ^ 2) / imp_radius ^ 2);
   Kx_eff = scale_K * K_hx * max(0.1, 1 + K_slope_x * x_hand + K_slope_y * y_hand) * (1 - imp_depth * impairment);
   Ky_eff = scale_K * K_hy * max(0.1, 1 + K_slope_x * x_hand + K_slope_y * y_hand) * (1 - imp_depth * impairment);

@@ -1,16 +1,16 @@
 within RehabSim;
 model WallUnitRig "Slave unit of the bilateral test meeting a rigid wall (thesis Sec. 2.5.4, Fig. 32); unit and 2e5 N/m contact are solved together because such a contact cannot be exchanged explicitly at 1 ms"
-  parameter Real J_u(unit = "kg.m2", min = 0) = 1.7e-5 "inertia of the slave unit at the motor shaft (Table 1)";
+  parameter Real J_u(unit = "kg.m2", min = 0) = RehabSim.Table1.J "inertia of the slave unit at the motor shaft (Table 1)";
   parameter Real b_u(unit = "N.m.s/rad", min = 0) = 1.6e-5 "viscous friction of the slave unit (Table 1)";
   parameter Real fc_u(unit = "N.m", min = 0) = 3e-3 "Coulomb friction torque of the slave unit (Table 1)";
-  parameter Real Kt_u(unit = "N.m/A", min = 0) = 0.0603 "torque constant of the slave unit (Table 1)";
+  parameter Real Kt_u(unit = "N.m/A", min = 0) = RehabSim.Table1.Kt "torque constant of the slave unit (Table 1)";
   parameter Real x_w(unit = "m") = 0.02 "wall position";
   parameter Real k_w(unit = "N/m", min = 0) = 2e5 "wall stiffness";
   parameter Real d_w(unit = "N.s/m", min = 0) = 500 "wall damping, acting only while penetrating";
   input Real i(unit = "A") "current of the slave unit";
   input Real f_ext(unit = "N") "other external force on the slave handle along +x (0 in the thesis's test)";
   output Real theta(unit = "rad") "motor angle of the slave unit";
-  output Real theta_enc(unit = "rad") "encoder reading of the slave unit (21600 pulses/rev)";
+  output Real theta_enc(unit = "rad") "encoder reading of the slave unit (Table 1 resolution)";
   output Real x_enc(unit = "m") "slave handle position from its encoder, lead/(2 pi) theta_enc";
   output Real w(unit = "rad/s") "motor speed of the slave unit";
   output Real x(unit = "m") "slave handle position";

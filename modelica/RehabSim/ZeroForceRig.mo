@@ -1,13 +1,13 @@
 within RehabSim;
 model ZeroForceRig "Zero-force test bench (thesis Sec. 2.5.3, Fig. 27): the position-controlled partner unit pushes the unit under test through a stiff load cell; the three bodies are solved together because a 2e5 N/m coupling cannot be exchanged explicitly at 1 ms"
-  parameter Real J_u(unit = "kg.m2", min = 0) = 1.7e-5 "inertia of the unit under test at the motor shaft (Table 1)";
+  parameter Real J_u(unit = "kg.m2", min = 0) = RehabSim.Table1.J "inertia of the unit under test at the motor shaft (Table 1)";
   parameter Real b_u(unit = "N.m.s/rad", min = 0) = 1.6e-5 "viscous friction of the unit under test (Table 1)";
   parameter Real fc_u(unit = "N.m", min = 0) = 3e-3 "Coulomb friction torque of the unit under test (Table 1)";
-  parameter Real Kt_u(unit = "N.m/A", min = 0) = 0.0603 "torque constant of the unit under test (Table 1)";
-  parameter Real J_p(unit = "kg.m2", min = 0) = 1.7e-5 "inertia of the partner unit (identical unit, Table 1)";
+  parameter Real Kt_u(unit = "N.m/A", min = 0) = RehabSim.Table1.Kt "torque constant of the unit under test (Table 1)";
+  parameter Real J_p(unit = "kg.m2", min = 0) = RehabSim.Table1.J "inertia of the partner unit (identical unit, Table 1)";
   parameter Real b_p(unit = "N.m.s/rad", min = 0) = 1.6e-5 "viscous friction of the partner unit";
   parameter Real fc_p(unit = "N.m", min = 0) = 3e-3 "Coulomb friction torque of the partner unit";
-  parameter Real Kt_p(unit = "N.m/A", min = 0) = 0.0603 "torque constant of the partner unit";
+  parameter Real Kt_p(unit = "N.m/A", min = 0) = RehabSim.Table1.Kt "torque constant of the partner unit";
   parameter Real k_cell(unit = "N/m", min = 0) = 2e5 "stiffness of the load cell and its mounting (assumed)";
   parameter Real d_cell(unit = "N.s/m", min = 0) = 150 "damping of the load cell and its mounting (assumed)";
   parameter Real sigma_cell(unit = "N", min = 0) = 0.02 "standard deviation of the load-cell reading noise (assumed)";
@@ -15,7 +15,7 @@ model ZeroForceRig "Zero-force test bench (thesis Sec. 2.5.3, Fig. 27): the posi
   input Real i(unit = "A") "current of the unit under test";
   input Real i_p(unit = "A") "current of the partner unit";
   output Real theta(unit = "rad") "motor angle of the unit under test";
-  output Real theta_enc(unit = "rad") "encoder reading of the unit under test (21600 pulses/rev)";
+  output Real theta_enc(unit = "rad") "encoder reading of the unit under test (Table 1 resolution)";
   output Real w(unit = "rad/s") "motor speed of the unit under test";
   output Real x(unit = "m") "handle position of the unit under test";
   output Real v(unit = "m/s") "handle speed of the unit under test";

@@ -225,11 +225,16 @@ static int do_events(Instance *c) {
     return 0;
 }
 
-/* ---- dense LU with partial pivoting ------------------------------------ */
+/* ---- dense LU with partial pivoting ------------------------------------
+ * Structural zeros are skipped (a zero multiplier changes nothing: x - 0 y = x), and
+ * the sums run in a local accumulator in the same order: the same floating-point
+ * operations on the non-zero entries as the plain triple loop, so the same results,
+ * at the cost of the non-zeros (a model's Jacobian is mostly sparse: the X-Y table's
+ * two axes are independent). */
 static int lu_decompose(double *A, int *piv, int n) {
     int i, j, k, p;
     for (k = 0; k < n; k++) {
-        double amax = fabs(A[k * n + k]);
+        double amax = fabs(A[k * n + k]), pivot;
         p = k;
         for (i = k + 1; i < n; i++)
             if (fabs(A[i * n + k]) > amax) { amax = fabs(A[i * n + k]); p = i; }
@@ -237,9 +242,13 @@ static int lu_decompose(double *A, int *piv, int n) {
         if (amax == 0.0) return -1;
         if (p != k)
             for (j = 0; j < n; j++) { double tmp = A[k * n + j]; A[k * n + j] = A[p * n + j]; A[p * n + j] = tmp; }
+        pivot = A[k * n + k];
         for (i = k + 1; i < n; i++) {
-            double f = A[i * n + k] /= A[k * n + k];
-            for (j = k + 1; j < n; j++) A[i * n + j] -= f * A[k * n + j];
+            double f;
+            if (A[i * n + k] == 0.0) continue;
+            f = A[i * n + k] /= pivot;
+            for (j = k + 1; j < n; j++)
+                if (A[k * n + j] != 0.0) A[i * n + j] -= f * A[k * n + j];
         }
     }
     return 0;
@@ -248,12 +257,17 @@ static int lu_decompose(double *A, int *piv, int n) {
 static void lu_solve(const double *A, const int *piv, double *b, int n) {
     int i, j;
     for (i = 0; i < n; i++) {
-        double tmp = b[piv[i]]; b[piv[i]] = b[i]; b[i] = tmp;
-        for (j = 0; j < i; j++) b[i] -= A[i * n + j] * b[j];
+        double acc = b[piv[i]];
+        b[piv[i]] = b[i];
+        for (j = 0; j < i; j++)
+            if (A[i * n + j] != 0.0) acc -= A[i * n + j] * b[j];
+        b[i] = acc;
     }
     for (i = n - 1; i >= 0; i--) {
-        for (j = i + 1; j < n; j++) b[i] -= A[i * n + j] * b[j];
-        b[i] /= A[i * n + i];
+        double acc = b[i];
+        for (j = i + 1; j < n; j++)
+            if (A[i * n + j] != 0.0) acc -= A[i * n + j] * b[j];
+        b[i] = acc / A[i * n + i];
     }
 }
 
@@ -288,7 +302,7 @@ static int integrate_ros(Instance *c, double tend) {
     double *x = &c->v[OFF_X];
     double F0[NXA], F1[NXA], F2[NXA], k1[NXA], k2[NXA], k3[NXA], xn[NXA];
     double Jx[NXA * NXA + NXA], W[NXA * NXA], T[NXA];
-    int piv[NXA], i, j, have_jac = 0;
+    int piv[NXA], i, j, have_jac = 0, have_f0 = 0;
     double rtol = c->v[VR_RTOL], atol = c->v[VR_ATOL], hmax = c->v[VR_HMAX];
     long guard = 0;
     if (NX == 0) { c->t = tend; c->alg_valid = 0; return 0; }
@@ -302,7 +316,8 @@ static int integrate_ros(Instance *c, double tend) {
         if (c->t + 1.05 * h >= tend) { h = tend - c->t; last = 1; }
         if (h < 1e-14 * fmax(1.0, fabs(c->t))) { c->t = tend; break; }
         if (!have_jac) {
-            if (eval5(c, model_ode, c->t, x, F0, NULL)) return -1;
+            if (!have_f0 && eval5(c, model_ode, c->t, x, F0, NULL)) return -1;
+            have_f0 = 1;
             if (eval5(c, model_jac, c->t, x, Jx, Jx + NX * NX)) return -1;
             memcpy(T, Jx + NX * NX, sizeof(double) * NX);
             if (c->u_interp && input_slope_term(c, x, F0, T)) return -1;
@@ -334,6 +349,10 @@ static int integrate_ros(Instance *c, double tend) {
             if (err <= 1.0) {
                 c->t = last ? tend : c->t + h;
                 memcpy(x, xn, sizeof(double) * NX);
+                /* first same as last: F2 = f(t + h, xn) is f at the accepted point (the
+                   same arguments, bit for bit, unless the step was cut to hit tend) */
+                memcpy(F0, F2, sizeof(double) * NX);
+                have_f0 = !last;
                 have_jac = 0;
                 c->n_steps++;
                 /* a step cut short to hit tend must not shrink the next one */

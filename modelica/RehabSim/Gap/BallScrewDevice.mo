@@ -1,17 +1,17 @@
 within RehabSim.Gap;
 model BallScrewDevice "Ball-screw device of record (RehabSim.BallScrewUnit: motor + screw, LuGre friction, current input) with every effect of the gap-diagnosis catalogue as a parameter that is off by default; two-body (motor+screw | nut+handle+accelerometer) when backlash or transmission compliance is on"
   // ---- nominal device (RehabSim.BallScrewUnit, thesis Sec. 2.4, Table 1)
-  parameter Real J(unit = "kg.m2", min = 0) = 1.7e-5 "total inertia at the motor shaft, nut and handle included (Table 1)";
+  parameter Real J(unit = "kg.m2", min = 0) = RehabSim.Table1.J "total inertia at the motor shaft, nut and handle included (Table 1)";
   parameter Real b(unit = "N.m.s/rad", min = 0) = 1.6e-5 "viscous friction coefficient, mean of both directions (Table 1)";
   parameter Real fc(unit = "N.m", min = 0) = 3e-3 "Coulomb friction torque, mean of both directions (Table 1)";
-  parameter Real Kt(unit = "N.m/A", min = 0) = 0.0603 "motor torque constant (Table 1, 60.3 mNm/A)";
+  parameter Real Kt(unit = "N.m/A", min = 0) = RehabSim.Table1.Kt "motor torque constant (Table 1, 60.3 mNm/A)";
   parameter Real lead(unit = "m", min = 0) = 0.01 "ball screw lead: nut travel per motor revolution (Table 1)";
   parameter Real r(unit = "m/rad") = lead / (2 * 3.141592653589793) "transmission ratio x/theta = lead/(2 pi)";
   parameter Real sigma0(unit = "N.m/rad", min = 0) = 200 "LuGre bristle stiffness (as RehabSim.BallScrewUnit)";
   parameter Real sigma1(unit = "N.m.s/rad", min = 0) = 0.117 "LuGre bristle damping at rest (as RehabSim.BallScrewUnit)";
   parameter Real wd(unit = "rad/s", min = 1e-9) = 0.1 "speed over which the bristle damping fades (as RehabSim.BallScrewUnit)";
   parameter Real m_n(unit = "kg", min = 1e-6) = 0.2 "mass of nut + handle + accelerometer (a share of J: m_n r^2 = 5e-7 kg m2; not in the thesis, assumed); used by the two-body transmission";
-  parameter Real delta_enc(unit = "rad", min = 0) = 2.908882086657216e-4 "encoder resolution, 2 pi/21600 rad (Table 1)";
+  parameter Real delta_enc(unit = "rad", min = 0) = RehabSim.Table1.delta_enc "encoder resolution (Table 1)";
   parameter Real theta0(unit = "rad") = 0 "initial motor angle";
   parameter Real w0(unit = "rad/s") = 0 "initial motor speed";
   parameter Real i0(unit = "A") = 0 "current command held before the start (delay and lag states start in equilibrium with it)";
