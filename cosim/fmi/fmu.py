@@ -192,6 +192,9 @@ class RawIO:
     terminate_flag: object   # FMI 3: the c_bool terminateSimulation out-argument
     early_flag: object = None    # FMI 3: the c_bool earlyReturn out-argument
     last_time: object = None     # FMI 3: the c_double lastSuccessfulTime out-argument
+    #: fmi2SetRealInputDerivatives(comp, vr, n, order, value) -> status, when the FMU
+    #: can interpolate inputs (:attr:`FMUSlave.can_interpolate_inputs`), else None
+    set_derivatives: object = None
 
 
 #: (resolved path, size, mtime) -> (FMI version, sha256, model description): an FMU
@@ -464,6 +467,15 @@ class FMUSlave:
             raise FMUError(f"role {self.role}: {why}")
         return v
 
+    @property
+    def can_interpolate_inputs(self) -> bool:
+        """An FMI 2.0 Co-Simulation FMU declaring canInterpolateInputs: it takes
+        first-order input derivatives (fmi2SetRealInputDerivatives) and varies those
+        inputs linearly over the doStep. FMI 3.0 has no such call (it removed
+        canInterpolateInputs in favour of intermediate update), FMI 1.0 is not used."""
+        return (self.kind == "cs" and not self.fmi3 and not self.fmi1
+                and bool(getattr(self.iface, "canInterpolateInputs", False)))
+
     def step_multiple(self, Ts: float, requested: int | None = None) -> int:
         """How many base steps ``Ts`` one doStep of this FMU spans (1 but for a
         constraint), or FMUError with the constraint. ``requested`` overrides the
@@ -698,6 +710,8 @@ class FMUSlave:
                        fn("fmi2DoStep") if self.kind == "cs" else None, comp, False, (), None)
         if self._me is not None:     # ME: input changes go through event handling
             io.set = self._me.input_setter(io.get, io.set)
+        if self.can_interpolate_inputs:
+            io.set_derivatives = fn("fmi2SetRealInputDerivatives")
         return io
 
     def call_name(self, what: str) -> str:

@@ -303,7 +303,7 @@ def model_description(fm: FlatModel, rows: list[dict], guid: str, key: str) -> s
            ' canGetAndSetFMUstate="true" canSerializeFMUstate="true"'
            ' providesDirectionalDerivative="false"/>',
            f'  <CoSimulation modelIdentifier="{ident}" canHandleVariableCommunicationStepSize="true"'
-           ' canInterpolateInputs="false" canBeInstantiatedOnlyOncePerProcess="false"'
+           ' canInterpolateInputs="true" canBeInstantiatedOnlyOncePerProcess="false"'
            ' canNotUseMemoryManagementFunctions="false" canGetAndSetFMUstate="true"'
            ' canSerializeFMUstate="true" providesDirectionalDerivative="false"/>']
     out += _unit_definitions(units)

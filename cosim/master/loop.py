@@ -11,7 +11,8 @@ raw ctypes function with preallocated buffers) in the order the docstring of
 3. step the controllers in order (each one's output faults right after it); check
    their outputs; read the recorded controller attributes;
 4. record row k into the run's :class:`~cosim.master.rows.RowBuffer`;
-5. (k < N) set every FMU's inputs (connections, controller outputs, stimuli);
+5. (k < N) set every FMU's inputs (connections, controller outputs, stimuli), and the
+   slopes of the interpolated ones (:func:`interpolated`);
 6. (k < N) doStep every FMU, its sequential inputs set just before.
 
 The compiled engine (:mod:`cosim.master.fast.engine`) runs the same operations with
@@ -109,6 +110,9 @@ class FmuCalls:
         self.d = getattr(slave, "step_mult", 1)
         self.reads = []      # (get, args..., first slot, count, decode): one call per type
         self.writes = []     # (set, args, buffer, [(position, Term)]), or a plain (itemgetter)
+        #: interpolated inputs (:func:`interpolated`): (fmi2SetRealInputDerivatives, its
+        #: args, derivative buffer, fast buffer, [(position in it, stimulus, Term)]) or None
+        self.slopes = None
         self.seq = None      # (gets [(get, args, buf, Term)], set, args, buffer)
         self.step = None     # a callable of t (the tick's time)
 
@@ -136,7 +140,8 @@ class TickLoop:
         self.fmus = fmus               # [FmuCalls] in role order
         # the same calls flat, in loop order (fewer lookups per tick)
         self.read_calls = [(F.j, *r) for F in fmus for r in F.reads]
-        self.write_calls = [(F.j, F.d, f"fmu:{F.role}:set", F.writes) for F in fmus if F.writes]
+        self.write_calls = [(F.j, F.d, f"fmu:{F.role}:set", F.writes, F.slopes)
+                            for F in fmus if F.writes]
         self.step_calls = [(F.j, F.d, F.seq, F.step, F.role) for F in fmus]
         self.stimuli = stimuli         # [(slot, fn)]
         self.controllers = controllers  # [(name, step, [(key, slot)], [(output, slot)], faults)]
@@ -275,7 +280,7 @@ class TickLoop:
                 if engine.write_step(k):
                     engine.fail()
                 continue
-            for j, d, label, calls in writes:
+            for j, d, label, calls, slopes in writes:
                 if d > 1 and k % d:        # an FMU stepped every d ticks: inputs at its start
                     continue
                 if timed:
@@ -290,6 +295,8 @@ class TickLoop:
                             buf[p] = term.value(V[term.src], t)
                     if (st := set_(*args)) > 1:
                         self.fail_fmu(j, "set", t, st)
+                if slopes is not None:
+                    self.set_slopes(j, k, t, slopes)
                 if timed:
                     T[lab(label)] += pc() - t0
             # 6. doSteps from t_k to t_k+1
@@ -297,6 +304,26 @@ class TickLoop:
                 tc.value = t
             steps(k, t, -1)
         status[ROLE], status[CALL] = -1, NO_CALL
+
+    def set_slopes(self, j, k, t, slopes) -> None:
+        """FMU j's interpolated inputs over [t_k, t_k+1): the slope from the value just
+        set to the stimulus' value at t_k+1, (x_k+1 - x_k) / Ts (the compiled engine
+        computes the same from its precomputed stimuli). A stimulus that fails or is
+        not finite at t_k+1 gives slope 0: tick k + 1 reports it."""
+        set_der, args, dbuf, buf, items = slopes
+        t1 = self.tick_time(k + 1)
+        Ts = self.Ts
+        for q, (p, fn, term) in enumerate(items):
+            try:
+                x1 = fn(t1)
+                if term is not None:
+                    x1 = term.value(x1, t1)
+                dx = (x1 - buf[p]) / Ts
+            except Exception:
+                dx = 0.0
+            dbuf[q] = dx if finite(dx) else 0.0
+        if (st := set_der(*args)) > 1:
+            self.fail_fmu(j, "set", t, st)
 
     def steps(self, k, j0) -> None:
         """The sequential inputs and doSteps of tick k of the FMUs after ``j0``."""
@@ -531,6 +558,41 @@ def _decode_string(buf):
     return [x.decode("utf-8", "replace") if x is not None else None for x in buf]
 
 
+def interpolated(system, notes=None) -> set:
+    """The ids of the connections whose input varies linearly over each step instead
+    of being held: the connection's ``interpolate`` (None: the system's
+    ``interpolate_inputs``) asks for it, its source is a stimulus (a function of time:
+    its value at t_k+1 is known when the step starts, so the line from t_k to t_k+1 is
+    an interpolation, not a prediction), and the destination can take it: a scalar
+    Real input of an FMI 2.0 Co-Simulation FMU that declares canInterpolateInputs,
+    stepped every tick, on a connection without faults (a fault acts on the value at
+    the tick). FMU and controller outputs are always held (docs/decisions.md, "Input
+    interpolation"). ``notes``: a list that gets why an asked-for interpolation is
+    not done."""
+    out = set()
+    faulted = {f.signal for f in system.faults}
+    for c in system._connections:
+        want = system.interpolate_inputs if c.interpolate is None else c.interpolate
+        if not want or c.sequential or not c.source.startswith("stim."):
+            continue
+        role = c.dest.partition(".")[0]
+        slave = system.roles.get(role)
+        why = None
+        if slave is None or not getattr(slave, "can_interpolate_inputs", False):
+            why = "the FMU cannot interpolate inputs (FMI 2.0 canInterpolateInputs)"
+        elif getattr(slave, "step_mult", 1) != 1:
+            why = "the FMU is stepped every few ticks"
+        elif not fast_dest(slave, c.dest):
+            why = "not a scalar Real input"
+        elif c.dest in faulted or c.source in faulted:
+            why = "a fault acts on it"
+        if why is None:
+            out.add(id(c))
+        elif c.interpolate and notes is not None and len(notes) < 50:
+            notes.append(f"connection {c.source} -> {c.dest}: held, not interpolated: {why}")
+    return out
+
+
 def build(system, plan, slot, slaves, bounds, rows, Ts, T0, wbufs, faults, internal,
           timing=False, notes=None) -> TickLoop:
     """The tick loop of a planned run. ``slot``: name -> index of ``V``; ``bounds``:
@@ -551,6 +613,7 @@ def build(system, plan, slot, slaves, bounds, rows, Ts, T0, wbufs, faults, inter
 
     tc, h1 = ctypes.c_double(0.0), ctypes.c_double(Ts)
     one, true, n1 = ctypes.c_int(1), ctypes.c_bool(True), ctypes.c_size_t(1)
+    interp = interpolated(system, notes)
     roles = [r for r, _ in slaves]
     fmus = []
     for j, (role, slave) in enumerate(slaves):
@@ -598,6 +661,16 @@ def build(system, plan, slot, slaves, bounds, rows, Ts, T0, wbufs, faults, inter
                 else None
             F.writes.append((io.set, (comp, vr, cn, buf, cn) if io.fmi3 else (comp, vr, cn, buf),
                              buf, terms, plain))
+            lin = [(p, c) for p, c in enumerate(fast) if id(c) in interp]
+            if lin:
+                m = len(lin)
+                dvr = (ctypes.c_uint32 * m)(*[vr[p] for p, _ in lin])
+                order = (ctypes.c_int * m)(*([1] * m))
+                dbuf = (ctypes.c_double * m)()
+                items = [(p, system.stimuli[c.source.partition(".")[2]],
+                          None if terms[p][1].plain else terms[p][1]) for p, c in lin]
+                F.slopes = (io.set_derivatives, (comp, dvr, ctypes.c_size_t(m), order, dbuf),
+                            dbuf, buf, items)
         # other destinations (integers, Booleans, Float32, array elements): one buffer
         # and one call per type; an array is set whole, its unwired elements keep their
         # values from initialisation

@@ -23,7 +23,10 @@ k = 0 .. N with N = duration / Ts (which must be an integer). In tick k:
    k = 0): wiring a controller to a later one is a unit delay;
 4. record row k (time first, then the requested signals);
 5. (k < N) set every FMU input (connections, controller outputs, stimuli) to its
-   tick-k value, held over [t_k, t_{k+1}) (zero-order hold);
+   tick-k value, held over [t_k, t_{k+1}) (zero-order hold); an interpolated input
+   (``System.interpolate_inputs`` / ``connect(interpolate=)``: a stimulus into an FMU
+   that can interpolate inputs) also gets its slope (x(t_{k+1}) - x(t_k)) / Ts and
+   moves along that line over the step (:func:`cosim.master.loop.interpolated`);
 6. (k < N) doStep every FMU from t_k to t_{k+1}, in the order the roles were added
    (Jacobi: all FMUs see the inputs of tick k, none sees another's state at
    t_{k+1}), except the inputs of ``sequential`` connections (Gauss-Seidel, for a
@@ -38,7 +41,8 @@ last role, and the connections between them are continuous inside the step
 
 Hence a connection FMU A -> FMU B carries A's value at t_k into B over
 [t_k, t_{k+1}): B's outputs first reflect A(t_k) at tick k + 1 (one step of delay),
-and B's input, if read back, shows A(t_k) at tick k + 1. A controller output of
+and B's input, if read back, shows A(t_k) at tick k + 1 (an interpolated stimulus:
+its own value at t_{k+1}, and direct-feedthrough outputs read at t_{k+1} use it). A controller output of
 tick k acts on the plant over [t_k, t_{k+1}) and is first seen in the plant's
 outputs at tick k + 1.
 
@@ -139,6 +143,9 @@ class _Connection:
     check_units: bool = True
     unit_gain: float = 1.0     # source unit -> destination unit: dest = gain * (scale * src) + offset
     unit_offset: float = 0.0
+    #: first-order input interpolation over the step (None: the system's
+    #: ``interpolate_inputs``); see :func:`cosim.master.loop.interpolated`
+    interpolate: bool | None = None
 
     @property
     def gain(self) -> float:
@@ -165,6 +172,10 @@ class System:
         self.coupled: list[tuple[str, ...]] = []
         #: faults the master injects (:mod:`cosim.master.faults`), applied in this order
         self.faults: list[Fault] = []
+        #: interpolate the inputs driven by stimuli linearly over each step (FMI 2.0
+        #: input derivatives) where the FMU can; False: every input held (zero-order
+        #: hold). A connection's own ``interpolate`` overrides it.
+        self.interpolate_inputs: bool = False
 
     # ----------------------------------------------------------- lifetime
     def close(self) -> None:
@@ -432,7 +443,7 @@ class System:
         self.coupled.append(roles)
 
     def connect(self, source: str, dest: str, scale: float = 1.0, sequential: bool = False,
-                check_units: bool = True):
+                check_units: bool = True, interpolate: bool | None = None):
         """Drive FMU input ``dest`` ('role.var', 'role.u[2]' for an element of an FMI 3
         array, or a tunable parameter of a Co-Simulation FMU, set at every step) from
         ``source`` (any name), times ``scale`` (e.g. -1 for an action/reaction pair
@@ -457,7 +468,15 @@ class System:
         [t_k, t_{k+1}). Without it (Jacobi, the default) the sensor sees the plant one
         step late, a 1 ms delay the real sensor does not have, which matters in a loop
         closed at 1500 rad/s. The source must be an output of an FMU added before the
-        destination's FMU."""
+        destination's FMU.
+
+        ``interpolate`` (None: the system's ``interpolate_inputs``): a stimulus
+        (whose value at t_{k+1} is known) drives the input as the line from its value at
+        t_k to its value at t_{k+1} over the step, through fmi2SetRealInputDerivatives,
+        instead of holding it; only an FMI 2.0 Co-Simulation FMU that declares
+        canInterpolateInputs takes it (others hold the value; where the connection
+        itself asked, ``RunResult.notes`` says so). ``False`` holds the input
+        (zero-order hold)."""
         for c in self._connections:
             if c.dest == dest:
                 raise SystemError_(f"{dest} is already driven by {c.source}")
@@ -467,10 +486,18 @@ class System:
             raise SystemError_(f"connection {source} -> {dest}: scale must be a number") from None
         if not math.isfinite(scale):
             raise SystemError_(f"connection {source} -> {dest}: scale must be finite")
+        if interpolate is not None and not isinstance(interpolate, (bool, np.bool_)):
+            raise SystemError_(f"connection {source} -> {dest}: interpolate must be true, "
+                               f"false or None, not {interpolate!r}")
+        if interpolate and not source.startswith("stim."):
+            raise SystemError_(f"connection {source} -> {dest}: only a stimulus can be "
+                               f"interpolated over the step (its next value is known); FMU "
+                               f"and controller outputs are held")
         gain, offset = self._check_connection(source, dest, scale, bool(sequential),
                                               bool(check_units))
-        self._connections.append(_Connection(source, dest, scale, bool(sequential),
-                                             bool(check_units), gain, offset))
+        self._connections.append(_Connection(
+            source, dest, scale, bool(sequential), bool(check_units), gain, offset,
+            None if interpolate is None else bool(interpolate)))
 
     def _check_connection(self, source, dest, scale=1.0, sequential=False, check_units=True,
                           override=None):

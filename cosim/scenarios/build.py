@@ -167,6 +167,7 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
     from cosim.master.system import System, SystemError_
     from cosim.devices.human_arm import human_parameters
     system = System(step_size=float(d.get("step", 1e-3)))
+    system.interpolate_inputs = bool(d["system"].get("interpolate_inputs", False))
     swaps = dict(fmu_swaps or {})
     # coupled groups (roles solved together, Model Exchange): the roles of this build
     # (a phase may leave some out, e.g. the start-up identification keeps the unit only)
@@ -232,7 +233,8 @@ def build_system(sc: Scenario, d: dict, ctx: reg.BuildContext, fmu_swaps: dict |
             conn = {"from": m.group(1), "to": m.group(2), "scale": float(m.group(3) or 1)}
         try:
             system.connect(conn["from"], conn["to"], conn.get("scale", 1.0),
-                           sequential=bool(conn.get("sequential", False)))
+                           sequential=bool(conn.get("sequential", False)),
+                           interpolate=conn.get("interpolate"))
         except SystemError_ as exc:
             raise _err(sc, ("system", "connections", i), exc) from None
     for i, g in groups:

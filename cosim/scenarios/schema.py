@@ -111,7 +111,9 @@ ROLE = {"fmu": (str, True), "contract": ((str, type(None)), False), "parameters"
         # the unit of the FMU's values
         "map": (dict, False), "units": (dict, False)}
 CONN = {"from": (str, True), "to": (str, True), "scale": (NUM, False),
-        "sequential": (bool, False)}
+        "sequential": (bool, False),
+        # a stimulus' line over the step instead of its held value (System.connect)
+        "interpolate": (bool, False)}
 CTRL = {"type": (str, True), "params": (dict, False), "wiring": (dict, False),
         "outputs": (dict, False), "record": (list, False)}
 STIM = {"type": (str, True), "params": (dict, False)}
@@ -591,7 +593,7 @@ def _include_ssp(c: _Checker, d: dict):
     if not isinstance(conns, list):
         c.err(("system", "connections"), "system.connections must be a list")
     d["system"] = {"fmus": deep_merge(got["fmus"], own), "connections": got["connections"] + conns,
-                   **({"coupled": sysd["coupled"]} if "coupled" in sysd else {})}
+                   **{k: sysd[k] for k in ("coupled", "interpolate_inputs") if k in sysd}}
     c.sc.included = f"ssp:{sha}"
 
 
@@ -604,7 +606,8 @@ def _check_parts(c: _Checker, d: dict, prefix: tuple, base: dict | None = None):
             return prefix + p
         return p
     sysd = d["system"]
-    c.keys(sysd, {"fmus": (dict, True), "connections": (list, False), "coupled": (list, False)},
+    c.keys(sysd, {"fmus": (dict, True), "connections": (list, False), "coupled": (list, False),
+                  "interpolate_inputs": (bool, False)},     # System.interpolate_inputs
            P("system"), "system")
     _check_coupled(c, sysd, P)
     for role, spec in sysd["fmus"].items():

@@ -16,11 +16,12 @@ the FMU's own: M_h scale_M, the arm stiffness/viscosity at the hand position (th
 FMU's outputs ``Kx_eff``, ``bx_eff``, ...: configuration dependence included), and
 k_grasp, b_grasp.
 
-Timing: the master holds ``x_dev`` over each step (zero-order hold) and the force
-read at tick k+1 responds to the value held since tick k; the ETFE pairs the FMU's
-read-back input ``human.x_dev`` with ``human.fx_h`` of the same row, which is that
-pairing. The hold acts on the hand as a half-step delay (phase w Ts / 2 at 20 Hz: 6 %
-of a radian at 1 ms), hence the scenario's step of 0.2 ms.
+Timing: the scenario interpolates the shaker's motion over each step
+(``system.interpolate_inputs``: ``x_dev`` moves linearly from its value at t_k to its
+value at t_k+1), so the force read at tick k+1 and the read-back input
+``human.x_dev`` of the same row are both at t_k+1; the ETFE pairs them. Held instead,
+the hand follows the staircase half a step behind and the stiff grasp adds a viscosity
+-k_grasp Ts / 2 (docs/decisions.md, "HA-1: why b comes out low").
 
 Values per run, per axis ``a`` in (x, y): ``coh_a`` (mean coherence in the band);
 ``M75_a``, ``b75_a``, ``K75_a``, ``fit75_a`` (eq. 75 fit, FIT %); ``M_a``, ``b_a``,

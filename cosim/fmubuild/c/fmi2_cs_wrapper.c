@@ -254,9 +254,14 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,
                                        const fmi2Integer order[], const fmi2Real value[]) {
     INST(c);
-    (void)vr; (void)n; (void)order; (void)value;
-    logmsg(inst, ST_ERROR, "logStatusError", "input derivatives are not supported (canInterpolateInputs=false)");
-    return fmi2Error;
+    if (!inst) return fmi2Error;
+    CHECK_NULL(vr, n); CHECK_NULL(order, n); CHECK_NULL(value, n);
+    if (inst->cb.me) {
+        logmsg(inst, ST_ERROR, "logStatusError",
+               "fmi2SetRealInputDerivatives: instance was instantiated for Model Exchange");
+        return fmi2Error;
+    }
+    return ST(core_set_input_derivatives(inst, vr, n, order, value, "fmi2SetRealInputDerivatives"));
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t n,

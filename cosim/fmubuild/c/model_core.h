@@ -14,7 +14,9 @@
  *
  * core_do_step integrates with Shampine's L-stable Rosenbrock ROS2(3) (ode23s)
  * with step-size control, stopping at every noise/sample instant in the interval.
- * Inputs are held constant over the communication step.
+ * Inputs are held constant over the communication step, unless the importer gave
+ * first-order input derivatives (FMI 2.0 fmi2SetRealInputDerivatives, see
+ * core_set_input_derivatives): then input i is u_i(tc) + du_i (t - tc) over the step.
  * A model flagged MODEL_LTI by the build (xdot = A x + b, A and b independent of x
  * and t) with at most LTI_NMAX states is instead advanced exactly over each
  * interval between events: x(t+h) = x + h phi1(A h) f(x) (see integrate_lti).
@@ -52,6 +54,7 @@
 #define NV (OFF_S + 3)
 #define NXA (NX > 0 ? NX : 1)
 #define NDA (ND > 0 ? ND : 1)
+#define NUA (NU > 0 ? NU : 1)
 #ifndef MODEL_LTI
 #define MODEL_LTI 0
 #endif
@@ -73,6 +76,11 @@ typedef struct Instance {
     int alg_valid, params_dirty, logging;
     Mode mode;
     long n_steps, n_rejected;
+    /* first-order input interpolation (fmi2SetRealInputDerivatives): du per input, and
+       while a doStep runs (u_interp) the inputs at its start u_base, at time t_base;
+       u_t: the inputs at the time being evaluated */
+    int has_du, u_interp;
+    double t_base, du[NUA], u_base[NUA], u_t[NUA];
 #if USE_LTI
     /* exact LTI step, cached for one (A, h): A as model_jac returns it (column-major),
        F = exp(A h) - I and G = h phi1(A h), row-major */
@@ -109,6 +117,11 @@ static int eval5(Instance *c, int (*f)(const casadi_real **, casadi_real **, cas
     c->arg[0] = &tt;
     c->arg[1] = x;
     c->arg[2] = &c->v[OFF_U];
+    if (c->u_interp) {          /* inputs varying linearly over the doStep */
+        int i;
+        for (i = 0; i < NU; i++) c->u_t[i] = c->u_base[i] + c->du[i] * (t - c->t_base);
+        c->arg[2] = c->u_t;
+    }
     c->arg[3] = &c->v[OFF_P];
     c->arg[4] = &c->v[OFF_D];
     c->res[0] = out0;
@@ -269,6 +282,20 @@ static int check_states_finite(Instance *c) {
     return 0;
 }
 
+/* Interpolated inputs make f depend on t through u(t): add df/du du to the explicit
+ * df/dt (T) that ROS2(3) needs, by a difference of f over the inputs' change in
+ * 1 s (exact for f linear in u; the inputs are moved, the time is not). */
+static int input_slope_term(Instance *c, const double *x, const double *F0, double *T) {
+    double Fu[NXA], tb = c->t_base;
+    int i;
+    c->t_base = tb - 1.0;                   /* u at c->t + 1 s, evaluated at time c->t */
+    i = eval5(c, model_ode, c->t, x, Fu, NULL);
+    c->t_base = tb;
+    if (i) return -1;
+    for (i = 0; i < NX; i++) T[i] += Fu[i] - F0[i];
+    return 0;
+}
+
 /* ---- ROS2(3), Shampine & Reichelt 1997 (MATLAB ode23s) ----------------- */
 static int integrate_ros(Instance *c, double tend) {
     const double d = 1.0 / (2.0 + M_SQRT2), e32 = 6.0 + M_SQRT2;
@@ -293,6 +320,7 @@ static int integrate_ros(Instance *c, double tend) {
             have_f0 = 1;
             if (eval5(c, model_jac, c->t, x, Jx, Jx + NX * NX)) return -1;
             memcpy(T, Jx + NX * NX, sizeof(double) * NX);
+            if (c->u_interp && input_slope_term(c, x, F0, T)) return -1;
             have_jac = 1;
         }
         /* CasADi stores dense matrices column-major: J[i + j*NX] = df_i/dx_j */
@@ -457,6 +485,8 @@ static int integrate_lti(Instance *c, double tend) {
 /* integrate from c->t to tend with inputs and discrete variables held */
 static int integrate(Instance *c, double tend) {
 #if USE_LTI
+    /* the exact step assumes b constant: inputs varying over the step take ROS2(3) */
+    if (c->u_interp) return integrate_ros(c, tend);
     return integrate_lti(c, tend);
 #else
     return integrate_ros(c, tend);
@@ -471,6 +501,8 @@ static void set_defaults(Instance *c) {
     c->params_dirty = 1;
     c->alg_valid = 0;
     c->n_steps = c->n_rejected = 0;
+    c->has_du = c->u_interp = 0;
+    memset(c->du, 0, sizeof c->du);
     c->mode = MODE_INSTANTIATED;
 }
 
@@ -575,6 +607,36 @@ static int set_reals(Instance *inst, const uint32_t vr[], size_t n, const double
     return 0;
 }
 
+/* first-order input derivatives: input vr[i] varies as u(tc) + value[i] (t - tc) over
+ * the following doSteps (until set again; 0 holds it) */
+static int core_set_input_derivatives(Instance *inst, const uint32_t vr[], size_t n,
+                                      const int order[], const double value[], const char *fn) {
+    size_t i;
+    int k;
+    if (inst->mode == MODE_TERMINATED || inst->mode == MODE_ERROR) return -1;
+    for (i = 0; i < n; i++) {
+        if (vr[i] < OFF_U || vr[i] >= OFF_X || VAR_TYPE[vr[i]] != 'R') {
+            logmsg(inst, ST_ERROR, "logStatusError", "%s: value reference %u is not a Real input",
+                   fn, vr[i]);
+            return -1;
+        }
+        if (order[i] != 1) {
+            logmsg(inst, ST_ERROR, "logStatusError", "%s: derivative order %d of input %u: "
+                   "only first-order input derivatives are supported", fn, order[i], vr[i]);
+            return -1;
+        }
+        if (!isfinite(value[i])) {
+            logmsg(inst, ST_ERROR, "logStatusError", "%s: derivative of %u is not finite", fn, vr[i]);
+            return -1;
+        }
+        inst->du[vr[i] - OFF_U] = value[i];
+    }
+    inst->has_du = 0;
+    for (k = 0; k < NU; k++)
+        if (inst->du[k] != 0.0) inst->has_du = 1;
+    return 0;
+}
+
 /* ---- FMU state: the instance is a flat struct, so a copy is a complete snapshot */
 static int core_get_state(Instance *inst, void **s) {
     Instance *copy = *s ? (Instance *)*s : (Instance *)calloc(1, sizeof(Instance));
@@ -639,6 +701,12 @@ static int core_do_step(Instance *inst, double tc, double h, const char *fn) {
     }
     inst->t = tc;
     tend = tc + h;
+    if (inst->has_du) {
+        memcpy(inst->u_base, &inst->v[OFF_U], sizeof(double) * NU);
+        inst->t_base = tc;
+        inst->u_interp = 1;
+        inst->alg_valid = 0;
+    }
     for (;;) {
         double target = tend, tn;
         for (j = 0; j < ND; j++) {
@@ -646,12 +714,17 @@ static int core_do_step(Instance *inst, double tc, double h, const char *fn) {
             if (fabs(tn - tend) <= 1e-9 * period_of(inst, j)) tn = tend;
             if (tn < target) target = tn;
         }
-        if (target > inst->t && integrate(inst, target)) { inst->mode = MODE_ERROR; return -1; }
+        if (target > inst->t && integrate(inst, target)) { inst->u_interp = 0; inst->mode = MODE_ERROR; return -1; }
         inst->t = target;
-        if (do_events(inst)) { inst->mode = MODE_ERROR; return -1; }
+        if (do_events(inst)) { inst->u_interp = 0; inst->mode = MODE_ERROR; return -1; }
         if (target >= tend) break;
     }
     inst->t = tend;
+    if (inst->u_interp) {       /* the inputs now hold their values at tend */
+        for (j = 0; j < NU; j++) inst->v[OFF_U + j] = inst->u_base[j] + inst->du[j] * h;
+        inst->u_interp = 0;
+        inst->alg_valid = 0;
+    }
     if (update_alg(inst)) { inst->mode = MODE_ERROR; return -1; }
     for (j = 0; j < NZ; j++)
         if (!isfinite(inst->v[OFF_Z + j])) {

@@ -49,7 +49,7 @@ import numpy as np
 from ...algorithms import ckernel
 from ...algorithms.ckernel import CFLAGS, KERNEL_DIR, compile_shared
 from ...paths import cache_dir
-from ..loop import fast_dest
+from ..loop import fast_dest, interpolated
 
 __all__ = ["ENGINE_SOURCE", "MODES", "load", "library_path", "unsupported", "choose", "attach"]
 
@@ -196,6 +196,10 @@ def choose(master, plan, ticks: int):
         if note:
             notes.append(note)
     if notes:
+        if interpolated(master.system):
+            # the slopes need the stimuli's next values, which only the whole loop has
+            return "python", ("input interpolation runs in the compiled engine's whole "
+                              "loop only; " + "; ".join(notes)), None
         return "compiled-calls", "; ".join(notes), None
     return "compiled-loop", "every controller has a compiled step", kernels
 
@@ -253,6 +257,7 @@ def attach(loop, mode, kernels, n_ticks, time_steps=False):
            Vd.ctypes.data if whole else 0, Sbuf.ctypes.data if whole else 0,
            rows.address() if whole else 0, rows.status_address())
     L.dbls(Ts, T0)
+    interp = interpolated(sys_) if whole else set()
     for j, (role, slave) in enumerate(slaves):
         io = loop.fmus[j].io
         L.ints(io.comp.value or 0, slave.fmi3, _addr(io.get), _addr(io.set), _addr(io.step))
@@ -265,6 +270,9 @@ def attach(loop, mode, kernels, n_ticks, time_steps=False):
         for c in ins:
             L.ints(slave.var(c.dest.partition(".")[2]).vr)
             L.term(S(c.source), c)
+        # interpolated inputs (loop.interpolated): their positions among the inputs
+        lin = [p for p, c in enumerate(ins) if id(c) in interp]
+        L.ints(len(lin), _addr(io.set_derivatives) if lin else 0, *lin)
         seq = [c for c in sys_._connections if c.dest.partition(".")[0] == role and c.sequential]
         L.ints(len(seq))
         for c in seq:

@@ -41,6 +41,7 @@ typedef int (*get3_t)(void *, const uint32_t *, size_t, double *, size_t);
 typedef int (*set2_t)(void *, const uint32_t *, size_t, const double *);
 typedef int (*set3_t)(void *, const uint32_t *, size_t, const double *, size_t);
 typedef int (*step2_t)(void *, double, double, int);
+typedef int (*setder2_t)(void *, const uint32_t *, size_t, const int *, const double *);
 typedef int (*step3_t)(void *, double, double, bool, bool *, bool *, bool *, double *);
 
 enum { E_GET = 1, E_SET = 2, E_STEP = 3, E_STIM = 4, E_NONFINITE_IN = 5, E_KERNEL = 6,
@@ -59,6 +60,8 @@ typedef struct {
     void *comp; int fmi3; void *get, *set, *step;
     int64_t nr; uint32_t *rvr; double *rb; int64_t ra;      /* reads into V[ra:ra+nr] */
     int64_t nw; uint32_t *wvr; double *wb; Term *wt;        /* inputs of the tick */
+    int64_t nd; void *setder; int64_t *dp;                   /* interpolated inputs: */
+    uint32_t *dvr; int *dord; double *db;                    /* wt[dp[i]], their slopes */
     int64_t ns; uint32_t *svr; double *sb; Seq *sq;         /* sequential inputs */
     int64_t d; double h, tcoff;                             /* step multiple */
     bool *ev, *term, *early; double *last;                  /* FMI 3 out-arguments */
@@ -167,6 +170,19 @@ static int do_writes(Program *P, int64_t k)
         calling(P, j, C_SET);
         int st = fmu_set(F->set, F->fmi3, F->comp, F->wvr, (size_t)F->nw, F->wb);
         if (st > 1) return fail(P, E_SET, k, j, st);
+        if (F->nd) {
+            /* as loop.TickLoop.set_slopes: (x_k+1 - x_k) / Ts from the precomputed
+               stimuli; 0 where x_k+1 is not there or not finite (tick k + 1 reports it) */
+            const double *S1 = P->S + (k + 1) * P->nstim;
+            for (int64_t i = 0; i < F->nd; i++) {
+                const Term *t = &F->wt[F->dp[i]];
+                double dx = (k + 1 == P->stim_fail) ? 0.0
+                            : (affine(S1[t->src - P->stim0], t) - F->wb[F->dp[i]]) / P->Ts;
+                F->db[i] = isfinite(dx) ? dx : 0.0;
+            }
+            st = ((setder2_t)F->setder)(F->comp, F->dvr, (size_t)F->nd, F->dord, F->db);
+            if (st > 1) return fail(P, E_SET, k, j, st);
+        }
     }
     calling(P, -1, C_NONE);
     return 0;
@@ -281,6 +297,7 @@ static void Program_free_tables(Program *P)
             Fmu *F = &P->f[j];
             free(F->rvr); free(F->rb); free(F->wvr); free(F->wb); free(F->wt);
             free(F->svr); free(F->sb); free(F->sq);
+            free(F->dp); free(F->dvr); free(F->dord); free(F->db);
         }
         free(P->f); P->f = NULL;
     }
@@ -342,6 +359,17 @@ static int Program_init(Program *P, PyObject *args, PyObject *kw)
         F->wvr = zalloc(F->nw, sizeof(uint32_t)); F->wb = zalloc(F->nw, sizeof(double));
         F->wt = zalloc(F->nw, sizeof(Term));
         for (int64_t i = 0; i < F->nw; i++) { F->wvr[i] = (uint32_t)I(&c); read_term(&c, &F->wt[i], P->nslot); }
+        F->nd = I(&c); F->setder = A(&c);
+        if (F->nd < 0 || F->nd > F->nw || (F->nd && (!F->setder || F->fmi3 || !P->S))) c.bad = 1;
+        F->dp = zalloc(F->nd, sizeof(int64_t)); F->dvr = zalloc(F->nd, sizeof(uint32_t));
+        F->dord = zalloc(F->nd, sizeof(int)); F->db = zalloc(F->nd, sizeof(double));
+        for (int64_t i = 0; i < F->nd && !c.bad; i++) {
+            F->dp[i] = I(&c);
+            if (F->dp[i] < 0 || F->dp[i] >= F->nw) { c.bad = 1; break; }
+            int64_t src = F->wt[F->dp[i]].src;     /* a stimulus' slot */
+            if (src < P->stim0 || src >= P->stim0 + P->nstim) c.bad = 1;
+            F->dvr[i] = F->wvr[F->dp[i]]; F->dord[i] = 1;
+        }
         F->ns = I(&c);
         if (F->ns < 0) c.bad = 1;
         F->svr = zalloc(F->ns, sizeof(uint32_t)); F->sb = zalloc(F->ns, sizeof(double));
