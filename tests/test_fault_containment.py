@@ -87,8 +87,12 @@ def cosim(*args, env) -> subprocess.CompletedProcess:
 
 
 def _tmp_env(tmp_path):
-    t = tmp_path / "tmpdir"
+    """A TMPDIR of the test's own, deep on purpose (over 107 bytes, the room of a socket
+    path): the isolated child must start whatever TMPDIR a user has (it could not:
+    'AF_UNIX path too long' under pytest-xdist's longer tmp_path)."""
+    t = tmp_path / ("tmpdir-deep-" + "d" * 64)
     t.mkdir()
+    assert len(str(t)) > 107
     return {**ENV, "TMPDIR": str(t)}, t
 
 

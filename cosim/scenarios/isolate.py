@@ -272,9 +272,31 @@ def _child(conn, scratch: str, env: dict, tmpdir: str, local_fmus: dict, target,
 _CTX = []
 
 
+#: room a socket path has on Linux (sun_path is 108 bytes with its terminating NUL)
+_AF_UNIX_MAX = 107
+
+
+def _short_socket_dir() -> None:
+    """The forkserver listens on a socket in multiprocessing's temporary folder, made
+    under TMPDIR. A deep TMPDIR (a user's, a test's tmp_path) leaves no room in a
+    socket path and the child could not start ("AF_UNIX path too long"): then that
+    folder is made under the system's /tmp instead (multiprocessing removes it at exit)."""
+    from multiprocessing import util
+    # 'pymp-XXXXXXXX' + '/listener-XXXXXXXX' + margin
+    if len(tempfile.gettempdir()) + 40 <= _AF_UNIX_MAX:
+        return
+    saved = tempfile.tempdir
+    try:
+        tempfile.tempdir = "/tmp"
+        util.get_temp_dir()            # made now, kept for the life of this process
+    finally:
+        tempfile.tempdir = saved
+
+
 def _context():
     """The forkserver context whose server has cosim and the trials imported."""
     if not _CTX:
+        _short_socket_dir()
         ctx = multiprocessing.get_context("forkserver")
         ctx.set_forkserver_preload(["cosim.scenarios._preload"])
         _CTX.append(ctx)
