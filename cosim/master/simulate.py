@@ -17,13 +17,11 @@ step as well).
 """
 from __future__ import annotations
 
-import inspect
 import math
 from pathlib import Path
 
 import numpy as np
 
-from ..fmi.fmu import FMUError
 from .system import Master, RunResult, System, SystemError_
 
 
@@ -146,13 +144,8 @@ def simulate_fmu(path, input_csv=None, start: dict | None = None, stop_time: flo
         raise SimulateError(f"--stop-time must be a finite number > 0, got {stop}")
     n = max(1, math.ceil(stop / h - 1e-9))
     s = System(h)
-    kw = {}
-    add_params = inspect.signature(System.add_fmu).parameters
-    if debug_logging and "debug_logging" in add_params:
-        kw["debug_logging"] = True
-    slave = s.add_fmu(role, path, kind=interface, rtol=rtol, parameters=dict(start or {}), **kw)
-    if debug_logging and "debug_logging" not in add_params:
-        _debug_logging_on(slave)
+    slave = s.add_fmu(role, path, kind=interface, rtol=rtol, parameters=dict(start or {}),
+                      debug_logging=bool(debug_logging))
     if input_csv is not None:
         ins = {name: v for name, v in slave.variables.items() if v.causality == "input"}
         for k, (name, (t, vals, disc)) in enumerate(read_input_csv(input_csv, ins).items()):
@@ -166,24 +159,6 @@ def simulate_fmu(path, input_csv=None, start: dict | None = None, stop_time: flo
     d = getattr(slave, "step_mult", 1)
     n = -(-n // d) * d
     return Master(s, record=names).run(n * h, raise_on_error=False)
-
-
-def _debug_logging_on(slave):
-    """Switch the FMU's debug logging on right after each instantiation."""
-    orig = slave.instantiate
-
-    def instantiate(*a, **k):
-        orig(*a, **k)
-        f = slave._fmu
-        try:
-            if getattr(slave, "fmi1", False):
-                f.setDebugLogging(True)
-            else:
-                f.setDebugLogging(True, [])
-        except Exception as exc:
-            raise FMUError(f"role {slave.role}: {slave.path.name}: cannot switch debug "
-                           f"logging on: {exc}") from None
-    slave.instantiate = instantiate
 
 
 def write_result(result: RunResult, out, role: str = "fmu"):
