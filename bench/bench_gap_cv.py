@@ -251,6 +251,43 @@ def label_key(lbl: dict) -> str:
     return e[0]
 
 
+def noise_bound(data: Path, names, labels, recs, cv_shr, effect_cols) -> str:
+    """What the sensor noise leaves of each case's held-out gap: the ``--test`` logs' noise
+    floor of the metric (:meth:`BallscrewDevice.noise_floor`, estimated from the logs)
+    over ``test_before``. A model exact to the noise cannot shrink a case below it; the
+    no-effect devices show how close the nominal model comes to it when nothing is missing."""
+    from cosim.gap.device import get_device
+    from cosim.logs.trial_log import read_trial_log
+    dev = get_device(DEVICE)
+    ratio = {}
+    for n in names:
+        ev = recs[n].get("evidence")
+        if ev is None or not ev.get("test_before"):
+            continue
+        root = data / "cases" / n
+        test = [read_trial_log(root / f"{p}.csv") for p in labels[n]["test"]]
+        ratio[n] = float(dev.noise_floor(test)["gap"]) / float(ev["test_before"])
+    lines = ["noise floor of the --test logs over test_before (the shrink a model exact to the sensor noise "
+             "would reach; cross-validated shrink beside it):"]
+    eff = [names[j] for j in effect_cols if names[j] in ratio]
+    for j, n in enumerate(names):
+        if n in ratio:
+            lines.append(f"  {n}  {','.join(labels[n]['effects']) or '[]':45s} floor/before {ratio[n]:.3f}  "
+                         f"shrink {cv_shr[j]:.3f}" + ("  (after/floor %.2f)" % (cv_shr[j] / ratio[n])
+                                                      if n in eff else ""))
+    if eff:
+        above = [n for n in eff if ratio[n] > 0.30]
+        lines.append(f"  effect devices: median floor/before {statistics.median(ratio[n] for n in eff):.3f}; "
+                     f"{len(above)} of {len(eff)} above 0.30 ({', '.join(above)})")
+        lines.append("  after/floor over the effect devices: median "
+                     f"{statistics.median(cv_shr[names.index(n)] / ratio[n] for n in eff):.2f}")
+    nofx = [n for n in names if n in ratio and labels[n]["effects"] == []]
+    if nofx:
+        lines.append(f"  no-effect devices: test_before/floor {', '.join(f'{1 / ratio[n]:.2f}' for n in nofx)} "
+                     "(the nominal model where nothing is missing)")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=None, help="gap-dev2 folder (default <independent>/gap-dev2)")
@@ -259,6 +296,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--only", nargs="*")
     ap.add_argument("--no-final", action="store_true")
+    ap.add_argument("--no-floor", action="store_true", help="skip the noise-floor bound of the shrink")
     ap.add_argument("--cached-only", action="store_true",
                     help="only the devices whose evidence of the current code is cached (a partial run)")
     ap.add_argument("--write", action="store_true", help="store the chosen thresholds in cosim/gap/thresholds.json")
@@ -334,6 +372,10 @@ def main(argv=None) -> int:
     fails = [n for n in names if "error" in recs[n]]
     print(f"failures: {len(fails)} {fails if fails else ''}; evidence per device: median "
           f"{statistics.median(ev_s) if ev_s else math.nan:.0f} s, max {max(secs):.0f} s")
+    if not a.no_floor:
+        print()
+        print(noise_bound(data, names, labels, recs, cv_shr, effect_cols))
+        print()
 
     # per effect: truth vs selected (cross-validated)
     print()
