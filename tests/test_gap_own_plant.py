@@ -128,8 +128,9 @@ def test_recalibration_removes_a_15_percent_parameter_error(fmu, tmp_path):
 
 def test_a_known_force_path_effect_is_recovered(fmu, tmp_path):
     """Gravity on a tilted axis (-M g sin 8 deg on the carriage; the specific-force accelerometer
-    does not see it): the FMU form of gravity_load recovers the force within 5 % and explains
-    nearly all the gap, and the accelerometer's per-trial offset is not mistaken for it."""
+    reads a + g sin 8 deg): the FMU form of gravity_load recovers the force and the tilt within
+    5 % and explains nearly all the gap, and the accelerometer's per-trial offset is not
+    mistaken for it."""
     true = dict(NOM)
     fg = -true["M"] * 9.81 * math.sin(math.radians(8.0))
     rows = simulate(3.0, true, 4, extra_force=lambda x, v: fg)
@@ -138,7 +139,9 @@ def test_a_known_force_path_effect_is_recovered(fmu, tmp_path):
     dev = device(fmu, tmp_path)
     g0 = dev.gap([lg], NOM)
     prm, g = dev.fit_effect([lg], NOM, "gravity_load")
-    assert abs(prm["g_force"] / fg - 1) < 0.05, prm
+    # the form's force is -m_g g sin(alpha), its reading's part +g sin(alpha)
+    assert abs(-prm["shape.m_g"] * 9.80665 * prm["sin_alpha"] / fg - 1) < 0.05, prm
+    assert abs(prm["sin_alpha"] / math.sin(math.radians(8.0)) - 1) < 0.05, prm
     assert 1 - (g / g0) ** 2 > 0.9
 
 

@@ -168,6 +168,7 @@ class FmuPlantDevice:
                        and not getattr(p, "same_as", None)}
         self._map_states(binding)
         self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
+        self.dist_angle = self._dist_unit in ("rad", "deg") if self._dist_unit else self.angle
         self.recalibration_note = (
             "recalibrated " + ", ".join(self.rec_params) + " by Gauss-Newton on the equation error of the plant "
             "FMU (finite-difference sensitivities), within the binding's ranges; directions the fit logs do not "
@@ -211,7 +212,8 @@ class FmuPlantDevice:
         if nx < 2:
             raise GapInputError(f"the plant has {nx} continuous state(s); the comparison needs a position "
                                 "and its speed", self.fmu_path)
-        vr_out = [self.vars.vr(enc.output)]
+        dpos = binding.disturbance.position
+        vr_out = [self.vars.vr(enc.output)] + ([self.vars.vr(dpos)] if dpos in self.vars.by_name else [])
         f = me.fmu
         dbuf = np.zeros(nx)
 
@@ -221,7 +223,7 @@ class FmuPlantDevice:
             me._get_dx(me._c, dbuf.ctypes.data, nx)
             return np.array(f.getReal(vr_out)), dbuf.copy()
         y0, d0 = probe(x0)
-        Cy, Cd = np.zeros(nx), np.zeros((nx, nx))
+        Cy, Cd, Cdist = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx)
         for j in range(nx):
             h = 1e-4 * max(abs(x0[j]), 1.0)
             xp = x0.copy()
@@ -229,6 +231,8 @@ class FmuPlantDevice:
             y1, d1 = probe(xp)
             Cy[j] = (y1[0] - y0[0]) / h
             Cd[:, j] = (d1 - d0) / h
+            if y0.size > 1:
+                Cdist[j] = (y1[1] - y0[1]) / h
         probe(x0)
         i_pos = self.vars.state_of_output(enc.output)
         if i_pos is None:
@@ -250,6 +254,23 @@ class FmuPlantDevice:
         self.c_pos, self.c_vel = c_pos, float(row[self.i_vel])
         self.pos_offset = float(y0[0] - c_pos * x0[i_pos])
         self.internal = tuple(k for k in range(nx) if k not in (self.i_pos, self.i_vel))
+        # the disturbance's point (where the force-path effects act) in the encoder's terms:
+        # its position = dist_gain * encoder output + dist_offset (a transmission ratio read
+        # from the FMU, as the encoder's own); an output not tied to the encoder's state alone
+        # (or absent) is taken to be the encoder's point
+        if y0.size > 1 and abs(Cdist[i_pos]) > 0 and np.count_nonzero(np.abs(Cdist) > 1e-9 * abs(Cdist[i_pos])) == 1:
+            self.dist_gain = float(Cdist[i_pos] / c_pos)
+            self.dist_offset = float(y0[1] - self.dist_gain * y0[0])
+        else:
+            self.dist_gain, self.dist_offset = 1.0, 0.0
+        self._dist_unit = (binding.disturbance.position_unit or self.vars.unit(dpos) or "") \
+            if dpos in self.vars.by_name else ""
+        # g in the accelerometer output's unit (a specific-force reading adds g sin(tilt))
+        self._g_out = None
+        if self.motion is not None and self.motion.sensor.kind == "accelerometer":
+            from ...master.units import unit_conversion
+            self._g_out = 9.80665 * unit_conversion("accelerometer", "m/s2", (), self.vars.unit(self.motion.output)
+                                                    or "m/s2", self.vars.md.unitDefinitions)[0]
 
     # ------------------------------------------------------------------ preparation
     def _col(self, log: TrialLog, name: str) -> np.ndarray:
@@ -333,17 +354,29 @@ class FmuPlantDevice:
     def _ctx(self, p: _Prep, pred: np.ndarray | None = None):
         xs = p.x
         return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
-                               x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))))
+                               x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))),
+                               xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
+                               specific=bool(self.motion is not None and self.motion.sensor.specific_force),
+                               g=self._g_out)
 
-    def _ctx_all(self, logs: Sequence[TrialLog]):
+    def _ctx_all(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None = None):
         ps = [self._prep(lg) for lg in logs]
         u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
         qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
-        return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"],
+        return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"], dist_angle=self.dist_angle,
+                               m_eff=self._m_eff(logs, nom),
                                v_rest=max(p.cache["v_rest"] for p in ps),
                                v_scale=max(p.cache["v_scale"] for p in ps),
                                x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
                                u_abs_q=sorted(set(v for v in qs if v > 0)))
+
+    def _m_eff(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None) -> float | None:
+        """The plant's effective mass (inertia) at the disturbance's point, 1 / (d acc / d
+        force) there (median over the first log), at ``nom``; None without parameters."""
+        if nom is None or not logs:
+            return None
+        g = float(np.median(np.abs(self._sens(self._nearest(logs[0], nom))["GFa"]))) * abs(self.dist_gain)
+        return 1.0 / g if g > 0 else None
 
     # ------------------------------------------------------------------ FMU evaluation
     def _plant(self) -> MePlant:
@@ -528,11 +561,18 @@ class FmuPlantDevice:
                     if has_s:
                         s += self._sensor(e["Gs"][j] * _prev(du), p)
             elif f.kind == "force":
-                for c, col in f.columns(self._ctx(p), shape).items():
+                ctx = self._ctx(p)
+                rd = f.reading(ctx, shape) if (f.reading is not None and has_s and specific) else None
+                for c, col in f.columns(ctx, shape).items():
                     cols_a[f"{name}:{c}"] = signal.sosfiltfilt(p.cache["sosF"], e["GFa"] * col)
                     if has_s:
-                        cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
-                                                 else self._sensor(e["GFs"] * col, p))
+                        if rd is not None:
+                            # the force moves the sensed body (GFs) and the reading adds its own
+                            # term (gravity: g sin(tilt) in a specific-force reading)
+                            cols_s[f"{name}:{c}"] = self._sensor(e["GFs"] * col + rd.get(c, 0.0), p)
+                        else:
+                            cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
+                                                     else self._sensor(e["GFs"] * col, p))
         if refit:
             for k in self.rec_params:
                 cols_a[NOMINAL_PREFIX + k] = self._filtered(J, "a" + k, J["Ja"][k], p, False)
@@ -865,7 +905,7 @@ class FmuPlantDevice:
         if f.kind in ("sensor", "sensed_point"):
             return {self.sig_acc}
         specific = self.motion is not None and self.motion.sensor.specific_force
-        if f.kind == "force" and f.body_force and specific:
+        if f.kind == "force" and f.body_force and specific and (f.reading is None or self.dist_angle):
             return {self.sig_enc}
         return {s for s in (self.sig_enc, self.sig_acc) if s}
 
@@ -887,8 +927,8 @@ class FmuPlantDevice:
             out[name] = prm
         return out
 
-    def _grid(self, logs, effect):
-        return self.forms[self._alias.get(effect, effect)].grid(self._ctx_all(logs))
+    def _grid(self, logs, effect, nom=None):
+        return self.forms[self._alias.get(effect, effect)].grid(self._ctx_all(logs, nom))
 
     def fit_effect(self, logs, params, effect):
         if self.progress:
@@ -903,7 +943,7 @@ class FmuPlantDevice:
         for e in effects:                       # each alone first (cached: pairs reuse it)
             ck = pk + (e,)
             if ck not in self._shapes:
-                grid = self._grid(logs, e)
+                grid = self._grid(logs, e, nom)
                 hint = self._hints.get(e)
                 if hint is not None and len(grid) > 5:
                     # a subset of logs (a held-out fold): search near the shape found on all of
@@ -924,7 +964,7 @@ class FmuPlantDevice:
         if len(effects) > 1 and descend:
             cur = self._fit_cfg(logs, nom, cfg)[0]
             for e in effects:
-                for sh in self._grid(logs, e):
+                for sh in self._grid(logs, e, nom):
                     trial = dict(cfg)
                     trial[e] = sh
                     g = self._fit_cfg(logs, nom, trial)[0]

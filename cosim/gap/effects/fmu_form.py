@@ -19,10 +19,14 @@ that evaluation in one of four places, which is its ``kind``:
   the sensed point's.
 
 ``ctx`` (per log): ``t`` [s], ``ts``, ``x`` position and ``v`` speed of the plant (FMU units,
-smoothed), ``pred`` (sensor effects), ``angle`` (the position is an angle in rad).
+smoothed), ``pred`` (sensor effects), ``angle`` (the position is an angle in rad); ``xd`` and
+``dist_angle``: the disturbance's point's position (the binding's ``disturbance.position``,
+tied to the encoder by the FMU's own ratio) and whether it is an angle; ``specific`` (the
+accelerometer reads specific force) and ``g`` (g in the reading's unit).
 ``grid(ctx_all)`` gives the shapes searched from the logs' ranges (``ctx_all``: speed
 scale ``v_scale``, rest speed ``v_rest``, travel ``x_min``/``x_max``, encoder quantum ``q``,
-command quantiles ``u_abs_q``, ``ts``, ``angle``); ``refine``: the one shape parameter refined
+command quantiles ``u_abs_q``, ``ts``, ``angle``, ``dist_angle``, ``m_eff``: the effective mass or
+inertia at the disturbance's point, None before the recalibration); ``refine``: the one shape parameter refined
 between its grid neighbours; ``nonneg``: coefficients that physics keeps >= 0.
 """
 from __future__ import annotations
@@ -47,6 +51,11 @@ class FmuForm:
     columns: Callable[[Any, Mapping[str, float]], dict[str, np.ndarray]] | None = None
     transform: Callable[[np.ndarray, Mapping[str, float], float], np.ndarray] | None = None
     body_force: bool = False
+    #: ``force`` effects: what a specific-force accelerometer reads from the effect besides the
+    #: motion it causes (gravity's g sin(tilt)): ``reading(ctx, shape)`` -> {coefficient: column
+    #: in the reading's unit per unit coefficient}, or None where it does not apply (then
+    #: ``body_force`` decides)
+    reading: Callable[[Any, Mapping[str, float]], dict[str, np.ndarray] | None] | None = None
     nonneg: tuple[str, ...] = ()
     along_travel: bool = False
     #: for ``sensor`` effects: the generic catalogue name (``sensor_scale_error``) used when the
