@@ -212,7 +212,12 @@ class MePlant:
         by forward differences at every sample. Why implicit: an internal state of a friction
         or drive model is often far faster than the log's sample (a LuGre bristle at sliding
         speed: microseconds); the implicit step takes it to its quasi-steady value instead of
-        diverging. The step from sample k uses the inputs and measured states of sample k."""
+        diverging. The step from sample k to k+1 uses the inputs of sample k (held over the
+        sample) and the measured states of sample k+1 (known: the motion is measured), i.e. it
+        is implicit in the measured motion: a bristle or any state far faster than the sample
+        lands on its quasi-steady value for the motion at k+1, not at k (at a speed reversal the
+        latter is the friction of the previous direction, a one-sample error of twice the
+        Coulomb friction)."""
         B = self._buffers(t, x, inputs, u, outputs, u_out, copy_x=True)
         n, nx, ni, no, x, dx, y = B.n, B.nx, B.ni, B.no, B.x, B.dx, B.y
         xa, ua, dxa, ya, u2a, vin, vout, tl = B.xa, B.ua, B.dxa, B.ya, B.u2a, B.vin, B.vout, B.tl
@@ -249,24 +254,30 @@ class MePlant:
                 continue
             h = tl[k + 1] - tl[k]
             if m == 1:
-                # scalar path through memoryviews (no numpy per sample): the row's own state
-                # perturbed in place for the Jacobian, then restored
-                i0 = k * nx + j0
-                z = mx[i0]
-                f0 = mdx[i0]
-                dz = 1e-6 * max(abs(z), sc0)
-                mx[i0] = z + dz
-                sx(c, xa + k * nx * b, nx)
+                # scalar path through memoryviews (no numpy per sample): the internal state z_k
+                # put into the next sample's row (its measured states), the derivative there and
+                # its own perturbation (the Jacobian), then the step written in place
+                i1 = (k + 1) * nx + j0
+                z = mx[k * nx + j0]
+                mx[i1] = z
+                sx(c, xa + (k + 1) * nx * b, nx)
                 gd(c, dpa, nx)
-                mx[i0] = z
+                f0 = mdp[j0]
+                dz = 1e-6 * max(abs(z), sc0)
+                mx[i1] = z + dz
+                sx(c, xa + (k + 1) * nx * b, nx)
+                gd(c, dpa, nx)
                 jac = (mdp[j0] - f0) / dz
                 if jac > 0.0:                      # only decaying modes are stiff
                     jac = 0.0
-                mx[i0 + nx] = z + h * f0 / (1.0 - h * jac)
+                mx[i1] = z + h * f0 / (1.0 - h * jac)
             else:
-                xk = x[k]
-                f = dx[k, iz]
-                zk = xk[iz]
+                zk = x[k, iz].copy()
+                xk = x[k + 1].copy()
+                xk[iz] = zk
+                sx(c, xk.ctypes.data, nx)
+                gd(c, dpa, nx)
+                f = dp[iz].copy()
                 J = np.zeros((m, m))
                 for a_, jj in enumerate(izl):
                     dz = 1e-6 * max(abs(zk[a_]), scale[a_])

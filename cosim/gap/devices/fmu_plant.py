@@ -148,7 +148,15 @@ class FmuPlantDevice:
                                 "measurements")
         self.enc = enc
         self.motion = binding.measurement("accelerometer") or binding.measurement("gyroscope")
+        self.rec_params = tuple(p.name for p in binding.parameters if p.recalibrate)
+        self.param_names = tuple(p.name for p in binding.parameters if p.recalibrate)
+        self._bounds = {p.name: (p.low, p.high) for p in binding.parameters}
+        self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate
+                       and not getattr(p, "same_as", None)}
         self.forms = fmu_forms()
+        self._map_states(binding)
+        self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
+        self.dist_angle = self._dist_unit in ("rad", "deg") if self._dist_unit else self.angle
         names = []
         for n, f in self.forms.items():
             if f.kind == "sensor":
@@ -158,17 +166,11 @@ class FmuPlantDevice:
                     n = f.generic_name
             if f.kind == "sensed_point" and self.motion is None:
                 continue
+            if f.linear_only and self.dist_angle:
+                continue
             names.append(n)
         self.effects = tuple(names)
         self._alias = {f.generic_name: n for n, f in self.forms.items() if f.generic_name}
-        self.rec_params = tuple(p.name for p in binding.parameters if p.recalibrate)
-        self.param_names = tuple(p.name for p in binding.parameters if p.recalibrate)
-        self._bounds = {p.name: (p.low, p.high) for p in binding.parameters}
-        self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate
-                       and not getattr(p, "same_as", None)}
-        self._map_states(binding)
-        self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
-        self.dist_angle = self._dist_unit in ("rad", "deg") if self._dist_unit else self.angle
         self.recalibration_note = (
             "recalibrated " + ", ".join(self.rec_params) + " by Gauss-Newton on the equation error of the plant "
             "FMU (finite-difference sensitivities), within the binding's ranges; directions the fit logs do not "
@@ -302,6 +304,7 @@ class FmuPlantDevice:
         add = np.zeros(n)
         add[1:-1] = (xs[2:] - 2 * xs[1:-1] + xs[:-2]) / ts ** 2
         a_enc = signal.sosfiltfilt(sosF, add)
+        a_raw = add                              # the smoothed motion's acceleration, unfiltered
         acc = None
         if self.motion is not None:
             acc = signal.sosfiltfilt(sosF, self.motion.scale * self._col(log, self.motion.column))
@@ -323,7 +326,8 @@ class FmuPlantDevice:
         mask[:e] = False
         mask[n - e:] = False
         p = _Prep(log, ts, t, u, fext, xs, v, a_enc, acc, mask, {}, {"q": q, "v_rest": v_rest,
-                                                                     "v_scale": v_scale, "sosF": sosF})
+                                                                     "v_scale": v_scale, "sosF": sosF,
+                                                                     "a_raw": a_raw})
         p.noise = self._noise(p, sos_s, sosF, xe)
         self._preps[id(log)] = p
         return p
@@ -356,6 +360,8 @@ class FmuPlantDevice:
         return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
                                x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))),
                                xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
+                               vd=self.dist_gain * p.v, ad=self.dist_gain * p.cache["a_raw"], fd=self._f_dist(p),
+                               memo=p.cache,
                                specific=bool(self.motion is not None and self.motion.sensor.specific_force),
                                g=self._g_out)
 
@@ -364,11 +370,24 @@ class FmuPlantDevice:
         u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
         qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
         return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"], dist_angle=self.dist_angle,
-                               m_eff=self._m_eff(logs, nom),
+                               m_eff=self._m_eff(logs, nom), q_d=ps[0].cache["q"] * abs(self.dist_gain),
+                               a_scale_d=abs(self.dist_gain) * max(float(np.percentile(np.abs(p.cache["a_raw"]), 95))
+                                                                   for p in ps),
+                               xd_min=min(float(np.min(self.dist_gain * p.x)) for p in ps),
+                               xd_max=max(float(np.max(self.dist_gain * p.x)) for p in ps),
                                v_rest=max(p.cache["v_rest"] for p in ps),
                                v_scale=max(p.cache["v_scale"] for p in ps),
                                x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
                                u_abs_q=sorted(set(v for v in qs if v > 0)))
+
+    def _f_dist(self, p: _Prep) -> np.ndarray:
+        """The known external force at the disturbance's input (SI), 0 when none enters there."""
+        d = self.b.disturbance
+        f = np.zeros(p.t.size)
+        for j, e in enumerate(self.b.external):
+            if e.input == d.input:
+                f += p.fext[:, j] / d.scale
+        return f
 
     def _m_eff(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None) -> float | None:
         """The plant's effective mass (inertia) at the disturbance's point, 1 / (d acc / d
@@ -562,8 +581,9 @@ class FmuPlantDevice:
                         s += self._sensor(e["Gs"][j] * _prev(du), p)
             elif f.kind == "force":
                 ctx = self._ctx(p)
-                rd = f.reading(ctx, shape) if (f.reading is not None and has_s and specific) else None
-                for c, col in f.columns(ctx, shape).items():
+                rd = f.reading(ctx, shape) if (f.reading is not None and has_s) else None
+                fc = f.columns(ctx, shape)
+                for c, col in fc.items():
                     cols_a[f"{name}:{c}"] = signal.sosfiltfilt(p.cache["sosF"], e["GFa"] * col)
                     if has_s:
                         if rd is not None:
@@ -573,6 +593,9 @@ class FmuPlantDevice:
                         else:
                             cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
                                                      else self._sensor(e["GFs"] * col, p))
+                for c, col in (rd or {}).items():        # a coefficient of the reading alone
+                    if c not in fc:
+                        cols_s[f"{name}:{c}"] = self._sensor(col, p)
         if refit:
             for k in self.rec_params:
                 cols_a[NOMINAL_PREFIX + k] = self._filtered(J, "a" + k, J["Ja"][k], p, False)
