@@ -19,8 +19,11 @@ output the predicted reading. Two comparison signals, both through the same zero
 * ``<accelerometer column>``: the reading vs the FMU output through the sensor model
   (bandwidth pole, specific force, a per-trial offset projected out).
 
-Samples near rest (set-valued friction: ``|v| < v_rest``, dilated 15 ms) and 50 ms at each
-end are not compared. Residuals are also given in command units (divided by the FMU's
+Samples near rest and 50 ms at each end are not compared. Rest: ``|v| < v_rest``, the speed
+error that the state smoothing makes around a reversal or a stick, the plant's friction jump
+(read from the FMU, :meth:`FmuPlantDevice._friction_jump`) over ``2 pi SMOOTH_HZ``, and at least
+0.2 encoder counts per sample; dilated by the samples through which ``F`` leaks a rest sample's
+residual (:func:`_leak_samples`, 5 at 1 kHz). Residuals are also given in command units (divided by the FMU's
 d acc / d command, a finite difference): the analogue of the built-in devices' inverse
 model. Metric: per signal nrmse ``rms(meas - model) / std(meas)`` over the compared samples,
 combined as ``sqrt(sum_s w_s nrmse_s^2)`` with ``w_s ~ 1 / floor_s^2`` (floor_s: the nrmse the
@@ -179,8 +182,6 @@ class FmuPlantDevice:
                     n = f.generic_name
             if f.kind == "sensed_point" and self.motion is None:
                 continue
-            if f.linear_only and self.dist_angle:
-                continue
             names.append(n)
         self.effects = tuple(names)
         self._alias = {f.generic_name: n for n, f in self.forms.items() if f.generic_name}
@@ -317,7 +318,6 @@ class FmuPlantDevice:
         add = np.zeros(n)
         add[1:-1] = (xs[2:] - 2 * xs[1:-1] + xs[:-2]) / ts ** 2
         a_enc = signal.sosfiltfilt(sosF, add)
-        a_raw = add                              # the smoothed motion's acceleration, unfiltered
         acc = None
         if self.motion is not None:
             acc = signal.sosfiltfilt(sosF, self.motion.scale * self._col(log, self.motion.column))
@@ -339,8 +339,7 @@ class FmuPlantDevice:
         mask[:e] = False
         mask[n - e:] = False
         p = _Prep(log, ts, t, u, fext, xs, v, a_enc, acc, mask, {}, {"q": q, "v_rest": v_rest,
-                                                                     "v_scale": v_scale, "sosF": sosF,
-                                                                     "a_raw": a_raw})
+                                                                     "v_scale": v_scale, "sosF": sosF})
         p.noise = self._noise(p, sos_s, sosF, xe)
         self._preps[id(log)] = p
         return p
@@ -402,8 +401,6 @@ class FmuPlantDevice:
         return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
                                x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))),
                                xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
-                               vd=self.dist_gain * p.v, ad=self.dist_gain * p.cache["a_raw"], fd=self._f_dist(p),
-                               memo=p.cache,
                                specific=bool(self.motion is not None and self.motion.sensor.specific_force),
                                g=self._g_out)
 
@@ -412,24 +409,11 @@ class FmuPlantDevice:
         u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
         qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
         return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"], dist_angle=self.dist_angle,
-                               m_eff=self._m_eff(logs, nom), q_d=ps[0].cache["q"] * abs(self.dist_gain),
-                               a_scale_d=abs(self.dist_gain) * max(float(np.percentile(np.abs(p.cache["a_raw"]), 95))
-                                                                   for p in ps),
-                               xd_min=min(float(np.min(self.dist_gain * p.x)) for p in ps),
-                               xd_max=max(float(np.max(self.dist_gain * p.x)) for p in ps),
+                               m_eff=self._m_eff(logs, nom),
                                v_rest=max(p.cache["v_rest"] for p in ps),
                                v_scale=max(p.cache["v_scale"] for p in ps),
                                x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
                                u_abs_q=sorted(set(v for v in qs if v > 0)))
-
-    def _f_dist(self, p: _Prep) -> np.ndarray:
-        """The known external force at the disturbance's input (SI), 0 when none enters there."""
-        d = self.b.disturbance
-        f = np.zeros(p.t.size)
-        for j, e in enumerate(self.b.external):
-            if e.input == d.input:
-                f += p.fext[:, j] / d.scale
-        return f
 
     def _m_eff(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None) -> float | None:
         """The plant's effective mass (inertia) at the disturbance's point, 1 / (d acc / d
@@ -635,9 +619,6 @@ class FmuPlantDevice:
                         else:
                             cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
                                                      else self._sensor(e["GFs"] * col, p))
-                for c, col in (rd or {}).items():        # a coefficient of the reading alone
-                    if c not in fc:
-                        cols_s[f"{name}:{c}"] = self._sensor(col, p)
         if refit:
             for k in self.rec_params:
                 cols_a[NOMINAL_PREFIX + k] = self._filtered(J, "a" + k, J["Ja"][k], p, False)

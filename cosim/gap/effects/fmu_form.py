@@ -51,12 +51,10 @@ class FmuForm:
     columns: Callable[[Any, Mapping[str, float]], dict[str, np.ndarray]] | None = None
     transform: Callable[[np.ndarray, Mapping[str, float], float], np.ndarray] | None = None
     body_force: bool = False
-    #: the form needs a linear (length) disturbance point (a play in metres along a slide)
-    linear_only: bool = False
     #: ``force`` effects: what a specific-force accelerometer reads from the effect besides the
     #: motion it causes (gravity's g sin(tilt)): ``reading(ctx, shape)`` -> {coefficient: column
     #: in the reading's unit per unit coefficient}, or None where it does not apply (then
-    #: ``body_force`` decides); a coefficient without a force column acts on the reading only
+    #: ``body_force`` decides)
     reading: Callable[[Any, Mapping[str, float]], dict[str, np.ndarray] | None] | None = None
     nonneg: tuple[str, ...] = ()
     along_travel: bool = False
