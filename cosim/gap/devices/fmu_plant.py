@@ -401,6 +401,7 @@ class FmuPlantDevice:
         return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
                                x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))),
                                xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
+                               xd_mid=self.dist_gain * 0.5 * (float(np.min(xs)) + float(np.max(xs))) + self.dist_offset,
                                specific=bool(self.motion is not None and self.motion.sensor.specific_force),
                                g=self._g_out)
 
@@ -409,7 +410,9 @@ class FmuPlantDevice:
         u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
         qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
         return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"], dist_angle=self.dist_angle,
-                               m_eff=self._m_eff(logs, nom),
+                               m_eff=self._m_eff(logs, nom), q_d=ps[0].cache["q"] * abs(self.dist_gain),
+                               xd_span=abs(self.dist_gain) * (max(float(p.x.max()) for p in ps)
+                                                              - min(float(p.x.min()) for p in ps)),
                                v_rest=max(p.cache["v_rest"] for p in ps),
                                v_scale=max(p.cache["v_scale"] for p in ps),
                                x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
