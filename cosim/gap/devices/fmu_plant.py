@@ -729,6 +729,19 @@ class FmuPlantDevice:
                     rhs.append(np.zeros(1))
                     tags.append(("offset", 0.0, 1))
         n_ridge = 0
+        if refit and cfg and RIDGE > 0:
+            # an effect fit re-fits the nominal parameters: each is pulled to its current value
+            # (RIDGE per unit relative change), so that a direction the logs barely determine
+            # (the common scale of the plant's forces without a known external force) does not
+            # take a large step that only the fitted logs cannot see
+            at = self._chord_at or params
+            for i, c in enumerate(names):
+                if c.startswith(NOMINAL_PREFIX):
+                    row = np.zeros((1, ncol))
+                    row[0, i] = RIDGE / max(abs(float(at[c[len(NOMINAL_PREFIX):]])), 1e-300)
+                    rows.append(row)
+                    rhs.append(np.zeros(1))
+                    n_ridge += 1
         A = np.vstack(rows)
         bvec = np.concatenate(rhs)
         used = np.flatnonzero(np.any(A != 0, axis=0))
