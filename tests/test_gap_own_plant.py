@@ -105,6 +105,27 @@ def test_equation_error_matches_the_analytic_one_mass_model(fmu, tmp_path):
     assert dev.gap_parts([lg], wrong)["acc_meas"] > 5 * parts["acc_meas"]
 
 
+def test_rest_threshold_from_the_plants_friction_jump(fmu, tmp_path):
+    """The rest threshold comes from the plant: its acceleration jump on a speed reversal
+    (+dv -> -dv) read from the FMU equals the one-mass model's 2 (b dv + Fc tanh(dv / v_eps)) / M,
+    and a log's rest speed is that jump smeared by the 200 Hz smoothing (/ 2 pi 200 Hz), not
+    below 0.2 encoder counts per sample; the rest samples are dilated by the 100 Hz comparison
+    filter's leak (5 samples at 1 kHz)."""
+    from cosim.gap.devices import fmu_plant
+    dev = device(fmu, tmp_path)
+    eps = dev.vars.start("v_eps")
+    for dv in (2e-4, 3e-3, 5e-2):
+        want = 2 * (NOM["b"] * dv + NOM["Fc"] * math.tanh(dv / eps)) / NOM["M"]
+        assert dev._friction_jump(1e-3, dv) == pytest.approx(want, rel=1e-4), dv
+    lg = read(write_log(tmp_path / "r" / "identification-1", simulate(3.0, NOM, 5)))
+    p = dev._prep(lg)
+    jump = dev._friction_jump(1e-3, 0.02 * p.cache["v_scale"])
+    assert p.cache["v_rest"] == pytest.approx(max(0.2 * 1e-6 / 1e-3, jump / (2 * math.pi * 200.0)), rel=1e-9)
+    assert fmu_plant._leak_samples(p.cache["sosF"]) == 5
+    rest = np.abs(p.v) < p.cache["v_rest"]
+    assert not np.any(p.mask & np.convolve(rest, np.ones(11), "same").astype(bool))
+
+
 def test_recalibration_removes_a_15_percent_parameter_error(fmu, tmp_path):
     """Logs of an axis 15 % off nominal in M, Kf, b, Fc (one with a known external force, which
     separates Kf from M): the recalibrated values are within 3 %, the fit gap drops to the noise
@@ -128,8 +149,9 @@ def test_recalibration_removes_a_15_percent_parameter_error(fmu, tmp_path):
 
 def test_a_known_force_path_effect_is_recovered(fmu, tmp_path):
     """Gravity on a tilted axis (-M g sin 8 deg on the carriage; the specific-force accelerometer
-    does not see it): the FMU form of gravity_load recovers the force within 5 % and explains
-    nearly all the gap, and the accelerometer's per-trial offset is not mistaken for it."""
+    reads a + g sin 8 deg): the FMU form of gravity_load recovers the force and the tilt within
+    5 % and explains nearly all the gap, and the accelerometer's per-trial offset is not
+    mistaken for it."""
     true = dict(NOM)
     fg = -true["M"] * 9.81 * math.sin(math.radians(8.0))
     rows = simulate(3.0, true, 4, extra_force=lambda x, v: fg)
@@ -138,7 +160,9 @@ def test_a_known_force_path_effect_is_recovered(fmu, tmp_path):
     dev = device(fmu, tmp_path)
     g0 = dev.gap([lg], NOM)
     prm, g = dev.fit_effect([lg], NOM, "gravity_load")
-    assert abs(prm["g_force"] / fg - 1) < 0.05, prm
+    # the form's force is -m_g g sin(alpha), its reading's part +g sin(alpha)
+    assert abs(-prm["shape.m_g"] * 9.80665 * prm["sin_alpha"] / fg - 1) < 0.05, prm
+    assert abs(prm["sin_alpha"] / math.sin(math.radians(8.0)) - 1) < 0.05, prm
     assert 1 - (g / g0) ** 2 > 0.9
 
 

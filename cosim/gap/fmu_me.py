@@ -16,6 +16,7 @@ import ctypes
 import shutil
 import tempfile
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -132,6 +133,26 @@ class MePlant:
         self._get_x(self._c, x.ctypes.data, self.nx)
         return x[:self.nx]
 
+    def _buffers(self, t, x, inputs, u, outputs, u_out, copy_x: bool) -> SimpleNamespace:
+        """The contiguous float64 arrays and raw addresses the per-sample ctypes calls use
+        (shared by :meth:`evaluate` and :meth:`_pass`): states ``x`` (n x nx; a copy when
+        ``copy_x``, since :meth:`_pass` writes the integrated internal states into it), inputs
+        ``u`` and ``u_out`` (n x ni), the derivative and output buffers, value-reference arrays
+        (kept alive in the namespace, their addresses passed) and the time list."""
+        n = int(t.size)
+        nx, ni, no = self.nx, len(inputs), len(outputs)
+        x = (np.array if copy_x else np.ascontiguousarray)(x, dtype=np.float64).reshape(n, nx)
+        u = np.ascontiguousarray(u, dtype=np.float64).reshape(n, ni)
+        u2 = None if u_out is None else np.ascontiguousarray(u_out, dtype=np.float64).reshape(n, ni)
+        dx = np.zeros((n, nx))
+        y = np.zeros((n, max(no, 1)))
+        vr_in = (ctypes.c_uint * max(ni, 1))(*[self.vars.vr(s) for s in inputs])
+        vr_out = (ctypes.c_uint * max(no, 1))(*[self.vars.vr(s) for s in outputs])
+        return SimpleNamespace(n=n, nx=nx, ni=ni, no=no, x=x, u=u, u2=u2, dx=dx, y=y, vr_in=vr_in, vr_out=vr_out,
+                               xa=x.ctypes.data, ua=u.ctypes.data, dxa=dx.ctypes.data, ya=y.ctypes.data,
+                               u2a=None if u2 is None else u2.ctypes.data,
+                               vin=ctypes.addressof(vr_in), vout=ctypes.addressof(vr_out), tl=t.tolist())
+
     def evaluate(self, params: Mapping[str, float], t: np.ndarray, x: np.ndarray,
                  inputs: Sequence[str], u: np.ndarray, outputs: Sequence[str],
                  u_out: np.ndarray | None = None, internal: Sequence[int] = ()) -> tuple[np.ndarray, np.ndarray]:
@@ -146,22 +167,12 @@ class MePlant:
         self.initialise(params)
         if len(internal):
             return self._integrate(t, x, inputs, u, outputs, u_out, list(internal))
-        n = int(t.size)
-        nx, ni, no = self.nx, len(inputs), len(outputs)
-        x = np.ascontiguousarray(x, dtype=np.float64).reshape(n, nx)
-        u = np.ascontiguousarray(u, dtype=np.float64).reshape(n, ni)
-        u2 = None if u_out is None else np.ascontiguousarray(u_out, dtype=np.float64).reshape(n, ni)
-        dx = np.zeros((n, nx))
-        y = np.zeros((n, max(no, 1)))
-        vr_in = (ctypes.c_uint * max(ni, 1))(*[self.vars.vr(s) for s in inputs])
-        vr_out = (ctypes.c_uint * max(no, 1))(*[self.vars.vr(s) for s in outputs])
+        B = self._buffers(t, x, inputs, u, outputs, u_out, copy_x=False)
+        n, nx, ni, no, x, dx, y = B.n, B.nx, B.ni, B.no, B.x, B.dx, B.y
+        xa, ua, dxa, ya, u2a, vin, vout, tl = B.xa, B.ua, B.dxa, B.ya, B.u2a, B.vin, B.vout, B.tl
         c = self._c
         st, sx, gd, sr, gr = self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real
         b = 8
-        xa, ua, dxa, ya = x.ctypes.data, u.ctypes.data, dx.ctypes.data, y.ctypes.data
-        u2a = None if u2 is None else u2.ctypes.data
-        vin, vout = ctypes.addressof(vr_in), ctypes.addressof(vr_out)
-        tl = t.tolist()
         bad = 0
         for k in range(n):
             bad |= st(c, tl[k])
@@ -201,25 +212,20 @@ class MePlant:
         by forward differences at every sample. Why implicit: an internal state of a friction
         or drive model is often far faster than the log's sample (a LuGre bristle at sliding
         speed: microseconds); the implicit step takes it to its quasi-steady value instead of
-        diverging. The step from sample k uses the inputs and measured states of sample k."""
-        n = int(t.size)
-        nx, ni, no = self.nx, len(inputs), len(outputs)
-        x = np.array(x, dtype=np.float64).reshape(n, nx)
-        u = np.ascontiguousarray(u, dtype=np.float64).reshape(n, ni)
-        u2 = None if u_out is None else np.ascontiguousarray(u_out, dtype=np.float64).reshape(n, ni)
+        diverging. The step from sample k to k+1 uses the inputs of sample k (held over the
+        sample) and the measured states of sample k+1 (known: the motion is measured), i.e. it
+        is implicit in the measured motion: a bristle or any state far faster than the sample
+        lands on its quasi-steady value for the motion at k+1, not at k (at a speed reversal the
+        latter is the friction of the previous direction, a one-sample error of twice the
+        Coulomb friction)."""
+        B = self._buffers(t, x, inputs, u, outputs, u_out, copy_x=True)
+        n, nx, ni, no, x, dx, y = B.n, B.nx, B.ni, B.no, B.x, B.dx, B.y
+        xa, ua, dxa, ya, u2a, vin, vout, tl = B.xa, B.ua, B.dxa, B.ya, B.u2a, B.vin, B.vout, B.tl
         iz = np.asarray(internal, dtype=int)
         m = iz.size
-        dx = np.zeros((n, nx))
-        y = np.zeros((n, max(no, 1)))
-        vr_in = (ctypes.c_uint * max(ni, 1))(*[self.vars.vr(s) for s in inputs])
-        vr_out = (ctypes.c_uint * max(no, 1))(*[self.vars.vr(s) for s in outputs])
         c = self._c
         st, sx, gd, sr, gr = self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real
         b = 8
-        xa, ua, dxa, ya = x.ctypes.data, u.ctypes.data, dx.ctypes.data, y.ctypes.data
-        u2a = None if u2 is None else u2.ctypes.data
-        vin, vout = ctypes.addressof(vr_in), ctypes.addressof(vr_out)
-        tl = t.tolist()
         xp = np.zeros(nx)
         dp = np.zeros(nx)
         xpa, dpa = xp.ctypes.data, dp.ctypes.data
@@ -248,24 +254,30 @@ class MePlant:
                 continue
             h = tl[k + 1] - tl[k]
             if m == 1:
-                # scalar path through memoryviews (no numpy per sample): the row's own state
-                # perturbed in place for the Jacobian, then restored
-                i0 = k * nx + j0
-                z = mx[i0]
-                f0 = mdx[i0]
-                dz = 1e-6 * max(abs(z), sc0)
-                mx[i0] = z + dz
-                sx(c, xa + k * nx * b, nx)
+                # scalar path through memoryviews (no numpy per sample): the internal state z_k
+                # put into the next sample's row (its measured states), the derivative there and
+                # its own perturbation (the Jacobian), then the step written in place
+                i1 = (k + 1) * nx + j0
+                z = mx[k * nx + j0]
+                mx[i1] = z
+                sx(c, xa + (k + 1) * nx * b, nx)
                 gd(c, dpa, nx)
-                mx[i0] = z
+                f0 = mdp[j0]
+                dz = 1e-6 * max(abs(z), sc0)
+                mx[i1] = z + dz
+                sx(c, xa + (k + 1) * nx * b, nx)
+                gd(c, dpa, nx)
                 jac = (mdp[j0] - f0) / dz
                 if jac > 0.0:                      # only decaying modes are stiff
                     jac = 0.0
-                mx[i0 + nx] = z + h * f0 / (1.0 - h * jac)
+                mx[i1] = z + h * f0 / (1.0 - h * jac)
             else:
-                xk = x[k]
-                f = dx[k, iz]
-                zk = xk[iz]
+                zk = x[k, iz].copy()
+                xk = x[k + 1].copy()
+                xk[iz] = zk
+                sx(c, xk.ctypes.data, nx)
+                gd(c, dpa, nx)
+                f = dp[iz].copy()
                 J = np.zeros((m, m))
                 for a_, jj in enumerate(izl):
                     dz = 1e-6 * max(abs(zk[a_]), scale[a_])

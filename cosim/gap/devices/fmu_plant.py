@@ -19,8 +19,11 @@ output the predicted reading. Two comparison signals, both through the same zero
 * ``<accelerometer column>``: the reading vs the FMU output through the sensor model
   (bandwidth pole, specific force, a per-trial offset projected out).
 
-Samples near rest (set-valued friction: ``|v| < v_rest``, dilated 15 ms) and 50 ms at each
-end are not compared. Residuals are also given in command units (divided by the FMU's
+Samples near rest and 50 ms at each end are not compared. Rest: ``|v| < v_rest``, the speed
+error that the state smoothing makes around a reversal or a stick, the plant's friction jump
+(read from the FMU, :meth:`FmuPlantDevice._friction_jump`) over ``2 pi SMOOTH_HZ``, and at least
+0.2 encoder counts per sample; dilated by the samples through which ``F`` leaks a rest sample's
+residual (:func:`_leak_samples`, 5 at 1 kHz). Residuals are also given in command units (divided by the FMU's
 d acc / d command, a finite difference): the analogue of the built-in devices' inverse
 model. Metric: per signal nrmse ``rms(meas - model) / std(meas)`` over the compared samples,
 combined as ``sqrt(sum_s w_s nrmse_s^2)`` with ``w_s ~ 1 / floor_s^2`` (floor_s: the nrmse the
@@ -69,7 +72,9 @@ THRESHOLDS_OF = "ballscrew-1dof"
 #: fraction of the sample rate of the state-smoothing and the comparison low-pass (as the
 #: ball-screw device: 200 Hz and 100 Hz at 1 kHz)
 SMOOTH_HZ, COMPARE_HZ = 200.0, 100.0
-EDGE_S, REST_DILATE_S = 0.05, 0.015
+EDGE_S = 0.05
+#: the rest samples are dilated to where F's impulse response falls below this fraction of its peak
+REST_LEAK = 0.1
 FLOOR_MIN = 0.005
 #: weight of the pull of the nominal parameters towards their current values in the fits
 #: (per unit relative change, in the metric's units: a 10 % change costs 1e-6 of gap^2)
@@ -90,6 +95,17 @@ def fmu_forms() -> dict[str, Any]:
 
 def _lowpass(fc: float, ts: float):
     return signal.butter(2, min(fc, 0.45 / ts), fs=1.0 / ts, output="sos")
+
+
+def _leak_samples(sosF) -> int:
+    """How far the comparison filter ``F`` (zero-phase) spreads one sample: the samples until its
+    impulse response falls below 10 % of its peak (5 at 100 Hz and 1 kHz). The rest samples are
+    dilated by it: their residual (a set-valued friction the point-wise model cannot give)
+    would otherwise leak into the compared neighbours through ``F``."""
+    x = np.zeros(401)
+    x[200] = 1.0
+    h = np.abs(signal.sosfiltfilt(sosF, x)[200:])
+    return int(np.argmax(h < REST_LEAK * h[0])) if np.any(h < REST_LEAK * h[0]) else 0
 
 
 def _prev(u: np.ndarray) -> np.ndarray:
@@ -148,7 +164,15 @@ class FmuPlantDevice:
                                 "measurements")
         self.enc = enc
         self.motion = binding.measurement("accelerometer") or binding.measurement("gyroscope")
+        self.rec_params = tuple(p.name for p in binding.parameters if p.recalibrate)
+        self.param_names = tuple(p.name for p in binding.parameters if p.recalibrate)
+        self._bounds = {p.name: (p.low, p.high) for p in binding.parameters}
+        self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate
+                       and not getattr(p, "same_as", None)}
         self.forms = fmu_forms()
+        self._map_states(binding)
+        self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
+        self.dist_angle = self._dist_unit in ("rad", "deg") if self._dist_unit else self.angle
         names = []
         for n, f in self.forms.items():
             if f.kind == "sensor":
@@ -161,13 +185,6 @@ class FmuPlantDevice:
             names.append(n)
         self.effects = tuple(names)
         self._alias = {f.generic_name: n for n, f in self.forms.items() if f.generic_name}
-        self.rec_params = tuple(p.name for p in binding.parameters if p.recalibrate)
-        self.param_names = tuple(p.name for p in binding.parameters if p.recalibrate)
-        self._bounds = {p.name: (p.low, p.high) for p in binding.parameters}
-        self._fixed = {p.name: p.nominal for p in binding.parameters if not p.recalibrate
-                       and not getattr(p, "same_as", None)}
-        self._map_states(binding)
-        self.angle = (self.vars.unit(self.vars.states[self.i_pos]) or "") in ("rad", "deg")
         self.recalibration_note = (
             "recalibrated " + ", ".join(self.rec_params) + " by Gauss-Newton on the equation error of the plant "
             "FMU (finite-difference sensitivities), within the binding's ranges; directions the fit logs do not "
@@ -211,7 +228,8 @@ class FmuPlantDevice:
         if nx < 2:
             raise GapInputError(f"the plant has {nx} continuous state(s); the comparison needs a position "
                                 "and its speed", self.fmu_path)
-        vr_out = [self.vars.vr(enc.output)]
+        dpos = binding.disturbance.position
+        vr_out = [self.vars.vr(enc.output)] + ([self.vars.vr(dpos)] if dpos in self.vars.by_name else [])
         f = me.fmu
         dbuf = np.zeros(nx)
 
@@ -221,7 +239,7 @@ class FmuPlantDevice:
             me._get_dx(me._c, dbuf.ctypes.data, nx)
             return np.array(f.getReal(vr_out)), dbuf.copy()
         y0, d0 = probe(x0)
-        Cy, Cd = np.zeros(nx), np.zeros((nx, nx))
+        Cy, Cd, Cdist = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx)
         for j in range(nx):
             h = 1e-4 * max(abs(x0[j]), 1.0)
             xp = x0.copy()
@@ -229,6 +247,8 @@ class FmuPlantDevice:
             y1, d1 = probe(xp)
             Cy[j] = (y1[0] - y0[0]) / h
             Cd[:, j] = (d1 - d0) / h
+            if y0.size > 1:
+                Cdist[j] = (y1[1] - y0[1]) / h
         probe(x0)
         i_pos = self.vars.state_of_output(enc.output)
         if i_pos is None:
@@ -250,6 +270,23 @@ class FmuPlantDevice:
         self.c_pos, self.c_vel = c_pos, float(row[self.i_vel])
         self.pos_offset = float(y0[0] - c_pos * x0[i_pos])
         self.internal = tuple(k for k in range(nx) if k not in (self.i_pos, self.i_vel))
+        # the disturbance's point (where the force-path effects act) in the encoder's terms:
+        # its position = dist_gain * encoder output + dist_offset (a transmission ratio read
+        # from the FMU, as the encoder's own); an output not tied to the encoder's state alone
+        # (or absent) is taken to be the encoder's point
+        if y0.size > 1 and abs(Cdist[i_pos]) > 0 and np.count_nonzero(np.abs(Cdist) > 1e-9 * abs(Cdist[i_pos])) == 1:
+            self.dist_gain = float(Cdist[i_pos] / c_pos)
+            self.dist_offset = float(y0[1] - self.dist_gain * y0[0])
+        else:
+            self.dist_gain, self.dist_offset = 1.0, 0.0
+        self._dist_unit = (binding.disturbance.position_unit or self.vars.unit(dpos) or "") \
+            if dpos in self.vars.by_name else ""
+        # g in the accelerometer output's unit (a specific-force reading adds g sin(tilt))
+        self._g_out = None
+        if self.motion is not None and self.motion.sensor.kind == "accelerometer":
+            from ...master.units import unit_conversion
+            self._g_out = 9.80665 * unit_conversion("accelerometer", "m/s2", (), self.vars.unit(self.motion.output)
+                                                    or "m/s2", self.vars.md.unitDefinitions)[0]
 
     # ------------------------------------------------------------------ preparation
     def _col(self, log: TrialLog, name: str) -> np.ndarray:
@@ -292,9 +329,9 @@ class FmuPlantDevice:
             q = float(st.min()) if st.size else 1e-9
         av = np.abs(v)
         v_scale = float(np.percentile(av, 95)) if n else 0.0
-        v_rest = max(0.2 * q / ts, 0.02 * v_scale)
+        v_rest = max(0.2 * q / ts, self._friction_jump(ts, 0.02 * v_scale) / (2 * math.pi * SMOOTH_HZ * 1e-3 / ts))
         rest = av < v_rest
-        k = int(round(REST_DILATE_S / ts))
+        k = _leak_samples(sosF)
         if k > 0 and rest.any():
             rest = np.convolve(rest.astype(float), np.ones(2 * k + 1), "same") > 0
         mask = ~rest
@@ -306,6 +343,35 @@ class FmuPlantDevice:
         p.noise = self._noise(p, sos_s, sosF, xe)
         self._preps[id(log)] = p
         return p
+
+    def _friction_jump(self, ts: float, dv: float) -> float:
+        """The jump of the plant's acceleration (encoder units) when its speed reverses, from
+        +dv to -dv (zero inputs, the nominal parameters, internal states settled over 40
+        samples at each speed): a set-valued (Coulomb) friction's 2 Fc / M, read from the FMU.
+        Smoothing the encoder (``SMOOTH_HZ``) smears the motion around a reversal or a stick
+        over ~1 / (2 pi SMOOTH_HZ); the model's friction there is taken at a speed off by
+        about jump / (2 pi SMOOTH_HZ), so below that speed the comparison is not informative
+        (the rest threshold). 0 when ``dv`` is 0."""
+        key = ("jump", round(ts, 12), float(dv))
+        if key in self._rec_cache:
+            return self._rec_cache[key]
+        out = 0.0
+        if dv > 0:
+            me = self._plant()
+            prm = self._full_params({p.name: p.nominal for p in self.b.parameters})
+            me.initialise(prm)
+            x0 = me.states()
+            N = 40
+            X = np.tile(x0, (2 * N, 1))
+            w = dv / (self.c_pos * self.c_vel)
+            X[:N, self.i_vel], X[N:, self.i_vel] = w, -w
+            t = np.arange(2 * N) * ts
+            dx, _ = me.evaluate(prm, t, X, self.inputs, np.zeros((2 * N, len(self.inputs))), [],
+                                internal=self.internal)
+            a = self.c_pos * self.c_vel * dx[:, self.i_vel]
+            out = float(abs(a[N - 1] - a[-1]))
+        self._rec_cache[key] = out
+        return out
 
     def _noise(self, p: _Prep, sos_s, sosF, xe) -> dict[str, float]:
         """Noise variance of each comparison signal after F: encoder quantisation through the
@@ -333,17 +399,32 @@ class FmuPlantDevice:
     def _ctx(self, p: _Prep, pred: np.ndarray | None = None):
         xs = p.x
         return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
-                               x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))))
+                               x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))),
+                               xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
+                               xd_mid=self.dist_gain * 0.5 * (float(np.min(xs)) + float(np.max(xs))) + self.dist_offset,
+                               specific=bool(self.motion is not None and self.motion.sensor.specific_force),
+                               g=self._g_out)
 
-    def _ctx_all(self, logs: Sequence[TrialLog]):
+    def _ctx_all(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None = None):
         ps = [self._prep(lg) for lg in logs]
         u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
         qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
-        return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"],
+        return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"], dist_angle=self.dist_angle,
+                               m_eff=self._m_eff(logs, nom), q_d=ps[0].cache["q"] * abs(self.dist_gain),
+                               xd_span=abs(self.dist_gain) * (max(float(p.x.max()) for p in ps)
+                                                              - min(float(p.x.min()) for p in ps)),
                                v_rest=max(p.cache["v_rest"] for p in ps),
                                v_scale=max(p.cache["v_scale"] for p in ps),
                                x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
                                u_abs_q=sorted(set(v for v in qs if v > 0)))
+
+    def _m_eff(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None) -> float | None:
+        """The plant's effective mass (inertia) at the disturbance's point, 1 / (d acc / d
+        force) there (median over the first log), at ``nom``; None without parameters."""
+        if nom is None or not logs:
+            return None
+        g = float(np.median(np.abs(self._sens(self._nearest(logs[0], nom))["GFa"]))) * abs(self.dist_gain)
+        return 1.0 / g if g > 0 else None
 
     # ------------------------------------------------------------------ FMU evaluation
     def _plant(self) -> MePlant:
@@ -528,11 +609,19 @@ class FmuPlantDevice:
                     if has_s:
                         s += self._sensor(e["Gs"][j] * _prev(du), p)
             elif f.kind == "force":
-                for c, col in f.columns(self._ctx(p), shape).items():
+                ctx = self._ctx(p)
+                rd = f.reading(ctx, shape) if (f.reading is not None and has_s) else None
+                fc = f.columns(ctx, shape)
+                for c, col in fc.items():
                     cols_a[f"{name}:{c}"] = signal.sosfiltfilt(p.cache["sosF"], e["GFa"] * col)
                     if has_s:
-                        cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
-                                                 else self._sensor(e["GFs"] * col, p))
+                        if rd is not None:
+                            # the force moves the sensed body (GFs) and the reading adds its own
+                            # term (gravity: g sin(tilt) in a specific-force reading)
+                            cols_s[f"{name}:{c}"] = self._sensor(e["GFs"] * col + rd.get(c, 0.0), p)
+                        else:
+                            cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
+                                                     else self._sensor(e["GFs"] * col, p))
         if refit:
             for k in self.rec_params:
                 cols_a[NOMINAL_PREFIX + k] = self._filtered(J, "a" + k, J["Ja"][k], p, False)
@@ -640,6 +729,19 @@ class FmuPlantDevice:
                     rhs.append(np.zeros(1))
                     tags.append(("offset", 0.0, 1))
         n_ridge = 0
+        if refit and cfg and RIDGE > 0:
+            # an effect fit re-fits the nominal parameters: each is pulled to its current value
+            # (RIDGE per unit relative change), so that a direction the logs barely determine
+            # (the common scale of the plant's forces without a known external force) does not
+            # take a large step that only the fitted logs cannot see
+            at = self._chord_at or params
+            for i, c in enumerate(names):
+                if c.startswith(NOMINAL_PREFIX):
+                    row = np.zeros((1, ncol))
+                    row[0, i] = RIDGE / max(abs(float(at[c[len(NOMINAL_PREFIX):]])), 1e-300)
+                    rows.append(row)
+                    rhs.append(np.zeros(1))
+                    n_ridge += 1
         A = np.vstack(rows)
         bvec = np.concatenate(rhs)
         used = np.flatnonzero(np.any(A != 0, axis=0))
@@ -865,7 +967,7 @@ class FmuPlantDevice:
         if f.kind in ("sensor", "sensed_point"):
             return {self.sig_acc}
         specific = self.motion is not None and self.motion.sensor.specific_force
-        if f.kind == "force" and f.body_force and specific:
+        if f.kind == "force" and f.body_force and specific and (f.reading is None or self.dist_angle):
             return {self.sig_enc}
         return {s for s in (self.sig_enc, self.sig_acc) if s}
 
@@ -887,8 +989,8 @@ class FmuPlantDevice:
             out[name] = prm
         return out
 
-    def _grid(self, logs, effect):
-        return self.forms[self._alias.get(effect, effect)].grid(self._ctx_all(logs))
+    def _grid(self, logs, effect, nom=None):
+        return self.forms[self._alias.get(effect, effect)].grid(self._ctx_all(logs, nom))
 
     def fit_effect(self, logs, params, effect):
         if self.progress:
@@ -903,7 +1005,7 @@ class FmuPlantDevice:
         for e in effects:                       # each alone first (cached: pairs reuse it)
             ck = pk + (e,)
             if ck not in self._shapes:
-                grid = self._grid(logs, e)
+                grid = self._grid(logs, e, nom)
                 hint = self._hints.get(e)
                 if hint is not None and len(grid) > 5:
                     # a subset of logs (a held-out fold): search near the shape found on all of
@@ -924,7 +1026,7 @@ class FmuPlantDevice:
         if len(effects) > 1 and descend:
             cur = self._fit_cfg(logs, nom, cfg)[0]
             for e in effects:
-                for sh in self._grid(logs, e):
+                for sh in self._grid(logs, e, nom):
                     trial = dict(cfg)
                     trial[e] = sh
                     g = self._fit_cfg(logs, nom, trial)[0]

@@ -19,10 +19,15 @@ that evaluation in one of four places, which is its ``kind``:
   the sensed point's.
 
 ``ctx`` (per log): ``t`` [s], ``ts``, ``x`` position and ``v`` speed of the plant (FMU units,
-smoothed), ``pred`` (sensor effects), ``angle`` (the position is an angle in rad).
+smoothed), ``pred`` (sensor effects), ``angle`` (the position is an angle in rad); ``xd``
+(``xd_mid`` the middle of its range) and ``dist_angle``: the disturbance's point's position (the binding's ``disturbance.position``,
+tied to the encoder by the FMU's own ratio) and whether it is an angle; ``specific`` (the
+accelerometer reads specific force) and ``g`` (g in the reading's unit).
 ``grid(ctx_all)`` gives the shapes searched from the logs' ranges (``ctx_all``: speed
 scale ``v_scale``, rest speed ``v_rest``, travel ``x_min``/``x_max``, encoder quantum ``q``,
-command quantiles ``u_abs_q``, ``ts``, ``angle``); ``refine``: the one shape parameter refined
+command quantiles ``u_abs_q``, ``ts``, ``angle``, ``dist_angle``, ``m_eff``: the effective mass or
+inertia at the disturbance's point, None before the recalibration; ``q_d`` the encoder quantum
+and ``xd_span`` the travel there); ``refine``: the one shape parameter refined
 between its grid neighbours; ``nonneg``: coefficients that physics keeps >= 0.
 """
 from __future__ import annotations
@@ -35,7 +40,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 from scipy import signal
 
-__all__ = ["FmuForm", "log_grid", "period_grid"]
+__all__ = ["FmuForm", "log_grid", "period_grid", "travel_period_grid"]
 
 
 @dataclass(frozen=True)
@@ -47,6 +52,11 @@ class FmuForm:
     columns: Callable[[Any, Mapping[str, float]], dict[str, np.ndarray]] | None = None
     transform: Callable[[np.ndarray, Mapping[str, float], float], np.ndarray] | None = None
     body_force: bool = False
+    #: ``force`` effects: what a specific-force accelerometer reads from the effect besides the
+    #: motion it causes (gravity's g sin(tilt)): ``reading(ctx, shape)`` -> {coefficient: column
+    #: in the reading's unit per unit coefficient}, or None where it does not apply (then
+    #: ``body_force`` decides)
+    reading: Callable[[Any, Mapping[str, float]], dict[str, np.ndarray] | None] | None = None
     nonneg: tuple[str, ...] = ()
     along_travel: bool = False
     #: for ``sensor`` effects: the generic catalogue name (``sensor_scale_error``) used when the
@@ -71,6 +81,17 @@ def period_grid(c: Any, n: int = 24) -> list[float]:
     span = max(c.x_max - c.x_min, 1e-9)
     lo = max(30 * c.q, 2e-3 * span)
     return log_grid(lo, 0.5 * span, n)
+
+
+def travel_period_grid(c: Any, n: int = 24) -> list[float]:
+    """Periods of a variation along the travel at the disturbance's point (``ctx.xd``): on an
+    angle whole fractions of a turn; on a length log-spaced between 30 encoder quanta there
+    (and 2e-3 of the travel) and twice the travel (a period longer than the travel is a
+    smooth trend across it)."""
+    if c.dist_angle:
+        return [2 * math.pi / k for k in range(1, 61)]
+    span = max(c.xd_span, 1e-12)
+    return log_grid(max(30 * c.q_d, 2e-3 * span), 2.0 * span, n)
 
 
 @lru_cache(maxsize=512)

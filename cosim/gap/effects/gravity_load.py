@@ -52,13 +52,30 @@ EFFECT = Effect(
 )
 
 
-# ---- the form in the diagnosis of a user's own plant FMU: gravity along the motion, a body
-# force (a specific-force accelerometer does not see it): constant on a tilted linear axis,
-# m g r sin(q + phi) on a rotary one
+# ---- the form in the diagnosis of a user's own plant FMU, at the disturbance's point.
+# A tilted linear axis: a force -m_g g sin(alpha) on a mass m_g (searched as a fraction of
+# the plant's effective mass there: the whole moving body, or the nut of a screw whose rotor
+# dominates) and the specific-force reading's own +g sin(alpha), one coefficient sin(alpha)
+# in both (as the built-in device: the reading tells a tilt from a friction offset; when
+# m_g is the whole body the two cancel in the reading). A rotary axis: m g r sin(q + phi),
+# a body torque (a specific-force accelerometer on the link does not see it).
 def _fmu_cols(c, sh):
-    if c.angle:
-        return {"g_sin": np.sin(c.x), "g_cos": np.cos(c.x)}
-    return {"g_force": np.ones_like(c.x)}
+    if c.dist_angle:
+        return {"g_sin": np.sin(c.xd), "g_cos": np.cos(c.xd)}
+    return {"sin_alpha": -sh.get("m_g", 1.0) * G0 * np.ones_like(c.x)}
 
 
-FMU_FORM = FmuForm("force", columns=_fmu_cols, body_force=True)
+def _fmu_reading(c, sh):
+    if c.dist_angle or not c.specific or not c.g:
+        return None
+    return {"sin_alpha": c.g * np.ones_like(c.x)}
+
+
+def _fmu_grid(c):
+    if c.dist_angle or not c.m_eff:
+        return [{}]
+    return [{"m_g": float(c.m_eff * f)} for f in (0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 1.0)]
+
+
+FMU_FORM = FmuForm("force", columns=_fmu_cols, body_force=True, reading=_fmu_reading, grid=_fmu_grid,
+                   refine="m_g")

@@ -3,7 +3,7 @@ import math
 
 import numpy as np
 
-from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
+from .fmu_form import FmuForm, log_grid, period_grid, travel_period_grid  # noqa: F401 (the FMU_FORM below)
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, uniform
 
 
@@ -73,13 +73,14 @@ EFFECT = Effect(
 
 
 # ---- the form in the diagnosis of a user's own plant FMU: Coulomb friction varying along
-# the travel, a gradient and a periodic part (period on a grid), times the direction
+# the travel at the disturbance's point (the nut of a screw, not the motor angle), a gradient
+# and a periodic part (period on a grid up to twice the travel), times the direction
 def _fmu_cols(c, sh):
     s = -np.sign(c.v)
-    ph = 2 * np.pi * c.x / sh["lp"]
-    xm = c.x - c.x_mid
+    ph = 2 * np.pi * c.xd / sh["lp"]
+    xm = c.xd - c.xd_mid
     return {"kfx": s * xm, "dfp_sin": s * np.sin(ph), "dfp_cos": s * np.cos(ph)}
 
 
-FMU_FORM = FmuForm("force", grid=lambda c: [{"lp": p} for p in period_grid(c, 24)], refine="lp",
+FMU_FORM = FmuForm("force", grid=lambda c: [{"lp": p} for p in travel_period_grid(c, 24)], refine="lp",
                    columns=_fmu_cols, along_travel=True)
