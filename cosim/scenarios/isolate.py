@@ -233,7 +233,7 @@ def main_script_parts(scenario_path) -> list[str]:
     except Exception:
         return []
     reg.load_trials()
-    return [f"{e.kind} {e.name!r}" for kind in reg.KINDS for e in reg._REG[kind].values()
+    return [f"{e.kind} {e.name!r}" for kind in reg.KINDS for e in reg.registered(kind)
             if getattr(e.obj, "__module__", "") == "__main__" and e.name in words]
 
 

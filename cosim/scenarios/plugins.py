@@ -82,7 +82,7 @@ def _wrap_entries(module_name: str, file: str) -> None:
     """Make the plug-in's function entries name ``file:line`` in what they raise."""
     from . import registry as reg
     for kind in _KINDS_WRAPPED:
-        for e in reg._REG[kind].values():
+        for e in reg.registered(kind):
             if e.module != module_name or getattr(e.obj, "_cosim_plugin", False) or \
                     not callable(e.obj) or isinstance(e.obj, type):
                 continue
@@ -153,9 +153,7 @@ _BY_PATH: dict = {}
 def _forget(module_name: str) -> None:
     """Drop a plug-in module and what it registered (its file has changed)."""
     from . import registry as reg
-    for table in reg._REG.values():
-        for n in [n for n, e in table.items() if e.module == module_name]:
-            del table[n]
+    reg.unregister_module(module_name)
     sys.modules.pop(module_name, None)
 
 

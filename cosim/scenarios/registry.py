@@ -385,6 +385,19 @@ def _load_trials_locked() -> list[str]:
         _loading = False
 
 
+def registered(kind: str) -> list[Entry]:
+    """The entries of ``kind`` registered so far, without importing the trial modules
+    (for the plug-in loader, which runs while they are imported)."""
+    return list(_REG[kind].values())
+
+
+def unregister_module(module_name: str) -> None:
+    """Drop every entry ``module_name`` registered (a plug-in file that changed)."""
+    for table in _REG.values():
+        for n in [n for n, e in table.items() if e.module == module_name]:
+            del table[n]
+
+
 def get(kind: str, name: str) -> Entry | None:
     load_trials()
     return _REG[kind].get(name)

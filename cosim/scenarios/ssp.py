@@ -344,7 +344,7 @@ def extract_members(path, members, dest) -> dict:
     dest.parent.mkdir(parents=True, exist_ok=True)
     part = Path(tempfile.mkdtemp(prefix=f"{dest.name}.part-", dir=dest.parent))
     try:
-        rec, out = {}, {}
+        rec = {}
         for k, m in enumerate(members):
             one = part / f".m{k}"
             extract_archive(path, one, members=[m])
