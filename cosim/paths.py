@@ -29,6 +29,7 @@ Data in ``shared`` is read from there, never copied into the repository.
 """
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -76,13 +77,40 @@ def scenarios_dir() -> Path:
 def cache_dir() -> Path:
     """``$COSIM_CACHE_DIR``, else ``$XDG_CACHE_HOME/rehab-cosim/<version>``, else
     ``~/.cache/rehab-cosim/<version>``: per user (the home folder) and per package
-    version (another version's extracted SSPs, engine builds and FMUs are not reused)."""
+    version (another version's extracted SSPs, engine builds and FMUs are not reused).
+    A home folder this user cannot write (a cluster worker running as an unprivileged
+    user) gives ``<tmp>/rehab-cosim-cache-<uid>/<version>`` instead."""
     env = _env("COSIM_CACHE_DIR")
     if env:
         return env
     from . import __version__
     xdg = _env("XDG_CACHE_HOME")
-    return (xdg if xdg else Path.home() / ".cache") / APP / __version__
+    home = (xdg if xdg else Path.home() / ".cache") / APP / __version__
+    return home if _writable(home) else _private_tmp_cache() / __version__
+
+
+@functools.lru_cache(maxsize=None)
+def _writable(d: Path) -> bool:
+    """``d`` exists or can be made, and this user can write in it."""
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return False
+    return os.access(d, os.W_OK | os.X_OK)
+
+
+def _private_tmp_cache() -> Path:
+    """A folder of this user's own in the temporary folder (refused if another user
+    made it first: it would serve their compiled code)."""
+    import tempfile
+    d = Path(tempfile.gettempdir()) / f"rehab-cosim-cache-{os.getuid()}"
+    d.mkdir(mode=0o700, exist_ok=True)
+    st = os.lstat(d)
+    if d.is_symlink() or st.st_uid != os.getuid() or st.st_mode & 0o022:
+        raise RuntimeError(f"{d} is not this user's private folder (owner uid {st.st_uid}, "
+                           f"mode {oct(st.st_mode & 0o777)}): remove it, or set "
+                           f"COSIM_CACHE_DIR")
+    return d
 
 
 def fmus_dir() -> Path:

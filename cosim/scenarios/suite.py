@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import re
 import signal
@@ -127,6 +128,11 @@ def _client(scheduler: str | None, workers: int | None):
         except ValueError as exc:
             raise SuiteError(f"bad Dask scheduler address {scheduler!r}: {exc}") from None
     n = workers or os.cpu_count() or 1
+    # the local scheduler runs in this process: its INFO records (each worker's start,
+    # and at the close a comm-closed traceback logged at INFO) are not the user's news;
+    # distributed configured its loggers when it was imported, so the config key above
+    # does not reach them
+    logging.getLogger("distributed").setLevel(logging.ERROR)
     with children_ignore_sigint():        # Ctrl-C is this process's to handle
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=50)
