@@ -425,7 +425,7 @@ def main(argv=None) -> int:
             frecs = gather(fdata, fnames, flabels, cache, workers, "gap-dev")
             fs = [score(flabels[n], frecs[n], th_all) for n in fnames]
             print()
-            print(f"FINAL CHECK gap-dev (never used for choosing), thresholds chosen on all of gap-dev2:")
+            print("FINAL CHECK gap-dev (never used for choosing), thresholds chosen on all of gap-dev2:")
             for n, s in zip(fnames, fs):
                 sel = s[2] if s[2] is not None else f"<{frecs[n].get('error')}>"
                 print(f"  {n} truth {','.join(flabels[n]['effects']) or '[]':40s} selected "

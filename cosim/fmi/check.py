@@ -24,10 +24,9 @@ from __future__ import annotations
 import math
 
 import dataclasses
-import stat
 import tempfile
 import zipfile
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 from .unpack import MAX_UNPACKED_BYTES as MAX_UNCOMPRESSED  # noqa: E402,F401  (zip-bomb guard)
 SUPPORTED = ("1.0", "2.0", "3.0")

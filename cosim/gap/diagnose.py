@@ -52,7 +52,7 @@ from ..logs.fileio import atomic_write_text, jsonable
 from ..logs.trial_log import TrialLog, TrialLogError, read_trial_log
 from . import plausibility
 from .device import CannotDiagnose, GapDevice, GapInputError, get_device, slice_log, split_params
-from .decision import LOOK_ALIKE, _passes, _pooled, _reduction, decide
+from .decision import _pooled, _reduction, decide
 from .thresholds import DEFAULTS, Thresholds, provenance_for, thresholds_for
 
 __all__ = ["diagnose", "localize", "run_diagnosis", "collect_evidence", "decide", "DEFAULT_MARGIN"]
