@@ -389,20 +389,14 @@ def _close(a, b, tol=TOL_METRIC, floor=1e-9):
 def zero_force_verdicts(tmp_path_factory, hand_unit):
     """zero_force.yaml (rig), zero_force_separate.yaml (BallScrewUnit x2 + LoadCell) and
     the latter with the hand-written unit as `unit`: every run, every negative control."""
-    from concurrent.futures import ThreadPoolExecutor
-
     from cosim.scenarios import run_scenario
     out = tmp_path_factory.mktemp("zf")
-    jobs = (("rig", "zero_force.yaml", None),
-            ("separate", "coupled/zero_force_separate.yaml", None),
-            ("hand", "coupled/zero_force_separate.yaml", {"unit": str(hand_unit)}))
-    # three independent scenarios into three folders: in threads, so the compiled
-    # loops (which release the GIL) use both cores of a CI machine
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        futures = {name: pool.submit(run_scenario, REPO / "scenarios" / f, out / name,
-                                     fmu_swaps=swaps, fmu_dir=FMUS)
-                   for name, f, swaps in jobs}
-        return {name: fut.result() for name, fut in futures.items()}
+    return {name: run_scenario(REPO / "scenarios" / f, out / name, fmu_swaps=swaps,
+                               fmu_dir=FMUS)
+            for name, f, swaps in (("rig", "zero_force.yaml", None),
+                                   ("separate", "coupled/zero_force_separate.yaml", None),
+                                   ("hand", "coupled/zero_force_separate.yaml",
+                                    {"unit": str(hand_unit)}))}
 
 
 #: requirements of the rig's zero_force.yaml the separate file does not carry: the

@@ -451,6 +451,18 @@ def generate_c(fm: FlatModel, workdir: Path) -> tuple[str, dict]:
     return text, sizes
 
 
+def _copy_atomic(src: Path, dest: Path) -> None:
+    """``src`` copied to ``dest`` through a temporary file of this process's own (two
+    builds at once, e.g. two test workers, must not write into one temporary file)."""
+    tmp = dest.with_name(dest.name + f".tmp{os.getpid()}")
+    try:
+        shutil.copyfile(src, tmp)
+        os.replace(tmp, dest)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
 def _zip_deterministic(src_dir: Path, dest: Path) -> None:
     tmp = dest.with_name(dest.name + f".tmp{os.getpid()}")
     try:
@@ -497,8 +509,7 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
     dest.parent.mkdir(parents=True, exist_ok=True)
     if cached.exists() and not force:
         if not dest.exists() or dest.read_bytes() != cached.read_bytes():
-            tmp = dest.with_name(dest.name + ".tmp")
-            shutil.copyfile(cached, tmp); os.replace(tmp, dest)
+            _copy_atomic(cached, dest)
         log(f"{ident}: up to date ({key[:16]}){tag}")
         return dest
 
@@ -546,8 +557,7 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
             "lti": fm.lti,
         }, indent=1, sort_keys=True))
         _zip_deterministic(td / "fmu", cached)
-    tmp = dest.with_name(dest.name + ".tmp")
-    shutil.copyfile(cached, tmp); os.replace(tmp, dest)
+    _copy_atomic(cached, dest)
     log(f"{ident}: built {dest} ({len(rows)} variables, {len(fm.states)} states){tag}")
     return dest
 
