@@ -180,6 +180,13 @@ SCENARIO_CASES = {
 #: BL-6 has no value in the bench)
 SCENARIO_PARAMETERS = {"scenarios/bilateral.yaml": {"g_sweep": {"g_rad_s": []}}}
 
+
+def _on_both_paths(name: str, kind: str, path: str, old: str, new: str, scenario: str):
+    """A bug in code both paths share (Python computes what the C twin is handed): the
+    same edit run once on the Python path and once on the C path."""
+    return [(f"{name}/shared-{side}", kind, path, old, new, scenario) for side in ("py", "c")]
+
+
 #: (id, severity, file, text as it is, text with the bug, scenario)
 SCENARIO_BUGS: list[tuple[str, str, str, str, str, str]] = [
     # ---- adaptive compliance (eq. 69-71), circular test
@@ -270,18 +277,12 @@ SCENARIO_BUGS: list[tuple[str, str, str, str, str, str]] = [
     ("aakf-enc-innovation-sign/c", "gross", AK_C, "double e0 = y_enc - x0;",
      "double e0 = x0 - y_enc;", "scenarios/free_motion.yaml"),
     # the aaKF's sigma_a half the Fig. 19-20 tuning (the gain sequence, shared)
-    ("aakf-sigma_a-50pct-low/shared-py", "subtle", AK_SHARED,
-     "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
-     "Qc = np.diag([(0.5 * p.sigma_a) ** 2, p.sigma_b ** 2])", "scenarios/free_motion.yaml"),
-    ("aakf-sigma_a-50pct-low/shared-c", "subtle", AK_SHARED,
+    *_on_both_paths("aakf-sigma_a-50pct-low", "subtle", AK_SHARED,
      "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
      "Qc = np.diag([(0.5 * p.sigma_a) ** 2, p.sigma_b ** 2])", "scenarios/free_motion.yaml"),
     # the RFOB's identified inertia 40 % high (eq. 8-10, through the ZOH coefficients
     # that Python packs for the C twin: shared code, run on both paths)
-    ("rfob-J-40pct-high/shared-py", "subtle", RF_PY,
-     "self.a1 = math.exp(-Ts * self.b / self.J)  # eq. 39",
-     "self.a1 = math.exp(-Ts * self.b / (1.4 * self.J))  # eq. 39", "scenarios/zero_force.yaml"),
-    ("rfob-J-40pct-high/shared-c", "subtle", RF_PY,
+    *_on_both_paths("rfob-J-40pct-high", "subtle", RF_PY,
      "self.a1 = math.exp(-Ts * self.b / self.J)  # eq. 39",
      "self.a1 = math.exp(-Ts * self.b / (1.4 * self.J))  # eq. 39", "scenarios/zero_force.yaml"),
     # ---- aaKF (eq. 98-103), free-motion trial
@@ -293,10 +294,7 @@ SCENARIO_BUGS: list[tuple[str, str, str, str, str, str]] = [
      "e1 = acc - (c2 * x2 - c3 * x3)", "scenarios/free_motion.yaml"),
     ("aakf-bias-in-innovation-sign/c", "gross", AK_C, "double e1 = acc - (m->C_acc_alpha * x2 + m->C_acc_bias * x3);",
      "double e1 = acc - (m->C_acc_alpha * x2 - m->C_acc_bias * x3);", "scenarios/free_motion.yaml"),
-    ("aakf-sigma_b-x3/shared-py", "subtle", AK_SHARED,
-     "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
-     "Qc = np.diag([p.sigma_a ** 2, (3.0 * p.sigma_b) ** 2])", "scenarios/free_motion.yaml"),
-    ("aakf-sigma_b-x3/shared-c", "subtle", AK_SHARED,
+    *_on_both_paths("aakf-sigma_b-x3", "subtle", AK_SHARED,
      "Qc = np.diag([p.sigma_a ** 2, p.sigma_b ** 2])",
      "Qc = np.diag([p.sigma_a ** 2, (3.0 * p.sigma_b) ** 2])", "scenarios/free_motion.yaml"),
     # ---- RLS (eq. 46-50; the chain's integral regression), start-up identification of
