@@ -161,3 +161,15 @@ def test_compiled_rls_rejects_a_bad_record():
         RLSIdentifier(RLSParams()).run_compiled(np.zeros(4), np.zeros(4))
     assert math.isnan(RLSIdentifier(RLSParams()).run_compiled(
         np.zeros(4), np.ones(4), np.zeros(4))[-1, 0])
+
+
+def test_run_picks_the_compiled_twin_unless_the_engine_is_python(record, monkeypatch):
+    # run() is what the trials and `cosim identify` call: the compiled twin by default,
+    # the class's own steps under COSIM_ENGINE=python; both equal the reference loop
+    params, speed = CASES[next(iter(CASES))]
+    i, w, th = record["i"], record[speed], record["th"]
+    ref, _ = _python(params, i, w, th)
+    monkeypatch.delenv("COSIM_ENGINE", raising=False)
+    _assert_close(ref, RLSIdentifier(params).run(i, w, th), "auto", _y_scale(params, i, w))
+    monkeypatch.setenv("COSIM_ENGINE", "python")
+    assert np.array_equal(ref, RLSIdentifier(params).run(i, w, th), equal_nan=True)

@@ -96,6 +96,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import os
 from collections import deque
 from dataclasses import dataclass
 from typing import Mapping
@@ -573,6 +574,21 @@ class RLSIdentifier:
         if code != 0:
             raise self.c_kernel_error(int(code))
         self.c_kernel_sync(st.tolist())
+        return out
+
+
+    def run(self, i_cmd, w, theta_enc=None) -> np.ndarray:
+        """:meth:`step` over a whole record: in the compiled twin (:meth:`run_compiled`)
+        unless ``$COSIM_ENGINE`` is ``python``, then in this class's steps (the
+        reference). Same arguments and (n, 8) result as :meth:`run_compiled`."""
+        if (os.environ.get("COSIM_ENGINE") or "auto") != "python":
+            return self.run_compiled(i_cmd, w, theta_enc)
+        w = np.asarray(w, dtype=float)
+        th = np.zeros(w.size) if theta_enc is None else np.asarray(theta_enc, dtype=float)
+        out = np.empty((w.size, len(self.outputs)))
+        for k, (i, wk, tk) in enumerate(zip(np.asarray(i_cmd, dtype=float).tolist(), w.tolist(), th.tolist())):
+            r = self.step({"i_cmd": i, "w": wk, "theta_enc": tk})
+            out[k] = [float(r[name]) for name in self.outputs]
         return out
 
 

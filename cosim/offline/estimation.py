@@ -323,12 +323,9 @@ def identify(log_path: str | os.PathLike, out_json: str | os.PathLike, speed: st
         w = _run_encdiff(Ts, kp.lead_m, enc)["omega_rad_s"]
     rls = RLSIdentifier(rp)
     n = log.n_samples
-    hist = np.empty((n, 3))
-    used = 0
-    for k, (i, wk, th) in enumerate(zip(log["i_cmd"].tolist(), w.tolist(), enc.tolist())):
-        r = rls.step({"i_cmd": i, "w": wk, "theta_enc": th})
-        hist[k] = (r["J_hat"], r["b_hat"], r["fc_hat"])
-        used += int(r["updated"])
+    out = rls.run(log["i_cmd"], w, enc)          # compiled twin unless COSIM_ENGINE=python
+    hist = out[:, :3]
+    used = int(out[:, rls.outputs.index("updated")].sum())
     t = log.time
     final = {"J": float(hist[-1, 0]), "b": float(hist[-1, 1]), "fc": float(hist[-1, 2])}
     settle = {nm: settling_time(t, hist[:, j], final[nm]) for j, nm in enumerate(("J", "b", "fc"))}

@@ -45,7 +45,6 @@ the extension (``src`` aakf, encoder): ``max_abs_rel_err_src_ext``,
 from __future__ import annotations
 
 import math
-import os
 from typing import Mapping
 
 import numpy as np
@@ -102,16 +101,9 @@ def rls_history(i_held_A: np.ndarray, w_rad_s: np.ndarray, Ts_s: float, Kt_Nm_pe
         th = np.asarray(theta_enc_rad, dtype=float)
     rls = RLSIdentifier(RLSParams(Ts_s=Ts_s, Kt_Nm_per_A=Kt_Nm_per_A, i_cmd_is_previous=True,
                                   **rls_params))
-    if (os.environ.get("COSIM_ENGINE") or "auto") != "python":
-        # the compiled twin (c/rls.c), one C call for the record: equal to the class's
-        # steps to rounding (tests/test_rls_kernel.py); COSIM_ENGINE=python runs the class
-        return rls.run_compiled(i_held_A, w_rad_s, th)[:, :3]
-    hist = np.empty((w_rad_s.size, 3))
-    for k, (i, wk, tk) in enumerate(zip(np.asarray(i_held_A).tolist(),
-                                        np.asarray(w_rad_s).tolist(), th.tolist())):
-        r = rls.step({"i_cmd": i, "w": wk, "theta_enc": tk})
-        hist[k] = (r["J_hat"], r["b_hat"], r["fc_hat"])
-    return hist
+    # the compiled twin (c/rls.c) unless COSIM_ENGINE=python: equal to the class's
+    # steps to rounding (tests/test_rls_kernel.py)
+    return rls.run(i_held_A, w_rad_s, th)[:, :3]
 
 
 def settling_time_s(t: np.ndarray, rel_err: np.ndarray, band: float = BAND) -> float:
