@@ -119,15 +119,17 @@ def test_fmi2_unit_conversion_same_dimension(tmp_path):
     np.testing.assert_allclose(Master(s2, ["dst.y"]).run(0.2)["dst.y"], 30.0)
 
 
-def test_fmi2_unit_conversion_with_an_offset(tmp_path):
-    """degC -> K: value_K = value_degC + 273.15 (the unit definitions' offset)."""
+@pytest.mark.parametrize("engine", ["python", "auto"])
+def test_fmi2_unit_conversion_with_an_offset(tmp_path, engine):
+    """degC -> K: value_K = value_degC + 273.15 (the unit definitions' offset), in the
+    readable loop and in the engine."""
     c = build_probe2(tmp_path / "c", y_unit="degC")
     k = build_probe2(tmp_path / "k", u_unit="K")
     s = System(0.1)
     s.add_fmu("src", c, parameters={"p": 4.0, "u": 5.0})        # y = 20 degC
     s.add_fmu("dst", k, parameters={"p": 2.0})
     s.connect("src.y", "dst.u")
-    r = Master(s, ["src.y", "dst.y"]).run(0.2)
+    r = Master(s, ["src.y", "dst.y"], engine=engine).run(0.2)
     np.testing.assert_allclose(r["src.y"], 20.0, rtol=1e-12)
     np.testing.assert_allclose(r["dst.y"], 2.0 * 293.15, rtol=1e-12)
 
