@@ -10,7 +10,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(REPO), str(REPO / "tests")]
 
-from cosim.algorithms.aakf import AaKF, AakfParams  # noqa: E402
+from cosim.algorithms.aakf import AakfParams  # noqa: E402
+from cosim.algorithms.fast.aakf_fast import AaKF  # noqa: E402
 from test_aakf_fast import _ReferenceAaKF  # noqa: E402
 
 

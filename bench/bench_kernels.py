@@ -29,7 +29,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from cosim.algorithms.aakf import AakfParams, AaKF, EncoderDifferentiator  # noqa: E402
+from cosim.algorithms.aakf import AakfParams, EncoderDifferentiator  # noqa: E402
+from cosim.algorithms.fast.aakf_fast import AaKF  # noqa: E402
 from cosim.algorithms.bilateral import BilateralController  # noqa: E402
 from cosim.algorithms.ckernel import CFLAGS, compile_shared, kernel_source  # noqa: E402
 from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams  # noqa: E402

@@ -298,7 +298,8 @@ def zero_force_system(fmus: Path, acc_params: dict | None = None):
     under test runs the zero-force controller (gain 3) on the RFOB estimate with the
     DOB compensation current, g = 500 rad/s, speed from the aaKF on encoder + ADXL335
     (Accelerometer FMU, sequential connection)."""
-    from cosim.algorithms.aakf import AaKF, AakfParams
+    from cosim.algorithms.aakf import AakfParams
+    from cosim.algorithms.fast.aakf_fast import AaKF
     from cosim.algorithms.dob import DOB, DOBParams, RFOB, RFOBParams
     from cosim.algorithms.zero_force import (PositionController, SineReference,
                                              SineReferenceParams, ZeroForceController,

@@ -24,9 +24,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cosim.algorithms.aakf import (ADXL335_NOISE_STD_M_S2, AakfParams, AaKF,
-                                   EncoderDifferentiator, ReferenceAaKF, discretise,
-                                   filter_log, steady_state_gain)
+from cosim.algorithms.aakf import (ADXL335_NOISE_STD_M_S2, AakfParams, EncoderDifferentiator, ReferenceAaKF,
+                                   discretise, filter_log, steady_state_gain)
+from cosim.algorithms.fast.aakf_fast import AaKF
 from cosim.algorithms.aakf_tuning import innovation_whiteness, tune_aakf
 from cosim.algorithms.base import DiscreteBlock
 from cosim.algorithms.whiteness import cumulative_periodogram, ljung_box

@@ -28,8 +28,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cosim.algorithms.aakf import (AakfParams, AaKF, AaKFBank, ReferenceAaKF,
-                                   _position_bounds, _speed_centre, discretise)
+from cosim.algorithms.aakf import AakfParams, ReferenceAaKF, _position_bounds, _speed_centre, discretise
+from cosim.algorithms.fast.aakf_fast import AaKF, AaKFBank
 from cosim.algorithms.fast import aakf_fast as aakf_mod
 from cosim.logs.synth import simulate_ballscrew
 

@@ -27,8 +27,8 @@ import sys
 import numpy as np
 import pytest
 
-from cosim.algorithms.aakf import (AakfParams, AaKF, AaKFBank, EncoderDifferentiator,
-                                   EncoderDifferentiatorParams)
+from cosim.algorithms.aakf import AakfParams, EncoderDifferentiator, EncoderDifferentiatorParams
+from cosim.algorithms.fast.aakf_fast import AaKF, AaKFBank
 from cosim.algorithms.adaptive_compliance import (AdaptiveComplianceController,
                                                   AdaptiveComplianceParams)
 from cosim.algorithms.bilateral import BilateralController, BilateralParams

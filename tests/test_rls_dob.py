@@ -92,7 +92,8 @@ def run_rls(speed_source: str, seed: int = 1, T_s: float = 10.0, plant=None,
     rls = RLSIdentifier(rls_params if rls_params is not None else RLSParams(regression="eq44"))
     kf = None
     if speed_source == "aakf":
-        from cosim.algorithms.aakf import AaKF, AakfParams
+        from cosim.algorithms.aakf import AakfParams
+        from cosim.algorithms.fast.aakf_fast import AaKF
 
         # the default aaKF: the sigma_a bank weighed by the innovation likelihood
         kf = AaKF(AakfParams())
@@ -261,13 +262,13 @@ def test_rls_literal_thesis_regression_is_biased_by_reversals():
 
 def _aakf_available() -> bool:
     try:
-        from cosim.algorithms.aakf import AaKF  # noqa: F401
+        from cosim.algorithms.fast.aakf_fast import AaKF  # noqa: F401
     except Exception:
         return False
     return True
 
 
-@pytest.mark.skipif(not _aakf_available(), reason="cosim.algorithms.aakf.AaKF not available")
+@pytest.mark.skipif(not _aakf_available(), reason="cosim.algorithms.fast.aakf_fast.AaKF not available")
 def test_rls_with_aakf_speed():
     # the default aaKF (sigma_a bank), fed with the rounded encoder and a simulated
     # ADXL335 (true nut acceleration + 0.3 m/s^2 bias + data-sheet white noise).

@@ -96,7 +96,7 @@ def test_literal_eq31_speed_bound_excludes_the_true_speed_under_acceleration():
     t_k; with |alpha| > 2 Delta/Ts^2 (582 rad/s^2, 0.93 m/s^2 at the nut) the true speed
     lies outside the bound and the clamp moves a correct estimate away from the truth.
     The acceleration-shifted bound (eq31_accel) contains it at every sample."""
-    from cosim.algorithms.aakf import AakfParams, _clamp
+    from cosim.algorithms.aakf import AakfParams, reset_clamp
     alpha = 1000.0                                   # rad/s^2 (1.6 m/s^2 at the nut)
     lit = AakfParams(sigma_a=300.0, reset_speed_bound="eq31")
     acc = replace(lit, reset_speed_bound="eq31_accel")
@@ -107,7 +107,7 @@ def test_literal_eq31_speed_bound_excludes_the_true_speed_under_acceleration():
     moved = {"eq31": 0, "eq31_accel": 0}
     for k in range(1, t.size):
         for p in (lit, acc):
-            _, om, _, spd = _clamp(p, theta[k], alpha * t[k], alpha, enc[k], enc[k - 1])
+            _, om, _, spd = reset_clamp(p, theta[k], alpha * t[k], alpha, enc[k], enc[k - 1])
             moved[p.reset_speed_bound] += bool(spd)
     assert moved["eq31_accel"] == 0
     assert moved["eq31"] > 0.5 * (t.size - 1)

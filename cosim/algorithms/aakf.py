@@ -4,8 +4,8 @@ of Sec. 2.2.2, and a plain encoder differentiator for comparison.
 The thesis's filter as printed is :class:`ReferenceAaKF`: one filter, Appendix A
 eq. 98-103 one equation per line, Q_d of eq. 28 and the literal reset of eq. 29-31
 (:func:`thesis_params`), its sigma_a picked by the whiteness procedure of Fig. 19-20
-(:mod:`cosim.algorithms.aakf_tuning`). It is the reference: :class:`AaKF` (in
-``cosim/algorithms/fast/aakf_fast.py``, importable from here), what the master runs, is
+(:mod:`cosim.algorithms.aakf_tuning`). It is the reference: :class:`~cosim.algorithms.fast.aakf_fast.AaKF` (in
+``cosim/algorithms/fast/aakf_fast.py``), what the master runs, is
 its fast form over a precomputed gain and is tested equal to it; the C twin
 ``c/aakf.c`` is bit-identical to :class:`AaKF`. The package's options, judged as
 extensions of the printed algorithm: the sigma_a bank (:class:`AaKFBank`, the default
@@ -147,8 +147,6 @@ __all__ = [
     "AakfParams",
     "AakfModel",
     "ReferenceAaKF",
-    "AaKF",
-    "AaKFBank",
     "thesis_params",
     "SIGMA_A_BANK",
     "EncoderDifferentiator",
@@ -357,7 +355,7 @@ def _position_bounds(p: AakfParams, enc: float) -> tuple[float, float]:
     return enc - 0.5 * d, enc + 0.5 * d                  # eq. 29
 
 
-def _clamp(p: AakfParams, theta: float, omega: float, alpha: float, enc: float,
+def reset_clamp(p: AakfParams, theta: float, omega: float, alpha: float, enc: float,
            enc_prev: float | None) -> tuple[float, float, bool, bool]:
     """Sec. 2.2.2 on a position [rad] and speed [rad/s]: clamp theta into eq. 29 and
     omega into eq. 31 (centred per ``reset_speed_bound``; ``alpha`` [rad/s^2] is the
@@ -374,7 +372,7 @@ def _clamp(p: AakfParams, theta: float, omega: float, alpha: float, enc: float,
     return theta, omega, pos, spd
 
 
-def _outputs(s: float, theta: float, omega: float, alpha: float, bias: float, e_enc: float,
+def pack_outputs(s: float, theta: float, omega: float, alpha: float, bias: float, e_enc: float,
              e_acc: float, fired: float, pos_fired: float, speed_fired: float) -> dict[str, float]:
     """The estimator's output dict (motor side, nut side with the lead ratio ``s`` [m/rad],
     innovations, reset flags)."""
@@ -384,7 +382,7 @@ def _outputs(s: float, theta: float, omega: float, alpha: float, bias: float, e_
             "reset_pos_fired": pos_fired, "reset_speed_fired": speed_fired}
 
 
-def _check_params(p: AakfParams) -> None:
+def check_params(p: AakfParams) -> None:
     if p.encoder_quantiser not in ("round", "floor"):
         raise ValueError("encoder_quantiser must be 'round' or 'floor'")
     if p.reset_speed_bound not in ("eq31", "eq31_accel"):
@@ -408,7 +406,7 @@ class ReferenceAaKF:
     with the state reset of Sec. 2.2.2 between the prediction and the update.
 
     This is the reference: :class:`cosim.algorithms.fast.aakf_fast.AaKF` (what the
-    scenarios run, re-exported here as :class:`AaKF`) is its fast form and is tested
+    scenarios run) is its fast form and is tested
     equal to it (``tests/test_aakf_fast.py``); the C twin ``c/aakf.c`` is bit-identical
     to the fast form (``tests/test_kernels.py``).
 
@@ -431,7 +429,7 @@ class ReferenceAaKF:
                                    "reset_lo", "reset_hi")
 
     def __init__(self, params: AakfParams) -> None:
-        _check_params(params)
+        check_params(params)
         if params.sigma_a is None:
             raise ValueError("ReferenceAaKF is one filter: sigma_a must be a number")
         self.params = params
@@ -518,7 +516,7 @@ class ReferenceAaKF:
         self.gain, self.innovation = K, e
         self._enc_prev = enc
         self.k += 1
-        return _outputs(p.m_per_rad, float(x_out[0]), float(x_out[1]), float(x_post[2]),
+        return pack_outputs(p.m_per_rad, float(x_out[0]), float(x_out[1]), float(x_post[2]),
                         float(x_post[3]), float(e[0]), float(e[1]),
                         float(fired[0] or fired[1]), float(fired[0]), float(fired[1]))
 
@@ -530,18 +528,6 @@ def thesis_params(sigma_a: float, reset: bool = True, **fields) -> AakfParams:
     ``fields``: any other :class:`AakfParams` field (e.g. ``sigma_b``)."""
     return AakfParams(sigma_a=float(sigma_a), process_noise="jerk", reset_enabled=reset,
                       reset_stage="prediction", reset_speed_bound="eq31", **fields)
-
-
-#: the fast forms (cosim/algorithms/fast/aakf_fast.py), importable from here
-_FAST_NAMES = ("AaKF", "AaKFBank")
-
-
-def __getattr__(name: str):
-    # lazy: the fast module imports this one (the model and the reset are defined here)
-    if name in _FAST_NAMES:
-        from .fast import aakf_fast
-        return getattr(aakf_fast, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 _SHARED_FIELDS = ("Ts", "lead_m", "encoder_counts_per_rev", "encoder_quantiser",
@@ -573,7 +559,7 @@ def filter_log(params: AakfParams | Sequence[AakfParams], theta_enc: np.ndarray,
         raise ValueError("no parameters given")
     p = plist[0]
     for q in plist:
-        _check_params(q)
+        check_params(q)
         for f in _SHARED_FIELDS:
             if getattr(q, f) != getattr(p, f):
                 raise ValueError(f"all filters must share {f}")

@@ -10,7 +10,7 @@ score of a pair being the larger of the two channels' Kolmogorov-Smirnov statist
 have the same length, so the same KS band). Ties are broken by the sum of the two.
 
 All filters of a round run together through :func:`cosim.algorithms.aakf.filter_log`
-(the exact :class:`~cosim.algorithms.aakf.AaKF` algorithm, vectorised).
+(the exact :class:`~cosim.algorithms.fast.aakf_fast.AaKF` algorithm, vectorised).
 
 The filter is tuned as configured in ``base`` (reset on/off, reset variant). Note
 that with the thesis' reset acting on the prediction the innovations are clipped

@@ -29,6 +29,9 @@ import zipfile
 from pathlib import Path
 
 from .unpack import MAX_UNPACKED_BYTES as MAX_UNCOMPRESSED  # noqa: E402,F401  (zip-bomb guard)
+# the archive checks live with the extraction (cosim.fmi.unpack); named here too, where
+# every FMU check starts
+from .unpack import FMUCheckError, safe_extract, safe_members  # noqa: E402,F401
 SUPPORTED = ("1.0", "2.0", "3.0")
 
 #: the rule a problem reported by FMPy's validation belongs to (first match)
@@ -50,14 +53,6 @@ _RULES = (
 )
 
 
-class FMUCheckError(Exception):
-    """The FMU cannot be used at all (corrupt, unsafe, unsupported)."""
-
-    def __init__(self, path, message):
-        self.path = path
-        super().__init__(f"{path}: {message}")
-
-
 @dataclasses.dataclass
 class CheckReport:
     path: Path
@@ -77,33 +72,6 @@ class CheckReport:
     def ok(self) -> bool:
         """Runnable here (and, with ``strict``, without warnings)."""
         return not self.errors and not (self.strict and self.warnings)
-
-
-def safe_members(path: Path) -> list[zipfile.ZipInfo]:
-    """Validate the archive's member list; raise FMUCheckError if unsafe/corrupt."""
-    if not path.exists():
-        raise FMUCheckError(path, "file not found")
-    if not zipfile.is_zipfile(path):
-        raise FMUCheckError(path, "not a zip archive (corrupt or not an FMU)")
-    from .unpack import UnsafeArchive, check_members
-    try:
-        with zipfile.ZipFile(path) as z:
-            infos = z.infolist()
-            # names, links, declared sizes and ratios (cosim.fmi.unpack): before a byte
-            # is decompressed
-            check_members(path, infos)
-            bad = z.testzip()
-    except UnsafeArchive as exc:
-        raise FMUCheckError(path, (f"unsafe member {exc.member!r}: " if exc.member else
-                                   "unsafe archive: ") + exc.reason) from None
-    except (zipfile.BadZipFile, OSError, EOFError) as exc:
-        raise FMUCheckError(path, f"corrupt zip archive: {exc}") from None
-    if bad is not None:
-        raise FMUCheckError(path, f"corrupt zip archive: CRC error in member {bad!r}")
-    names = {i.filename for i in infos}
-    if "modelDescription.xml" not in names:
-        raise FMUCheckError(path, "no modelDescription.xml at the archive root")
-    return infos
 
 
 def fmi_version(path: Path) -> str:
@@ -134,18 +102,6 @@ def fmi_version(path: Path) -> str:
                             "as FMI 1.0 (a modelIdentifier attribute on the root, no "
                             "CoSimulation/ModelExchange element): correct its fmiVersion")
     return v
-
-
-def safe_extract(path: Path, dest: Path) -> Path:
-    """Extract after validating the member list (:func:`cosim.fmi.unpack.extract_archive`:
-    only under ``dest``, sizes counted while written); returns dest."""
-    from .unpack import UnsafeArchive, extract_archive
-    safe_members(path)
-    try:
-        return extract_archive(path, Path(dest))
-    except UnsafeArchive as exc:
-        raise FMUCheckError(path, (f"unsafe member {exc.member!r}: " if exc.member else
-                                   "unsafe archive: ") + exc.reason) from None
 
 
 def _binary(md, unzipdir: Path, kind: str) -> Path:

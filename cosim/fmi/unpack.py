@@ -299,6 +299,51 @@ def sweep(root: Path | None = None) -> list[Path]:
     return removed
 
 
+class FMUCheckError(Exception):
+    """The FMU cannot be used at all (corrupt, unsafe, unsupported)."""
+
+    def __init__(self, path, message):
+        self.path = path
+        super().__init__(f"{path}: {message}")
+
+
+def safe_members(path: Path) -> list[zipfile.ZipInfo]:
+    """Validate the archive's member list; raise FMUCheckError if unsafe/corrupt."""
+    if not path.exists():
+        raise FMUCheckError(path, "file not found")
+    if not zipfile.is_zipfile(path):
+        raise FMUCheckError(path, "not a zip archive (corrupt or not an FMU)")
+    try:
+        with zipfile.ZipFile(path) as z:
+            infos = z.infolist()
+            # names, links, declared sizes and ratios (cosim.fmi.unpack): before a byte
+            # is decompressed
+            check_members(path, infos)
+            bad = z.testzip()
+    except UnsafeArchive as exc:
+        raise FMUCheckError(path, (f"unsafe member {exc.member!r}: " if exc.member else
+                                   "unsafe archive: ") + exc.reason) from None
+    except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        raise FMUCheckError(path, f"corrupt zip archive: {exc}") from None
+    if bad is not None:
+        raise FMUCheckError(path, f"corrupt zip archive: CRC error in member {bad!r}")
+    names = {i.filename for i in infos}
+    if "modelDescription.xml" not in names:
+        raise FMUCheckError(path, "no modelDescription.xml at the archive root")
+    return infos
+
+
+def safe_extract(path: Path, dest: Path) -> Path:
+    """Extract after validating the member list (:func:`extract_archive`:
+    only under ``dest``, sizes counted while written); returns dest."""
+    safe_members(path)
+    try:
+        return extract_archive(path, Path(dest))
+    except UnsafeArchive as exc:
+        raise FMUCheckError(path, (f"unsafe member {exc.member!r}: " if exc.member else
+                                   "unsafe archive: ") + exc.reason) from None
+
+
 class Hold:
     """One user's claim on an extracted FMU: the folder stays while the hold is not
     released; the libraries it opened are closed on release (once each)."""
@@ -338,9 +383,8 @@ class Hold:
 
 def acquire(path, sha256: str | None = None) -> Hold:
     """Take a hold on the extraction of FMU ``path`` (its sha256 if already known),
-    extracting it (member names checked, see :func:`cosim.fmi.check.safe_extract`)
+    extracting it (member names checked, see :func:`safe_extract`)
     if no live hold of this process has it."""
-    from .check import safe_extract
     path = Path(path)
     sha = sha256 or sha256_file(path)
     with _LOCK:

@@ -5,7 +5,7 @@ result file, used by the ``cosim estimate`` and ``cosim identify`` subcommands
 (:mod:`cosim.cli.offline`):
 
 :func:`estimate`
-    Runs the aaKF (:class:`cosim.algorithms.aakf.AaKF`, thesis Sec. 2.2, state reset of
+    Runs the aaKF (:class:`cosim.algorithms.fast.aakf_fast.AaKF`, thesis Sec. 2.2, state reset of
     Sec. 2.2.2 as configured by :class:`AakfParams`) and plain encoder differencing
     (:class:`EncoderDifferentiator`, the comparison of Fig. 24) sample by sample over
     ``theta_enc`` and ``acc_meas``; writes a CSV with one row per log sample::
@@ -43,7 +43,7 @@ Parameters taken from the log
 aaKF settings
 -------------
 Both operations use the default :class:`AakfParams`: the bank of single filters
-over sigma_a (:class:`cosim.algorithms.aakf.AaKFBank`) weighed by the likelihood of
+over sigma_a (:class:`cosim.algorithms.fast.aakf_fast.AaKFBank`) weighed by the likelihood of
 their innovations, so the jerk intensity is taken from the log itself (a hand-moved
 axis and a white-noise current differ by more than a decade); ``--sigma-a`` runs one
 filter with that value instead (the thesis' single aaKF). ``identify`` runs the RLS
@@ -69,7 +69,8 @@ from typing import Any
 
 import numpy as np
 
-from ..algorithms.aakf import AakfParams, AaKF, EncoderDifferentiator
+from ..algorithms.aakf import AakfParams, EncoderDifferentiator
+from ..algorithms.fast.aakf_fast import AaKF
 from ..algorithms.aakf import EncoderDifferentiatorParams
 from ..algorithms.rls import RLSIdentifier, RLSParams, identification_verdict, speed_timing_for
 from ..algorithms.whiteness import cumulative_periodogram

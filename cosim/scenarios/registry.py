@@ -702,8 +702,8 @@ def _single(run, build, ctx):
 # dataclasses validate the YAML ``params``. A trial registers only the blocks it
 # defines itself.
 def _register_algorithms():
-    from cosim.algorithms.aakf import (AaKF, AakfParams, EncoderDifferentiator,
-                                       EncoderDifferentiatorParams)
+    from cosim.algorithms.aakf import AakfParams, EncoderDifferentiator, EncoderDifferentiatorParams
+    from cosim.algorithms.fast.aakf_fast import AaKF
     from cosim.algorithms.bilateral import BilateralController, BilateralParams
     from cosim.algorithms.dob import DOB, RFOB, DOBParams, RFOBParams
     from cosim.algorithms.zero_force import (PositionController, PositionControllerParams,

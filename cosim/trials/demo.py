@@ -19,7 +19,8 @@ from ..fmubuild.build import build_all
 
 
 def free_motion_system(fmus: Path, duration_s: float = 6.0, seed: int = 1):
-    from ..algorithms.aakf import AaKF, AakfParams, EncoderDifferentiator
+    from ..algorithms.aakf import AakfParams, EncoderDifferentiator
+    from ..algorithms.fast.aakf_fast import AaKF
     from ..master.system import System
     from ..devices.human_arm import human_parameters
 

@@ -24,7 +24,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..aakf import (AakfModel, AakfParams, _check_params, _clamp, _outputs, discretise)
+from ..aakf import (AakfModel, AakfParams, check_params, discretise, pack_outputs, reset_clamp)
 from ..ckernel import CKernel, KernelStruct, fields
 
 __all__ = ["AaKF", "AaKFBank"]
@@ -225,7 +225,7 @@ class AaKF:
 
     def __init__(self, params: AakfParams | None = None) -> None:
         self.params = p = params if params is not None else AakfParams()
-        _check_params(p)
+        check_params(p)
         self.model = m = discretise(p)
         self._seq = _gain_sequence(p, m)
         # constants of the hot path, computed as the original expressions compute them
@@ -426,7 +426,7 @@ class AaKF:
         enc_prev = self._enc_prev
         pos_fired = speed_fired = False
         if self._reset_pred:                                              # eq. 29-31
-            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
+            x0, x1, pos_fired, speed_fired = reset_clamp(self.params, x0, x1, x2, enc, enc_prev)
 
         # --- update (eq. 101-102) ---
         if self._C_std:
@@ -448,7 +448,7 @@ class AaKF:
         x3 = x3 + (k30 * e0 + k31 * e1)
 
         if self._reset_post:                                              # variant, not thesis
-            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
+            x0, x1, pos_fired, speed_fired = reset_clamp(self.params, x0, x1, x2, enc, enc_prev)
 
         self._x_post = (x0, x1, x2, x3)
         self._innov = (e0, e1)
@@ -457,8 +457,8 @@ class AaKF:
         self.k = k + 1
 
         if self._reset_out:                                    # variant: the output only
-            x0, x1, pos_fired, speed_fired = _clamp(self.params, x0, x1, x2, enc, enc_prev)
-        return _outputs(self._s, x0, x1, x2, x3, e0, e1, float(pos_fired or speed_fired),
+            x0, x1, pos_fired, speed_fired = reset_clamp(self.params, x0, x1, x2, enc, enc_prev)
+        return pack_outputs(self._s, x0, x1, x2, x3, e0, e1, float(pos_fired or speed_fired),
                         float(pos_fired), float(speed_fired))
 
 
@@ -495,7 +495,7 @@ class AaKFBank(AaKF):
 
     def __init__(self, params: AakfParams | None = None) -> None:
         self.params = p = params if params is not None else AakfParams()
-        _check_params(p)
+        check_params(p)
         if p.sigma_a is not None or not p.sigma_a_bank:
             raise ValueError("AaKFBank needs sigma_a=None and a non-empty sigma_a_bank")
         # the "output" reset acts on the bank's estimate, not inside the members
@@ -588,10 +588,10 @@ class AaKFBank(AaKF):
         flags = ob["reset_fired"], ob["reset_pos_fired"], ob["reset_speed_fired"]
         enc = float(measurements["theta_enc"])
         if self._reset_out:                           # Sec. 2.2.2 on the bank's estimate
-            th, om, pos, spd = _clamp(self.params, th, om, al, enc, self._enc_prev)
+            th, om, pos, spd = reset_clamp(self.params, th, om, al, enc, self._enc_prev)
             flags = float(pos or spd), float(pos), float(spd)
         self._enc_prev = enc
-        return _outputs(self._s, th, om, al, bi, e0, e1, *flags)
+        return pack_outputs(self._s, th, om, al, bi, e0, e1, *flags)
 
     recordable: tuple[str, ...] = AaKF.recordable + ("weights", "sigma_a_eff")
 
