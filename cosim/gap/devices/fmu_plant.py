@@ -124,6 +124,14 @@ def _lstsq(A: np.ndarray, b: np.ndarray, rcond: float = 1e-10, scale: np.ndarray
     return x / nrm
 
 
+def _lstsq_normal(G: np.ndarray, Ab: np.ndarray, rcond: float, scale: np.ndarray) -> np.ndarray:
+    """:func:`_lstsq` from the normal equations ``G = A'A``, ``Ab = A'b`` (summed block by block)."""
+    nrm = np.asarray(scale, float).copy()
+    nrm[nrm == 0] = 1.0
+    x, *_ = np.linalg.lstsq(G / np.outer(nrm, nrm), Ab / nrm, rcond=rcond)
+    return x / nrm
+
+
 @dataclass
 class _Prep:
     """Parameter-independent quantities of one log (FMU units)."""
@@ -702,33 +710,46 @@ class FmuPlantDevice:
                         names.append(c)
         nlog = len(parts)
         ncol = len(names) + nlog
-        rows, rhs, tags = [], [], []
+        # the rows are never stacked: each (log, signal) block adds its part of the normal
+        # equations (A'A, A'b over its own columns), and its residual is formed from it after
+        # the solve (the stacked matrix of ~10^4-10^5 rows was most of an effect fit's cost)
+        G = np.zeros((ncol, ncol))
+        Ab = np.zeros(ncol)
+        used = np.zeros(ncol, dtype=bool)
+        blocks, offs = [], []
+        col_of = {c: i for i, c in enumerate(names)}
         for j, (lg, asm) in enumerate(parts):
             for sname, (y, base, cols, _) in asm.items():
                 sw = math.sqrt(w.get(sname, 0.0) / max(E.get(sname, 0.0), 1e-300))
                 r = y - base
+                idx, cl = [], []
                 for c, col in cols.items():
                     if fixed and c in fixed:
                         r = r - fixed[c] * col
-                A = np.zeros((y.size, ncol))
-                for i, c in enumerate(names):
-                    if c in cols:
-                        A[:, i] = cols[c]
+                    elif c == "bias":
+                        continue
+                    else:
+                        idx.append(col_of[c])
+                        cl.append(col)
                 if "bias" in cols:
-                    A[:, len(names) + j] = cols["bias"]
-                rows.append(sw * A)
-                rhs.append(sw * r)
-                tags.append((sname, sw, y.size))
+                    idx.append(len(names) + j)
+                    cl.append(cols["bias"])
+                rb = sw * r
+                C = sw * np.column_stack(cl) if cl else None
+                if C is not None:
+                    ii = np.ix_(idx, idx)
+                    G[ii] += C.T @ C
+                    Ab[idx] += C.T @ rb
+                    used[idx] |= np.any(C != 0, axis=0)
+                blocks.append((sname, sw, idx, C, rb))
                 if "bias" in cols and self._offset_sd:
                     # the per-trial offset is a nuisance within the sensor's offset tolerance:
                     # one row per trial, an offset of one tolerance costs the trial's noise energy
                     pw = sw * math.sqrt(y.size * self._prep(lg).noise.get(sname, 0.0)) / self._offset_sd
-                    row = np.zeros((1, ncol))
-                    row[0, len(names) + j] = pw
-                    rows.append(row)
-                    rhs.append(np.zeros(1))
-                    tags.append(("offset", 0.0, 1))
-        n_ridge = 0
+                    bi = len(names) + j
+                    G[bi, bi] += pw * pw
+                    used[bi] |= pw != 0
+                    offs.append((bi, pw))
         if refit and cfg and RIDGE > 0:
             # an effect fit re-fits the nominal parameters: each is pulled to its current value
             # (RIDGE per unit relative change), so that a direction the logs barely determine
@@ -737,18 +758,14 @@ class FmuPlantDevice:
             at = self._chord_at or params
             for i, c in enumerate(names):
                 if c.startswith(NOMINAL_PREFIX):
-                    row = np.zeros((1, ncol))
-                    row[0, i] = RIDGE / max(abs(float(at[c[len(NOMINAL_PREFIX):]])), 1e-300)
-                    rows.append(row)
-                    rhs.append(np.zeros(1))
-                    n_ridge += 1
-        A = np.vstack(rows)
-        bvec = np.concatenate(rhs)
-        used = np.flatnonzero(np.any(A != 0, axis=0))
+                    rr = RIDGE / max(abs(float(at[c[len(NOMINAL_PREFIX):]])), 1e-300)
+                    G[i, i] += rr * rr
+                    used[i] |= rr != 0
+        used = np.flatnonzero(used)
         # the nominal parameters' columns scaled to relative changes (one scale for all of
         # them): a direction the logs do not determine (M, Kf, b, Fc scaled together without
         # a known external force) has a vanishing singular value there and stays where it is
-        nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
+        nrm = np.sqrt(np.diag(G)).copy()
         nom_idx = [i for i, c in enumerate(names) if c.startswith(NOMINAL_PREFIX)]
         if nom_idx:
             at = self._chord_at or params       # the chord's point: the scaling of its Jacobian
@@ -760,22 +777,24 @@ class FmuPlantDevice:
         for _ in range(3):
             th[:] = 0.0
             if keep:
-                th[keep] = _lstsq(A[:, keep], bvec, rcond, nrm[keep])
+                th[keep] = _lstsq_normal(G[np.ix_(keep, keep)], Ab[keep], rcond, nrm[keep])
             neg = [i for i in keep if i < len(names) and names[i].split(":")[-1] in nonneg and th[i] < 0]
             if not neg:
                 break
             keep = [i for i in keep if i not in neg]
             th[neg] = 0.0
-        res = (bvec - A @ th)[:bvec.size - n_ridge]
-        gap = float(math.sqrt(float(res @ res)))
+        tot = 0.0
         per: dict[str, float] = {}
-        k0 = 0
-        for sname, sw, nrow in tags:
-            rr = res[k0:k0 + nrow]
-            k0 += nrow
-            per[sname] = per.get(sname, 0.0) + float(rr @ rr) / (sw * sw * max(E.get(sname, 0.0), 1e-300)) \
+        for sname, sw, idx, C, rb in blocks:
+            rr = rb - C @ th[idx] if C is not None else rb
+            ss = float(rr @ rr)
+            tot += ss
+            per[sname] = per.get(sname, 0.0) + ss / (sw * sw * max(E.get(sname, 0.0), 1e-300)) \
                 if sw > 0 else per.get(sname, 0.0)
-        per = {k: math.sqrt(v) for k, v in per.items() if k != "offset"}
+        for bi, pw in offs:
+            tot += (pw * th[bi]) ** 2
+        gap = float(math.sqrt(tot))
+        per = {k: math.sqrt(v) for k, v in per.items()}
         coef = {c: float(th[i]) for i, c in enumerate(names)}
         return gap, coef, per
 
