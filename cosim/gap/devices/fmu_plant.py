@@ -772,13 +772,19 @@ class FmuPlantDevice:
                     idx.append(len(names) + j)
                     cl.append(cols["bias"])
                 rb = sw * r
-                C = sw * np.column_stack(cl) if cl else None
-                if C is not None:
-                    ii = np.ix_(idx, idx)
-                    G[ii] += C.T @ C
-                    Ab[idx] += C.T @ rb
-                    used[idx] |= np.any(C != 0, axis=0)
-                blocks.append((sname, sw, idx, C, rb))
+                # the block's columns as rows (k x n, C order): one copy, and the products
+                # below run along contiguous memory
+                Ct = np.array(cl) if cl else None
+                if Ct is not None:
+                    Ct *= sw
+                    Gb = Ct @ Ct.T
+                    G[np.ix_(idx, idx)] += Gb
+                    Ab[idx] += Ct @ rb
+                    nz = np.diag(Gb) != 0                  # a sum of squares: 0 only if all are
+                    if not nz.all():
+                        nz[~nz] = np.any(Ct[~nz] != 0, axis=1)
+                    used[idx] |= nz
+                blocks.append((sname, sw, idx, Ct, rb))
                 if "bias" in cols and self._offset_sd:
                     # the per-trial offset is a nuisance within the sensor's offset tolerance:
                     # one row per trial, an offset of one tolerance costs the trial's noise energy
@@ -822,8 +828,8 @@ class FmuPlantDevice:
             th[neg] = 0.0
         tot = 0.0
         per: dict[str, float] = {}
-        for sname, sw, idx, C, rb in blocks:
-            rr = rb - C @ th[idx] if C is not None else rb
+        for sname, sw, idx, Ct, rb in blocks:
+            rr = rb - th[idx] @ Ct if Ct is not None else rb
             ss = float(rr @ rr)
             tot += ss
             per[sname] = per.get(sname, 0.0) + ss / (sw * sw * max(E.get(sname, 0.0), 1e-300)) \
