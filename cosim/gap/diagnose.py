@@ -654,6 +654,7 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
         result["thresholds"]["chosen_by"] = f"those of {THRESHOLDS_OF} (cross-validated): {chosen}"
     result["plant"] = {"fmu": str(fmu_path), "binding": str(binding_path),
                        "signals": device.signal_units()}
+    result["runtime_budget"] = device.budget_report()
     result = jsonable(result)
     out = Path(out_dir)
     atomic_write_text(out / "diagnosis.json", json.dumps(result, indent=2) + "\n")

@@ -45,6 +45,7 @@ nominal parameters' sensitivities by least squares, shape parameters on a grid t
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -188,6 +189,13 @@ class FmuPlantDevice:
     """:class:`cosim.gap.device.GapDevice` of a plant FMU + binding (module docstring)."""
 
     metric = "nrmse"
+    #: wall-clock budget of one diagnosis [s], counted from the device's creation: beyond it
+    #: the costliest refinements are dropped (the continuous refinement of a shape between its
+    #: grid neighbours, the joint shape descent of a pair: each keeps its grid's best), so that
+    #: a diagnosis ends well inside a 300 s limit on a loaded machine; what was dropped is
+    #: reported (:meth:`budget_report`, ``runtime_budget`` in ``diagnosis.json``). Unloaded,
+    #: a diagnosis of 3 + 2 logs of 10 s takes a fraction of it.
+    time_budget_s = 150.0
 
     def __init__(self, binding: PlantBinding, fmu_path: str | Path | None = None, progress=None):
         self.b = binding
@@ -253,6 +261,8 @@ class FmuPlantDevice:
         self._hints: dict[str, dict] = {}
         self._rec_cache: dict[tuple, dict] = {}
         self._rec_first: dict[str, float] | None = None
+        self._t_created = time.perf_counter()
+        self._dropped: dict[str, int] = {}
 
     def _map_states(self, binding: PlantBinding) -> None:
         """Which FMU states the measured motion sets, and the others (internal, integrated).
@@ -1085,7 +1095,7 @@ class FmuPlantDevice:
                 self._shapes[ck] = self._refine(logs, nom, {e: best[1]}, e, grid)[e] if best else {}
                 self._hints.setdefault(e, self._shapes[ck])
             cfg[e] = self._shapes[ck]
-        if len(effects) > 1 and descend:
+        if len(effects) > 1 and descend and not self._over_budget("pair shape descent"):
             cur = self._fit_cfg(logs, nom, cfg)[0]
             for e in effects:
                 for sh in self._grid(logs, e, nom):
@@ -1097,12 +1107,25 @@ class FmuPlantDevice:
         g, coef, _ = self._fit_cfg(logs, nom, cfg)
         return self._pack(nom, cfg, coef), g
 
+    def _over_budget(self, what: str) -> bool:
+        """True (and ``what`` counted as dropped) once the diagnosis has run longer than
+        :attr:`time_budget_s`."""
+        if time.perf_counter() - self._t_created <= self.time_budget_s:
+            return False
+        self._dropped[what] = self._dropped.get(what, 0) + 1
+        return True
+
+    def budget_report(self) -> dict:
+        """The time budget, the time used so far and the refinements dropped beyond it."""
+        return {"budget_s": float(self.time_budget_s), "elapsed_s": time.perf_counter() - self._t_created,
+                "exceeded": bool(self._dropped), "dropped": dict(self._dropped)}
+
     def fit_effects_quick(self, logs, params, effects):
         return self.fit_effects(logs, params, effects, descend=False)[1]
 
     def _refine(self, logs, nom, cfg, e, grid):
         key = self.forms[self._alias.get(e, e)].refine
-        if key is None or len(grid) < 2:
+        if key is None or len(grid) < 2 or self._over_budget("shape refinement"):
             return cfg
         vals = sorted({float(s[key]) for s in grid})
         i = vals.index(float(cfg[e][key]))
