@@ -198,6 +198,7 @@ def test_cli_end_to_end_on_a_foreign_dev_case(fmu, tmp_path):
     for k in ("M", "Kf", "b", "Fc"):
         assert abs(d["recalibrated"][k] / lab["true_params"][k] - 1) < 0.15, k
     assert "x_enc.dd" in d["plant"]["signals"]
+    assert d["runtime_budget"]["exceeded"] is False and d["runtime_budget"]["budget_s"] > 0
 
 
 def test_cli_plant_and_device_are_exclusive_and_plant_needs_a_binding(tmp_path):
@@ -210,3 +211,22 @@ def test_cli_plant_and_device_are_exclusive_and_plant_needs_a_binding(tmp_path):
                        capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 2 and "either --device" in r.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_time_budget_drops_the_refinements_and_reports_them(fmu, tmp_path):
+    """Beyond the device's time budget a shape is not refined between its grid neighbours
+    (the grid's best is kept) and the report counts what was dropped; within it the shape is
+    refined off the grid."""
+    rows = simulate(3.0, NOM, 5, extra_force=lambda x, v: -1.5 * math.copysign(1.0, v) * math.exp(-(v / 0.02) ** 2))
+    lg = read(write_log(tmp_path / "d" / "identification-1", rows))
+    dev = device(fmu, tmp_path)
+    prm, _ = dev.fit_effect([lg], NOM, "stribeck_friction")
+    grid = [g["vs"] for g in dev._grid([lg], "stribeck_friction", NOM)]
+    assert min(abs(prm["shape.vs"] / v - 1) for v in grid) > 1e-6      # refined off the grid
+    assert dev.budget_report()["exceeded"] is False
+    late = device(fmu, tmp_path)
+    late.time_budget_s = 0.0
+    prm0, _ = late.fit_effect([lg], NOM, "stribeck_friction")
+    assert prm0["shape.vs"] in grid
+    rep = late.budget_report()
+    assert rep["exceeded"] is True and rep["dropped"].get("shape refinement", 0) >= 1

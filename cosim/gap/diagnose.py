@@ -647,11 +647,14 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
     chosen = None
     if th is None and not provenance_for(device.name).startswith("bench"):
         th, chosen = thresholds_for(THRESHOLDS_OF), provenance_for(THRESHOLDS_OF)
-    result, extras = run_diagnosis(device, fit, test, thresholds=th, **kw)
+    from .fmu_me import blas_threads
+    with blas_threads(1):          # thousands of small products: threads only wait
+        result, extras = run_diagnosis(device, fit, test, thresholds=th, **kw)
     if chosen is not None and "thresholds" in result:
         result["thresholds"]["chosen_by"] = f"those of {THRESHOLDS_OF} (cross-validated): {chosen}"
     result["plant"] = {"fmu": str(fmu_path), "binding": str(binding_path),
                        "signals": device.signal_units()}
+    result["runtime_budget"] = device.budget_report()
     result = jsonable(result)
     out = Path(out_dir)
     atomic_write_text(out / "diagnosis.json", json.dumps(result, indent=2) + "\n")

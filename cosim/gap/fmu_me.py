@@ -12,7 +12,9 @@ set means a new instance (:meth:`MePlant.evaluate` takes the parameters and re-i
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -21,7 +23,100 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["MePlant", "FmuVariables"]
+__all__ = ["MePlant", "FmuVariables", "blas_threads"]
+
+
+#: the OpenBLAS thread-count setters and getters, by the names the numpy/scipy wheels and a
+#: system OpenBLAS export them under
+_BLAS_SET = ("openblas_set_num_threads", "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+             "openblas_set_num_threads64_")
+_BLAS_DEPTH = [0]
+
+
+def _openblas_libraries() -> list[tuple]:
+    """(set, get) of every OpenBLAS loaded in this process (Linux: read from
+    ``/proc/self/maps``; elsewhere none: the context below does nothing)."""
+    try:
+        paths = {ln.split()[-1] for ln in open("/proc/self/maps") if "openblas" in ln.lower()}
+    except OSError:
+        return []
+    out = []
+    for path in sorted(paths):
+        if not os.path.isfile(path):
+            continue
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in _BLAS_SET:
+            setter = getattr(lib, name, None)
+            getter = getattr(lib, name.replace("_set_", "_get_"), None)
+            if setter is not None and getter is not None:
+                getter.restype = ctypes.c_int
+                out.append((setter, getter))
+                break
+    return out
+
+
+@contextlib.contextmanager
+def blas_threads(n: int = 1):
+    """Run the enclosed code with OpenBLAS limited to ``n`` threads (restored after; nested
+    uses set it once). Why: the diagnosis's least squares are thousands of small products
+    (10^4 rows x ~10 columns); with OpenBLAS's default of a thread per core they spend most of
+    their time waking and waiting for threads, all the more on a loaded machine (foreign-dev
+    case-03, in-process screening of every effect: 29.9 s wall with the default
+    threads, 8.6 s with one). Results differ only in rounding (a product's partial sums are
+    split differently)."""
+    if _BLAS_DEPTH[0] > 0:
+        _BLAS_DEPTH[0] += 1
+        try:
+            yield
+        finally:
+            _BLAS_DEPTH[0] -= 1
+        return
+    libs = _openblas_libraries()
+    old = [int(g()) for _, g in libs]
+    for s_, _ in libs:
+        s_(int(n))
+    _BLAS_DEPTH[0] = 1
+    try:
+        yield
+    finally:
+        _BLAS_DEPTH[0] = 0
+        for (s_, _), k in zip(libs, old):
+            s_(k)
+
+
+_POINTS: list = []
+
+
+def _points_kernel():
+    """The compiled twin of :meth:`MePlant._pass`'s loop (``c/fmu_me_points.c``), built once
+    into the cache with the kernels' flags (IEEE, no FMA contraction: bit-identical to the
+    Python loop); None when it cannot be built (no C compiler): the Python loop runs then."""
+    if _POINTS:
+        return _POINTS[0]
+    fn = None
+    try:
+        import hashlib
+
+        from ..algorithms.ckernel import CFLAGS, compile_shared
+        from ..paths import cache_dir
+        src = Path(__file__).resolve().parent / "c" / "fmu_me_points.c"
+        h = hashlib.sha256(" ".join(CFLAGS).encode() + src.read_bytes()).hexdigest()[:16]
+        so = cache_dir() / "kernels" / f"gap_me_points_{h}.so"
+        if not so.is_file():
+            so.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
+                os.replace(compile_shared([src], Path(tmp) / so.name), so)
+        fn = ctypes.CDLL(str(so)).gap_me_points
+        vp, lg, dbl = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
+        fn.argtypes = [vp, vp, lg, lg, lg, lg, vp, vp, vp, vp, vp, vp, vp, vp, lg, lg, dbl, vp]
+        fn.restype = ctypes.c_int
+    except (OSError, RuntimeError, AttributeError):
+        fn = None
+    _POINTS.append(fn)
+    return fn
 
 
 class FmuVariables:
@@ -62,7 +157,13 @@ class FmuVariables:
 
 class MePlant:
     """One Model Exchange instance evaluated point-wise: set time, states, inputs; read
-    the state derivatives and some outputs. Reused across parameter sets (re-initialised)."""
+    the state derivatives and some outputs. Reused across parameter sets (re-initialised).
+
+    ``compiled``: the per-sample loop runs in C (``c/fmu_me_points.c``, the same FMU calls,
+    bit-identical results) when it can be built and at most one internal state is integrated;
+    False: the Python loops below, the reference."""
+
+    compiled = True
 
     def __init__(self, fmu_path: str | Path, variables: FmuVariables | None = None):
         from fmpy import extract
@@ -95,8 +196,15 @@ class MePlant:
         self._get_x.argtypes = [vp, vp, sz]
         for f in (self._set_time, self._set_x, self._get_dx, self._set_real, self._get_real, self._get_x):
             f.restype = ctypes.c_int
+        # the five functions' addresses, for the compiled loop (:func:`_points_kernel`)
+        self._fns = (ctypes.c_void_p * 5)(*[ctypes.cast(f, ctypes.c_void_p).value for f in
+                                           (self._set_time, self._set_x, self._get_dx, self._set_real,
+                                            self._get_real)])
 
     def close(self) -> None:
+        if getattr(self, "_closed", False):           # once: a freed instance must not be called
+            return
+        self._closed = True
         try:
             self.fmu.terminate()
             self.fmu.freeInstance()
@@ -168,6 +276,8 @@ class MePlant:
         if len(internal):
             return self._integrate(t, x, inputs, u, outputs, u_out, list(internal))
         B = self._buffers(t, x, inputs, u, outputs, u_out, copy_x=False)
+        if self._compiled_pass(B, t, [], None):
+            return B.dx, B.y[:, :B.no]
         n, nx, ni, no, x, dx, y = B.n, B.nx, B.ni, B.no, B.x, B.dx, B.y
         xa, ua, dxa, ya, u2a, vin, vout, tl = B.xa, B.ua, B.dxa, B.ya, B.u2a, B.vin, B.vout, B.tl
         c = self._c
@@ -188,6 +298,26 @@ class MePlant:
             raise RuntimeError(f"{self.vars.path.name}: an FMU call failed while evaluating the plant "
                                "point-wise (Model Exchange)")
         return dx, y[:, :no]
+
+    def _compiled_pass(self, B: SimpleNamespace, t: np.ndarray, internal, z0) -> bool:
+        """:meth:`_pass` (or :meth:`evaluate`'s loop, no internal state) in C; False when it
+        does not apply (Python reference wanted, no compiler, more than one internal state)."""
+        if not self.compiled or len(internal) > 1:
+            return False
+        fn = _points_kernel()
+        if fn is None:
+            return False
+        tt = np.ascontiguousarray(t, dtype=np.float64)
+        dp = np.zeros(max(B.nx, 1))
+        m = len(internal)
+        j0 = int(internal[0]) if m else 0
+        sc0 = float(max(abs(float(z0[j0])), 1e-8)) if m else 0.0
+        bad = fn(self._c, ctypes.addressof(self._fns), B.n, B.nx, B.ni, B.no, tt.ctypes.data, B.xa, B.ua,
+                 B.u2a, B.vin, B.vout, B.dxa, B.ya, m, j0, sc0, dp.ctypes.data)
+        if bad > 1:                                   # fmi2OK = 0, fmi2Warning = 1
+            raise RuntimeError(f"{self.vars.path.name}: an FMU call failed while evaluating the plant "
+                               "point-wise (Model Exchange)")
+        return True
 
     def _integrate(self, t, x, inputs, u, outputs, u_out, internal):
         """Internal states whose derivative is exactly 0 at the first sample are held (no
@@ -219,6 +349,8 @@ class MePlant:
         latter is the friction of the previous direction, a one-sample error of twice the
         Coulomb friction)."""
         B = self._buffers(t, x, inputs, u, outputs, u_out, copy_x=True)
+        if self._compiled_pass(B, t, internal, z0):
+            return B.dx, B.y[:, :B.no]
         n, nx, ni, no, x, dx, y = B.n, B.nx, B.ni, B.no, B.x, B.dx, B.y
         xa, ua, dxa, ya, u2a, vin, vout, tl = B.xa, B.ua, B.dxa, B.ya, B.u2a, B.vin, B.vout, B.tl
         iz = np.asarray(internal, dtype=int)

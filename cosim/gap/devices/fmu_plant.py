@@ -45,6 +45,7 @@ nominal parameters' sensitivities by least squares, shape parameters on a grid t
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -53,6 +54,11 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy import signal
 from scipy.optimize import minimize_scalar
+
+try:                                    # the compiled section loop behind scipy.signal.sosfilt
+    from scipy.signal._sosfilt import _sosfilt
+except ImportError:                     # another scipy: the public sosfiltfilt
+    _sosfilt = None
 
 from ...logs.trial_log import TrialLog
 from ..device import CannotDiagnose, GapInputError, NOMINAL_PREFIX, split_params
@@ -97,6 +103,36 @@ def _lowpass(fc: float, ts: float):
     return signal.butter(2, min(fc, 0.45 / ts), fs=1.0 / ts, output="sos")
 
 
+_ZI: dict = {}
+
+
+def _sosfiltfilt(sos: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``scipy.signal.sosfiltfilt(sos, x)`` of a 1-D float64 ``x`` (odd padding, default length),
+    bit-identical to it: the same extension and the same compiled section loop, without the
+    per-call validation and the initial-state solve (cached per filter). An effect fit filters
+    thousands of columns of ~10^4 samples; that overhead was about half of each call."""
+    x = np.asarray(x)
+    if _sosfilt is None or x.ndim != 1 or x.dtype != np.float64:
+        return signal.sosfiltfilt(sos, x)
+    key = (id(sos), sos.tobytes())
+    hit = _ZI.get(key)
+    if hit is None:
+        ns = sos.shape[0]
+        ntaps = 2 * ns + 1 - min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum()))
+        hit = _ZI[key] = (np.ascontiguousarray(sos, dtype=np.float64), signal.sosfilt_zi(sos), 3 * ntaps)
+    sos64, zi, edge = hit
+    if x.size <= edge:
+        return signal.sosfiltfilt(sos, x)
+    ext = np.concatenate((2 * x[0:1] - x[edge:0:-1], x, 2 * x[-1:] - x[-2:-(edge + 2):-1]))
+    y = ext.reshape(1, -1).copy()
+    z = np.ascontiguousarray((zi * ext[0:1]).reshape(1, -1, 2))
+    _sosfilt(sos64, y, z)
+    y = y[:, ::-1].copy()
+    z = np.ascontiguousarray((zi * y[0, :1]).reshape(1, -1, 2))
+    _sosfilt(sos64, y, z)
+    return y[0, ::-1][edge:-edge]
+
+
 def _leak_samples(sosF) -> int:
     """How far the comparison filter ``F`` (zero-phase) spreads one sample: the samples until its
     impulse response falls below 10 % of its peak (5 at 100 Hz and 1 kHz). The rest samples are
@@ -124,6 +160,14 @@ def _lstsq(A: np.ndarray, b: np.ndarray, rcond: float = 1e-10, scale: np.ndarray
     return x / nrm
 
 
+def _lstsq_normal(G: np.ndarray, Ab: np.ndarray, rcond: float, scale: np.ndarray) -> np.ndarray:
+    """:func:`_lstsq` from the normal equations ``G = A'A``, ``Ab = A'b`` (summed block by block)."""
+    nrm = np.asarray(scale, float).copy()
+    nrm[nrm == 0] = 1.0
+    x, *_ = np.linalg.lstsq(G / np.outer(nrm, nrm), Ab / nrm, rcond=rcond)
+    return x / nrm
+
+
 @dataclass
 class _Prep:
     """Parameter-independent quantities of one log (FMU units)."""
@@ -145,6 +189,13 @@ class FmuPlantDevice:
     """:class:`cosim.gap.device.GapDevice` of a plant FMU + binding (module docstring)."""
 
     metric = "nrmse"
+    #: wall-clock budget of one diagnosis [s], counted from the device's creation: beyond it
+    #: the costliest refinements are dropped (the continuous refinement of a shape between its
+    #: grid neighbours, the joint shape descent of a pair: each keeps its grid's best), so that
+    #: a diagnosis ends well inside a 300 s limit on a loaded machine; what was dropped is
+    #: reported (:meth:`budget_report`, ``runtime_budget`` in ``diagnosis.json``). Unloaded,
+    #: a diagnosis of 3 + 2 logs of 10 s takes a fraction of it.
+    time_budget_s = 150.0
 
     def __init__(self, binding: PlantBinding, fmu_path: str | Path | None = None, progress=None):
         self.b = binding
@@ -210,6 +261,8 @@ class FmuPlantDevice:
         self._hints: dict[str, dict] = {}
         self._rec_cache: dict[tuple, dict] = {}
         self._rec_first: dict[str, float] | None = None
+        self._t_created = time.perf_counter()
+        self._dropped: dict[str, int] = {}
 
     def _map_states(self, binding: PlantBinding) -> None:
         """Which FMU states the measured motion sets, and the others (internal, integrated).
@@ -559,10 +612,12 @@ class FmuPlantDevice:
         """The motion sensor's bandwidth (single pole, bilinear) and then F."""
         bw = self.motion.sensor.bandwidth_hz if self.motion is not None else None
         if bw and bw < 0.5 / p.ts:
-            wc = 2 * math.pi * bw
-            bz, az = signal.bilinear([wc], [1.0, wc], fs=1.0 / p.ts)
-            a = signal.lfilter(bz, az, a)
-        return signal.sosfiltfilt(p.cache["sosF"], a)
+            ba = p.cache.get("pole")
+            if ba is None:
+                wc = 2 * math.pi * bw
+                ba = p.cache["pole"] = signal.bilinear([wc], [1.0, wc], fs=1.0 / p.ts)
+            a = signal.lfilter(ba[0], ba[1], a)
+        return _sosfiltfilt(p.cache["sosF"], a)
 
     def _filtered(self, d: dict, key: str, z: np.ndarray | None, p: _Prep, sensor: bool) -> np.ndarray | None:
         """``F`` (``sensor``: the sensor's pole then ``F``) of ``z``, cached in ``d`` (full length)."""
@@ -570,7 +625,7 @@ class FmuPlantDevice:
             return None
         ck = "_f:" + key
         if ck not in d:
-            d[ck] = self._sensor(z, p) if sensor else signal.sosfiltfilt(p.cache["sosF"], z)
+            d[ck] = self._sensor(z, p) if sensor else _sosfiltfilt(p.cache["sosF"], z)
         return d[ck]
 
     def _assemble(self, log: TrialLog, params: Mapping[str, float], cfg: Mapping[str, Mapping[str, float]],
@@ -605,7 +660,7 @@ class FmuPlantDevice:
             if f.kind == "command":
                 for j in range(p.u.shape[1]):
                     du = f.command(p.u[:, j], shape, p.ts) - p.u[:, j]
-                    a += signal.sosfiltfilt(p.cache["sosF"], e["Gu"][j] * shift(du, 0.5 * p.ts, p.ts))
+                    a += _sosfiltfilt(p.cache["sosF"], e["Gu"][j] * shift(du, 0.5 * p.ts, p.ts))
                     if has_s:
                         s += self._sensor(e["Gs"][j] * _prev(du), p)
             elif f.kind == "force":
@@ -613,7 +668,7 @@ class FmuPlantDevice:
                 rd = f.reading(ctx, shape) if (f.reading is not None and has_s) else None
                 fc = f.columns(ctx, shape)
                 for c, col in fc.items():
-                    cols_a[f"{name}:{c}"] = signal.sosfiltfilt(p.cache["sosF"], e["GFa"] * col)
+                    cols_a[f"{name}:{c}"] = _sosfiltfilt(p.cache["sosF"], e["GFa"] * col)
                     if has_s:
                         if rd is not None:
                             # the force moves the sensed body (GFs) and the reading adds its own
@@ -702,33 +757,52 @@ class FmuPlantDevice:
                         names.append(c)
         nlog = len(parts)
         ncol = len(names) + nlog
-        rows, rhs, tags = [], [], []
+        # the rows are never stacked: each (log, signal) block adds its part of the normal
+        # equations (A'A, A'b over its own columns), and its residual is formed from it after
+        # the solve (the stacked matrix of ~10^4-10^5 rows was most of an effect fit's cost)
+        G = np.zeros((ncol, ncol))
+        Ab = np.zeros(ncol)
+        used = np.zeros(ncol, dtype=bool)
+        blocks, offs = [], []
+        col_of = {c: i for i, c in enumerate(names)}
         for j, (lg, asm) in enumerate(parts):
             for sname, (y, base, cols, _) in asm.items():
                 sw = math.sqrt(w.get(sname, 0.0) / max(E.get(sname, 0.0), 1e-300))
                 r = y - base
+                idx, cl = [], []
                 for c, col in cols.items():
                     if fixed and c in fixed:
                         r = r - fixed[c] * col
-                A = np.zeros((y.size, ncol))
-                for i, c in enumerate(names):
-                    if c in cols:
-                        A[:, i] = cols[c]
+                    elif c == "bias":
+                        continue
+                    else:
+                        idx.append(col_of[c])
+                        cl.append(col)
                 if "bias" in cols:
-                    A[:, len(names) + j] = cols["bias"]
-                rows.append(sw * A)
-                rhs.append(sw * r)
-                tags.append((sname, sw, y.size))
+                    idx.append(len(names) + j)
+                    cl.append(cols["bias"])
+                rb = sw * r
+                # the block's columns as rows (k x n, C order): one copy, and the products
+                # below run along contiguous memory
+                Ct = np.array(cl) if cl else None
+                if Ct is not None:
+                    Ct *= sw
+                    Gb = Ct @ Ct.T
+                    G[np.ix_(idx, idx)] += Gb
+                    Ab[idx] += Ct @ rb
+                    nz = np.diag(Gb) != 0                  # a sum of squares: 0 only if all are
+                    if not nz.all():
+                        nz[~nz] = np.any(Ct[~nz] != 0, axis=1)
+                    used[idx] |= nz
+                blocks.append((sname, sw, idx, Ct, rb))
                 if "bias" in cols and self._offset_sd:
                     # the per-trial offset is a nuisance within the sensor's offset tolerance:
                     # one row per trial, an offset of one tolerance costs the trial's noise energy
                     pw = sw * math.sqrt(y.size * self._prep(lg).noise.get(sname, 0.0)) / self._offset_sd
-                    row = np.zeros((1, ncol))
-                    row[0, len(names) + j] = pw
-                    rows.append(row)
-                    rhs.append(np.zeros(1))
-                    tags.append(("offset", 0.0, 1))
-        n_ridge = 0
+                    bi = len(names) + j
+                    G[bi, bi] += pw * pw
+                    used[bi] |= pw != 0
+                    offs.append((bi, pw))
         if refit and cfg and RIDGE > 0:
             # an effect fit re-fits the nominal parameters: each is pulled to its current value
             # (RIDGE per unit relative change), so that a direction the logs barely determine
@@ -737,18 +811,14 @@ class FmuPlantDevice:
             at = self._chord_at or params
             for i, c in enumerate(names):
                 if c.startswith(NOMINAL_PREFIX):
-                    row = np.zeros((1, ncol))
-                    row[0, i] = RIDGE / max(abs(float(at[c[len(NOMINAL_PREFIX):]])), 1e-300)
-                    rows.append(row)
-                    rhs.append(np.zeros(1))
-                    n_ridge += 1
-        A = np.vstack(rows)
-        bvec = np.concatenate(rhs)
-        used = np.flatnonzero(np.any(A != 0, axis=0))
+                    rr = RIDGE / max(abs(float(at[c[len(NOMINAL_PREFIX):]])), 1e-300)
+                    G[i, i] += rr * rr
+                    used[i] |= rr != 0
+        used = np.flatnonzero(used)
         # the nominal parameters' columns scaled to relative changes (one scale for all of
         # them): a direction the logs do not determine (M, Kf, b, Fc scaled together without
         # a known external force) has a vanishing singular value there and stays where it is
-        nrm = np.sqrt(np.einsum("ij,ij->j", A, A))
+        nrm = np.sqrt(np.diag(G)).copy()
         nom_idx = [i for i, c in enumerate(names) if c.startswith(NOMINAL_PREFIX)]
         if nom_idx:
             at = self._chord_at or params       # the chord's point: the scaling of its Jacobian
@@ -760,22 +830,24 @@ class FmuPlantDevice:
         for _ in range(3):
             th[:] = 0.0
             if keep:
-                th[keep] = _lstsq(A[:, keep], bvec, rcond, nrm[keep])
+                th[keep] = _lstsq_normal(G[np.ix_(keep, keep)], Ab[keep], rcond, nrm[keep])
             neg = [i for i in keep if i < len(names) and names[i].split(":")[-1] in nonneg and th[i] < 0]
             if not neg:
                 break
             keep = [i for i in keep if i not in neg]
             th[neg] = 0.0
-        res = (bvec - A @ th)[:bvec.size - n_ridge]
-        gap = float(math.sqrt(float(res @ res)))
+        tot = 0.0
         per: dict[str, float] = {}
-        k0 = 0
-        for sname, sw, nrow in tags:
-            rr = res[k0:k0 + nrow]
-            k0 += nrow
-            per[sname] = per.get(sname, 0.0) + float(rr @ rr) / (sw * sw * max(E.get(sname, 0.0), 1e-300)) \
+        for sname, sw, idx, Ct, rb in blocks:
+            rr = rb - th[idx] @ Ct if Ct is not None else rb
+            ss = float(rr @ rr)
+            tot += ss
+            per[sname] = per.get(sname, 0.0) + ss / (sw * sw * max(E.get(sname, 0.0), 1e-300)) \
                 if sw > 0 else per.get(sname, 0.0)
-        per = {k: math.sqrt(v) for k, v in per.items() if k != "offset"}
+        for bi, pw in offs:
+            tot += (pw * th[bi]) ** 2
+        gap = float(math.sqrt(tot))
+        per = {k: math.sqrt(v) for k, v in per.items()}
         coef = {c: float(th[i]) for i, c in enumerate(names)}
         return gap, coef, per
 
@@ -1023,7 +1095,7 @@ class FmuPlantDevice:
                 self._shapes[ck] = self._refine(logs, nom, {e: best[1]}, e, grid)[e] if best else {}
                 self._hints.setdefault(e, self._shapes[ck])
             cfg[e] = self._shapes[ck]
-        if len(effects) > 1 and descend:
+        if len(effects) > 1 and descend and not self._over_budget("pair shape descent"):
             cur = self._fit_cfg(logs, nom, cfg)[0]
             for e in effects:
                 for sh in self._grid(logs, e, nom):
@@ -1035,12 +1107,25 @@ class FmuPlantDevice:
         g, coef, _ = self._fit_cfg(logs, nom, cfg)
         return self._pack(nom, cfg, coef), g
 
+    def _over_budget(self, what: str) -> bool:
+        """True (and ``what`` counted as dropped) once the diagnosis has run longer than
+        :attr:`time_budget_s`."""
+        if time.perf_counter() - self._t_created <= self.time_budget_s:
+            return False
+        self._dropped[what] = self._dropped.get(what, 0) + 1
+        return True
+
+    def budget_report(self) -> dict:
+        """The time budget, the time used so far and the refinements dropped beyond it."""
+        return {"budget_s": float(self.time_budget_s), "elapsed_s": time.perf_counter() - self._t_created,
+                "exceeded": bool(self._dropped), "dropped": dict(self._dropped)}
+
     def fit_effects_quick(self, logs, params, effects):
         return self.fit_effects(logs, params, effects, descend=False)[1]
 
     def _refine(self, logs, nom, cfg, e, grid):
         key = self.forms[self._alias.get(e, e)].refine
-        if key is None or len(grid) < 2:
+        if key is None or len(grid) < 2 or self._over_budget("shape refinement"):
             return cfg
         vals = sorted({float(s[key]) for s in grid})
         i = vals.index(float(cfg[e][key]))
