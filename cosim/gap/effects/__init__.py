@@ -17,7 +17,7 @@ from . import (accel_bias_drift, accel_scale_error, actuator_delay, asymmetric_f
 from .base import BALLSCREW, BOTH, EMPS, BallscrewForm, Effect, EmpsForm, ParamSpec, Terms
 
 __all__ = ["EFFECTS", "CATALOGUE", "Effect", "ParamSpec", "BallscrewForm", "EmpsForm", "Terms", "effects_for",
-           "BALLSCREW", "EMPS", "BOTH"]
+           "modelica_models", "BALLSCREW", "EMPS", "BOTH"]
 
 #: the twelve effects, in the contract's order
 EFFECTS: dict[str, Effect] = {m.EFFECT.name: m.EFFECT for m in (
@@ -31,3 +31,23 @@ CATALOGUE = EFFECTS
 def effects_for(device: str) -> tuple[str, ...]:
     """Names of the effects that apply to ``device``, in the contract's order."""
     return tuple(n for n, e in EFFECTS.items() if device in e.devices)
+
+
+def modelica_models() -> dict[str, str]:
+    """The effects' FMU models, generated: {``RehabSim.Gap.With<Class>``: Modelica source}.
+
+    Each is the device of record ``RehabSim.Gap.BallScrewDevice`` (which holds every
+    effect, off by default) under the effect's name. ``modelica/gap_fmus.txt`` names this
+    function, so ``cosim fmus build`` builds one FMU per effect of :data:`EFFECTS`.
+    """
+    out = {}
+    for e in EFFECTS.values():
+        within, ident = e.modelica.rsplit(".", 1)
+        text = (f"Ball-screw device of record + {e.name}: {e.description}; effect parameters "
+                f"{', '.join(e.params)} (defaults: effect off, the nominal device)")
+        if '"' in text or "\\" in text:
+            raise ValueError(f"effect {e.name}: its description cannot hold quotes or backslashes "
+                             f"(it becomes the Modelica description string of {e.modelica})")
+        out[e.modelica] = (f"within {within};\nmodel {ident} \"{text}\"\n"
+                           f"  extends RehabSim.Gap.BallScrewDevice;\nend {ident};\n")
+    return out
