@@ -665,6 +665,12 @@ def build_all(package_dir: Path, out_dir: Path, models: list[str] | None = None,
     """Build every model of ``models`` (default: modelica/fmus.txt) for one FMI version
     ("2.0" -> out_dir/<Id>.fmu, "3.0" -> out_dir/fmi3/<Id>.fmu)."""
     fmi_version = _check_fmi_version(str(fmi_version))
+    package_dir = Path(package_dir)
     models = models or read_manifest(package_dir)
-    return [build_fmu(package_dir, m, out_dir, force=force, log=log, fmi_version=fmi_version)
-            for m in models]
+    # one copy with the generated models for all (build_fmu of the copy adds none)
+    with package_with_generated(package_dir) as pkg:
+        try:
+            return [build_fmu(pkg, m, out_dir, force=force, log=log, fmi_version=fmi_version)
+                    for m in models]
+        except ModelicaError as exc:
+            raise _named_in_source(exc, pkg, package_dir)
