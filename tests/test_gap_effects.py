@@ -41,10 +41,11 @@ NOM = dict(J=1.7e-5, b=1.6e-5, fc=3e-3, Kt=0.0603, r=0.01 / (2 * math.pi), sigma
 
 @pytest.fixture(scope="module")
 def gap_fmus(fmus):
-    """{identifier: path} of the gap FMUs (built by the normal manifest build)."""
-    names = [m.split(".")[-1] for m in
-             (l.split("#")[0].strip() for l in (REPO / "modelica" / "gap_fmus.txt").read_text().splitlines())
-             if m]
+    """{identifier: path} of the gap FMUs (built by the normal manifest build: gap_fmus.txt
+    lists the device and generates one With<Effect> per catalogue effect)."""
+    from cosim.fmubuild.build import read_manifest
+    names = [m.split(".")[-1] for m in read_manifest(REPO / "modelica" / "RehabSim")
+             if m.startswith("RehabSim.Gap.")]
     missing = [n for n in names if n not in fmus]
     assert not missing, f"conftest's build_all did not build {missing}"
     return {n: fmus[n] for n in names}

@@ -13,7 +13,9 @@ GUID derived from the hash, no build dates).
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import importlib
 import json
 import os
 import platform
@@ -496,8 +498,17 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
     the FMU, including the FMI version.
     """
     fmi_version = _check_fmi_version(str(fmi_version))
+    package_dir = Path(package_dir)
+    with package_with_generated(package_dir) as pkg:
+        try:
+            return _build_fmu(pkg, model, Path(out_dir), force, cache_dir, log, fmi_version)
+        except ModelicaError as exc:
+            raise _named_in_source(exc, pkg, package_dir)
+
+
+def _build_fmu(package_dir: Path, model: str, out_dir: Path, force: bool, cache_dir: Path | None,
+               log, fmi_version: str) -> Path:
     fmi3 = fmi_version == "3.0"
-    package_dir, out_dir = Path(package_dir), Path(out_dir)
     files = package_files(package_dir)
     cc = compiler()
     key = build_key(files, model, cc, fmi_version)
@@ -562,18 +573,90 @@ def build_fmu(package_dir: Path, model: str, out_dir: Path, *, force: bool = Fal
     return dest
 
 
+#: a manifest line ``generated-by: package.module:function`` names a function that returns
+#: {qualified model name: Modelica source} of models generated from code (one wrapper per
+#: gap effect, ``modelica/gap_fmus.txt``); they are exported like the listed ones
+GENERATED_BY = "generated-by:"
+
+
+def _manifest_lines(package_dir: Path):
+    """(file, line number, entry) of modelica/fmus.txt, then every modelica/*_fmus.txt."""
+    mf = Path(package_dir).parent / "fmus.txt"
+    for f in [mf, *sorted(mf.parent.glob("*_fmus.txt"))]:
+        if not f.exists():
+            continue
+        for i, line in enumerate(f.read_text().splitlines(), 1):
+            line = line.split("#", 1)[0].strip()
+            if line:
+                yield f, i, line
+
+
+def generated_models(package_dir: Path) -> dict[str, str]:
+    """{qualified name: Modelica source} of the models the manifests' ``generated-by:``
+    lines generate (none for a package without manifests)."""
+    out: dict[str, str] = {}
+    for f, i, line in _manifest_lines(package_dir):
+        if not line.startswith(GENERATED_BY):
+            continue
+        ref = line[len(GENERATED_BY):].strip()
+        module, _, func = ref.partition(":")
+        try:
+            models = getattr(importlib.import_module(module), func)()
+        except (ImportError, AttributeError, ValueError) as exc:
+            raise BuildError(f"{f}:{i}: {GENERATED_BY} {ref}: {exc}") from None
+        out.update(models)
+    return out
+
+
+@contextlib.contextmanager
+def package_with_generated(package_dir: Path):
+    """The package as pymoca reads it: ``package_dir`` itself, or, when the manifests
+    generate models, a temporary copy with each written where its name puts it
+    (``RehabSim.Gap.WithX`` -> ``<copy>/Gap/WithX.mo``). pymoca reads every ``.mo`` file
+    of the folder and no ``package.order``, so the copy's are left as they are."""
+    generated = generated_models(package_dir)
+    if not generated:
+        yield package_dir
+        return
+    with tempfile.TemporaryDirectory(prefix="fmubuild-pkg-") as td:
+        pkg = Path(td) / package_dir.name
+        shutil.copytree(package_dir, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+        for name, text in generated.items():
+            parts = name.split(".")
+            if len(parts) < 2 or parts[0] != package_dir.name:
+                raise BuildError(f"generated model {name}: not a class of package {package_dir.name}")
+            rel = Path(*parts[1:-1], parts[-1] + ".mo")
+            if (package_dir / rel).exists():
+                raise BuildError(f"generated model {name}: {package_dir / rel} exists too "
+                                 "(write the model by hand or generate it, not both)")
+            if not (pkg / rel).parent.is_dir():
+                raise BuildError(f"generated model {name}: no package folder {(package_dir / rel).parent}")
+            (pkg / rel).write_text(text)
+        yield pkg
+
+
+def _named_in_source(exc: ModelicaError, copy: Path, package_dir: Path) -> ModelicaError:
+    """An error of a build from the temporary copy, naming the source files instead."""
+    if copy != package_dir:
+        exc.args = (str(exc).replace(str(copy), str(package_dir)),)
+        if exc.file is not None:
+            exc.file = Path(str(exc.file).replace(str(copy), str(package_dir)))
+    return exc
+
+
 def read_manifest(package_dir: Path) -> list[str]:
     """Models to export: modelica/fmus.txt, then every modelica/*_fmus.txt (e.g.
-    gap_fmus.txt), one qualified name per line."""
+    gap_fmus.txt), one qualified name per line, or a ``generated-by:`` line for the
+    models a function generates."""
     mf = Path(package_dir).parent / "fmus.txt"
     if not mf.exists():
         raise BuildError(f"{mf} not found: it lists the models to export as FMUs")
     names = []
-    for f in [mf, *sorted(mf.parent.glob("*_fmus.txt"))]:
-        for i, line in enumerate(f.read_text().splitlines(), 1):
-            line = line.split("#", 1)[0].strip()
-            if line and line not in names:
-                names.append(line)
+    generated = list(generated_models(package_dir))
+    for _, _, line in _manifest_lines(package_dir):
+        for name in generated if line.startswith(GENERATED_BY) else [line]:
+            if name not in names:
+                names.append(name)
     return names
 
 
@@ -582,6 +665,12 @@ def build_all(package_dir: Path, out_dir: Path, models: list[str] | None = None,
     """Build every model of ``models`` (default: modelica/fmus.txt) for one FMI version
     ("2.0" -> out_dir/<Id>.fmu, "3.0" -> out_dir/fmi3/<Id>.fmu)."""
     fmi_version = _check_fmi_version(str(fmi_version))
+    package_dir = Path(package_dir)
     models = models or read_manifest(package_dir)
-    return [build_fmu(package_dir, m, out_dir, force=force, log=log, fmi_version=fmi_version)
-            for m in models]
+    # one copy with the generated models for all (build_fmu of the copy adds none)
+    with package_with_generated(package_dir) as pkg:
+        try:
+            return [build_fmu(pkg, m, out_dir, force=force, log=log, fmi_version=fmi_version)
+                    for m in models]
+        except ModelicaError as exc:
+            raise _named_in_source(exc, pkg, package_dir)

@@ -30,6 +30,9 @@ Truth model (why it is "higher fidelity" than the diagnosed one)
   (0.05 N rms noise, 0.01 N resolution) in the partner-push trial.
 * Parameter error: the true J, b, fc, Kt are the sidecar's ``nominal`` times
   ``1 + U(-param_error, +param_error)`` (default 15 %).
+* The structure is a :class:`Switches` (the nominal device by default); a catalogue
+  effect changes it through its module's ``Effect.truth_switches``, an effect outside
+  the catalogue through the table here.
 
 Scenarios
 ---------
@@ -43,6 +46,7 @@ friction compensation on the nominal model (thesis Fig. 28, gain 3);
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -54,11 +58,13 @@ from ..logs.synth import min_jerk_reference, reference_at
 from ..logs.trial_log import write_trial_log
 from .effects import EFFECTS
 
-__all__ = ["NOMINAL", "EFFECT_SAMPLERS", "OUT_OF_CATALOGUE", "SCENARIOS",
-           "simulate_truth", "write_truth_log"]
+__all__ = ["NOMINAL", "EFFECT_SAMPLERS", "OUT_OF_CATALOGUE", "SCENARIOS", "Switches", "TruthContext",
+           "switches", "simulate_truth", "write_truth_log"]
 
 G0 = 9.80665
 SCENARIOS = ("identification", "multisine", "push")
+#: rms of the identification and multisine current [A]
+EXCITATION_RMS_A = 0.15
 
 #: the model of record's parameters (sidecar ``nominal``), Table 1 + sensor calibration
 NOMINAL: dict[str, float] = {"J": J_KG_M2, "b": 1.6e-5, "fc": 3e-3, "Kt": KT_NM_PER_A, "lead": 0.01,
@@ -73,12 +79,59 @@ CONST: dict[str, float] = {
 }
 
 
+@dataclass(frozen=True)
+class TruthContext:
+    """What an effect's truth switches (``Effect.truth_switches(ep, ctx)``) may depend on
+    besides its own drawn parameters ``ep``: this device's true friction, the nut, the
+    simulator's sub-step and contact constants, the excitation's level."""
+    fc_Nm: float                    # true Coulomb friction at the motor
+    b_Nms: float                    # true viscous friction at the motor [N m s/rad]
+    m_n_kg: float                   # nut + handle + accelerometer
+    dt_s: float                     # integration sub-step
+    k_contact_N_m: float            # stiff screw|nut contact (backlash)
+    zeta_contact: float             # its damping ratio
+    excitation_rms_A: float         # rms of the identification / multisine current
+
+
+@dataclass(frozen=True)
+class Switches:
+    """The truth simulator's structure. The defaults are the nominal device (no effect;
+    :func:`switches` sets the four friction fields to the drawn fc and b); an effect's
+    ``truth_switches`` returns the fields it changes, by name."""
+    stribeck_excess_Nm: float = 0.0         # fs - fc, decaying as exp(-(w/ws)^2)
+    stribeck_speed_rad_s: float = 1.0       # ws
+    coulomb_pos_Nm: float = 0.0             # Coulomb friction moving +/-
+    coulomb_neg_Nm: float = 0.0
+    viscous_pos_Nms: float = 0.0            # viscous friction moving +/- [N m s/rad]
+    viscous_neg_Nms: float = 0.0
+    fc_pos_amp: float = 0.0                 # Coulomb x (1 + amp sin(2 pi x / period + phase)), x at the nut
+    fc_pos_period_m: float = 0.0
+    fc_pos_phase_rad: float = 0.0
+    cogging_Nm: float = 0.0                 # cogging torque amp sin(n theta + phase)
+    cogging_per_rev: float = 0.0
+    cogging_phase_rad: float = 0.0
+    delay_substeps: int = 0                 # driver transport delay, in sub-steps
+    lag_tau_s: float = 0.0                  # driver first-order lag (0: none)
+    i_max_A: float = math.inf               # driver clipping
+    ripple_A: float = 0.0                   # sine added to the driver's current
+    ripple_Hz: float = 50.0
+    ripple_phase_rad: float = 0.0
+    acc_scale: float = 1.0                  # accelerometer scale factor
+    acc_drift_m_s2: float = 0.0             # bias + drift (1 - exp(-t/T))
+    acc_drift_T_s: float = 1.0
+    tilt_rad: float = 0.0                   # axis tilt (+: x uphill)
+    two_body: bool = False                  # motor+screw | nut on a coupling (below)
+    k_nut_N_m: float = 0.0                  # screw|nut coupling stiffness and damping
+    c_nut_Ns_m: float = 0.0
+    play_m: float = 0.0                     # dead zone of that coupling (total)
+    nut_fc_N: float = 0.0                   # Coulomb guide friction of the nut
+    payload_kg: float = 0.0                 # a payload on the nut through a spring-damper
+    k_payload_N_m: float = 0.0
+    c_payload_Ns_m: float = 0.0
+
+
 def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(rng.uniform(lo, hi))
-
-
-def _signed(rng: np.random.Generator, lo: float, hi: float) -> float:
-    return float(rng.choice([-1.0, 1.0])) * _u(rng, lo, hi)
 
 
 #: effect name -> sampler(rng) of its truth parameters (each effect's module, ``gap/effects/``)
@@ -93,18 +146,52 @@ OUT_OF_CATALOGUE: dict[str, Callable[[np.random.Generator], dict[str, float]]] =
     "hidden_payload": lambda r: {"m2": _u(r, 0.3, 0.6), "fn": _u(r, 12, 25), "zeta": _u(r, 0.02, 0.06)},
 }
 
-TWO_BODY = ("backlash", "transmission_compliance", "hidden_payload")
+
+def _hidden_payload(ep: dict[str, float], c: TruthContext) -> dict[str, Any]:
+    k = c.k_contact_N_m * 5                 # motor|nut rigid (stiff), payload on a soft spring
+    w2 = 2 * math.pi * ep["fn"]
+    return {"two_body": True, "k_nut_N_m": k, "c_nut_Ns_m": 2 * 0.5 * math.sqrt(k * c.m_n_kg),
+            "payload_kg": ep["m2"], "k_payload_N_m": ep["m2"] * w2 ** 2,
+            "c_payload_Ns_m": 2 * ep["zeta"] * ep["m2"] * w2}
+
+
+#: their truth switches, in the form of ``Effect.truth_switches``
+_OUT_OF_CATALOGUE_SWITCHES: dict[str, Callable[[dict[str, float], TruthContext], dict[str, Any]]] = {
+    "mains_ripple": lambda ep, c: {"ripple_A": ep["amp"], "ripple_Hz": ep["freq"],
+                                   "ripple_phase_rad": ep["phase"]},
+    "hidden_payload": _hidden_payload,
+}
+
+
+def switches(effect: str | None, ep: dict[str, float], ctx: TruthContext) -> Switches:
+    """The simulator's structure for ``effect`` with parameters ``ep``: the nominal
+    device (the drawn friction in both directions) changed where the effect says."""
+    nominal = Switches(coulomb_pos_Nm=ctx.fc_Nm, coulomb_neg_Nm=ctx.fc_Nm,
+                       viscous_pos_Nms=ctx.b_Nms, viscous_neg_Nms=ctx.b_Nms)
+    if effect is None:
+        return nominal
+    form = (_OUT_OF_CATALOGUE_SWITCHES[effect] if effect in _OUT_OF_CATALOGUE_SWITCHES
+            else EFFECTS[effect].truth_switches)
+    if form is None:
+        raise ValueError(f"effect {effect!r} has no truth form "
+                         f"(gap/effects/{effect}.py: Effect.truth_switches)")
+    changed = form(ep, ctx)
+    unknown = sorted(set(changed) - {f.name for f in fields(Switches)})
+    if unknown:
+        raise ValueError(f"effect {effect!r}: truth_switches sets unknown switch(es) {', '.join(unknown)} "
+                         f"(known: the fields of cosim.gap.truth.Switches)")
+    return replace(nominal, **changed)
 
 
 def _excitation(scenario: str, n: int, Ts: float, rng: np.random.Generator) -> np.ndarray | None:
     if scenario == "identification":
-        return band_limited_white_noise(n, Ts, 50.0, 0.15, rng)
+        return band_limited_white_noise(n, Ts, 50.0, EXCITATION_RMS_A, rng)
     if scenario == "multisine":
         t = np.arange(n) * Ts
         f = np.geomspace(1.0, 40.0, 24)
         ph = rng.uniform(0, 2 * np.pi, f.size)
         u = np.sin(2 * np.pi * f[:, None] * t[None, :] + ph[:, None]).sum(axis=0)
-        return 0.15 * u / np.sqrt(np.mean(u ** 2))
+        return EXCITATION_RMS_A * u / np.sqrt(np.mean(u ** 2))
     return None
 
 
@@ -139,58 +226,19 @@ def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, s
     ep = dict(effect_params) if effect_params else (samplers[effect](drng) if effect else {})
     m = nom["m_n"]
 
-    # ---- effect switches (defaults = nominal structure)
-    fs_x, ws = 0.0, 1.0                        # Stribeck excess torque, speed
-    fcp = fcn = fc
-    bp = bn = b
-    pos_amp = pos_per = pos_ph = 0.0
-    cog_a = cog_n = cog_ph = 0.0
-    delay_sub = 0
-    tau_lag = 0.0
-    i_max = math.inf
-    acc_scale, drift, drift_T, tilt = 1.0, 0.0, 1.0, 0.0
-    ripple = (0.0, 50.0, 0.0)
-    two_body = effect in TWO_BODY
-    k_c, c_c, play = 0.0, 0.0, 0.0
-    m2 = k2 = c2 = 0.0
-    nut_fc = 0.0
-    if effect == "stribeck_friction":
-        fs_x, ws = (ep["fs_ratio"] - 1.0) * fc, ep["ws"]
-    elif effect == "asymmetric_friction":
-        fcp, fcn = fc * (1 + ep["dfc"]), fc * (1 - ep["dfc"])
-        bp, bn = b * (1 + ep["db"]), b * (1 - ep["db"])
-    elif effect == "position_dependent_friction":
-        pos_amp, pos_per, pos_ph = ep["amp"], ep["period"], ep["phase"]
-    elif effect == "cogging_torque":
-        cog_a, cog_n, cog_ph = ep["amp"], ep["n"], ep["phase"]
-    elif effect == "actuator_delay":
-        delay_sub = int(round(ep["delay"] / dt))
-    elif effect == "current_loop_lag":
-        tau_lag = ep["tau"]
-    elif effect == "current_saturation":
-        i_max = ep["i_max_rms"] * 0.15
-    elif effect == "accel_scale_error":
-        acc_scale = ep["scale"]
-    elif effect == "accel_bias_drift":
-        drift, drift_T = ep["drift"], ep["T"]
-    elif effect == "gravity_load":
-        tilt = ep["tilt"]
-    elif effect == "mains_ripple":
-        ripple = (ep["amp"], ep["freq"], ep["phase"])
-    elif effect == "transmission_compliance":
-        wn = 2 * math.pi * ep["fn"]
-        k_c, c_c = m * wn ** 2, 2 * ep["zeta"] * m * wn
-    elif effect == "backlash":
-        k_c = c["k_contact"]
-        c_c = 2 * c["zeta_contact"] * math.sqrt(k_c * m)
-        play = ep["width"]
-        nut_fc = 1.0                       # N, guide/handle-bearing friction of the nut
-    elif effect == "hidden_payload":
-        k_c = c["k_contact"] * 5           # motor|nut rigid (stiff), payload on a soft spring
-        c_c = 2 * 0.5 * math.sqrt(k_c * m)
-        m2 = ep["m2"]
-        w2 = 2 * math.pi * ep["fn"]
-        k2, c2 = m2 * w2 ** 2, 2 * ep["zeta"] * m2 * w2
+    # ---- the structure: the nominal device changed by the effect's switches
+    ctx = TruthContext(fc_Nm=fc, b_Nms=b, m_n_kg=m, dt_s=dt, k_contact_N_m=c["k_contact"],
+                       zeta_contact=c["zeta_contact"], excitation_rms_A=EXCITATION_RMS_A)
+    sw = switches(effect, ep, ctx)
+    fs_x, ws = sw.stribeck_excess_Nm, sw.stribeck_speed_rad_s
+    fcp, fcn, bp, bn = sw.coulomb_pos_Nm, sw.coulomb_neg_Nm, sw.viscous_pos_Nms, sw.viscous_neg_Nms
+    pos_amp, pos_per, pos_ph = sw.fc_pos_amp, sw.fc_pos_period_m, sw.fc_pos_phase_rad
+    cog_a, cog_n, cog_ph = sw.cogging_Nm, sw.cogging_per_rev, sw.cogging_phase_rad
+    delay_sub, tau_lag, i_max = sw.delay_substeps, sw.lag_tau_s, sw.i_max_A
+    rip_a, rip_f, rip_ph = sw.ripple_A, sw.ripple_Hz, sw.ripple_phase_rad
+    acc_scale, drift, drift_T, tilt = sw.acc_scale, sw.acc_drift_m_s2, sw.acc_drift_T_s, sw.tilt_rad
+    two_body, k_c, c_c, play, nut_fc = sw.two_body, sw.k_nut_N_m, sw.c_nut_Ns_m, sw.play_m, sw.nut_fc_N
+    m2, k2, c2 = sw.payload_kg, sw.k_payload_N_m, sw.c_payload_Ns_m
     Jm = J - m * S * S if two_body else J
     g_force = m * G0 * math.sin(tilt)          # gravity along -x on the nut (+tilt: x uphill)
 
@@ -273,7 +321,7 @@ def simulate_truth(scenario: str = "identification", duration_s: float = 10.0, s
             else:
                 f = f_k
             # driver
-            i_in = i_c + ripple[0] * math.sin(2 * math.pi * ripple[1] * tj + ripple[2])
+            i_in = i_c + rip_a * math.sin(2 * math.pi * rip_f * tj + rip_ph)
             if delay_sub:
                 dbuf[dpos] = i_in
                 dpos = (dpos + 1) % len(dbuf)

@@ -19,6 +19,7 @@ EFFECT = Effect(
                   acc_only=("db_acc",), acts_on=("acc_meas", "acc_dc")),
     # thermal drift 0.3-0.8 m/s^2 with time constant 3-20 s
     lambda r: {"drift": signed(r, 0.3, 0.8), "T": uniform(r, 3.0, 20.0)},
+    truth_switches=lambda ep, c: {"acc_drift_m_s2": ep["drift"], "acc_drift_T_s": ep["T"]},
 )
 
 

@@ -16,6 +16,7 @@ EFFECT = Effect(
                     "(also adds g sin(psi) to the reading)")),
     BallscrewForm(_terms, linear=("ds_acc",), acc_only=("ds_acc",), acts_on=("acc_meas", "acc_dc")),
     lambda r: {"scale": 1.0 + signed(r, 0.08, 0.2)},
+    truth_switches=lambda ep, c: {"acc_scale": ep["scale"]},
 )
 
 

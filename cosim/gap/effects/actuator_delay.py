@@ -42,6 +42,7 @@ EFFECT = Effect(
     BallscrewForm(_terms, grid=lambda preps: [{"Td": k * 0.5e-3} for k in range(1, 21)],
                   refine=("Td",), bounds={"Td": (1e-4, 0.05)}, driver_stage=1),
     lambda r: {"delay": uniform(r, 2e-3, 5e-3)},
+    truth_switches=lambda ep, c: {"delay_substeps": int(round(ep["delay"] / c.dt_s))},
     emps=EMPS_FORM,
 )
 

@@ -38,6 +38,10 @@ EFFECT = Effect(
     BallscrewForm(_terms, linear=("dfc", "db")),
     # Coulomb and viscous +-(25-45) % between directions
     lambda r: {"dfc": signed(r, 0.25, 0.45), "db": signed(r, 0.25, 0.45)},
+    truth_switches=lambda ep, c: {"coulomb_pos_Nm": c.fc_Nm * (1 + ep["dfc"]),
+                                  "coulomb_neg_Nm": c.fc_Nm * (1 - ep["dfc"]),
+                                  "viscous_pos_Nms": c.b_Nms * (1 + ep["db"]),
+                                  "viscous_neg_Nms": c.b_Nms * (1 - ep["db"])},
     emps=EMPS_FORM,
 )
 

@@ -1,4 +1,6 @@
 """Play between the motor/screw and the nut that carries the handle and the accelerometer."""
+import math
+
 import numpy as np
 
 from .base import (NFINE, BALLSCREW, BallscrewForm, Effect, Terms, fine_to_samples, nut_backlash, params,
@@ -43,4 +45,9 @@ EFFECT = Effect(
                   acts_on=("i_cmd", "acc_meas")),
     # play 0.1-0.3 mm at the nut
     lambda r: {"width": uniform(r, 1e-4, 3e-4)},
+    # a stiff contact across the play; the nut's 1 N guide friction keeps it where the
+    # screw left it inside the play
+    truth_switches=lambda ep, c: {"two_body": True, "k_nut_N_m": c.k_contact_N_m,
+                                  "c_nut_Ns_m": 2 * c.zeta_contact * math.sqrt(c.k_contact_N_m * c.m_n_kg),
+                                  "play_m": ep["width"], "nut_fc_N": 1.0},
 )

@@ -5,7 +5,7 @@ An effect (``spec/gap-diagnosis.md``) is one module in this package holding one
 parameters (:class:`ParamSpec`), its form for each diagnosis device that has one
 (:class:`BallscrewForm`: regression terms, search grid, refinement, bounds;
 :class:`EmpsForm`: regressor columns, shape grid, parameter and FMU mapping), and the
-sampler of its truth parameters for the project's own truth generator. The package's
+sampler of its truth parameters and its switches in the project's own truth generator. The package's
 ``__init__`` registers the modules once, in the contract's order.
 """
 from __future__ import annotations
@@ -149,6 +149,10 @@ class Effect:
     ballscrew: BallscrewForm | None = None
     sample_truth: Callable[[np.random.Generator], dict[str, float]] | None = None
     emps: EmpsForm | None = None
+    #: ``truth_switches(ep, ctx)``: its form in the truth simulator, the fields of
+    #: :class:`cosim.gap.truth.Switches` it changes for the drawn parameters ``ep``
+    #: (``ctx``: :class:`cosim.gap.truth.TruthContext`)
+    truth_switches: Callable[[Mapping[str, float], Any], dict[str, Any]] | None = None
 
     @property
     def modelica(self) -> str:

@@ -38,6 +38,8 @@ EFFECT = Effect(
     # ripple amplitude 0.5-1 fc, 4-12 periods per revolution
     lambda r: {"amp": uniform(r, 0.5, 1.0) * 3e-3, "n": float(r.choice([4, 6, 8, 12])),
                "phase": uniform(r, 0, 2 * math.pi)},
+    truth_switches=lambda ep, c: {"cogging_Nm": ep["amp"], "cogging_per_rev": ep["n"],
+                                  "cogging_phase_rad": ep["phase"]},
 )
 
 

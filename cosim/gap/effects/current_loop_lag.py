@@ -36,6 +36,7 @@ EFFECT = Effect(
     BallscrewForm(_terms, grid=lambda preps: [{"Tcl": v} for v in np.geomspace(2e-4, 2e-2, 16)],
                   refine=("Tcl",), bounds={"Tcl": (5e-5, 0.1)}, driver_stage=3),
     lambda r: {"tau": uniform(r, 2e-3, 6e-3)},
+    truth_switches=lambda ep, c: {"lag_tau_s": ep["tau"]},
     emps=EMPS_FORM,
 )
 

@@ -32,6 +32,7 @@ EFFECT = Effect(
                   settle=_settle),
     # clip at 1.1-1.5 x the command rms (0.15 A)
     lambda r: {"i_max_rms": uniform(r, 1.1, 1.5)},
+    truth_switches=lambda ep, c: {"i_max_A": ep["i_max_rms"] * c.excitation_rms_A},
 )
 
 

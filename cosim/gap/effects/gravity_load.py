@@ -48,6 +48,7 @@ EFFECT = Effect(
                   to_report=_to_report, from_report=_from_report),
     # tilt 4-12 deg
     lambda r: {"tilt": signed(r, math.radians(4), math.radians(12))},
+    truth_switches=lambda ep, c: {"tilt_rad": ep["tilt"]},
     emps=EMPS_FORM,
 )
 

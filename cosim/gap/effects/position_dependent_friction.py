@@ -68,6 +68,8 @@ EFFECT = Effect(
                   to_report=_to_report, from_report=_from_report),
     # Coulomb friction +-(35-60) % along the travel, period 20-60 mm (preload / wear)
     lambda r: {"amp": uniform(r, 0.35, 0.6), "period": uniform(r, 0.02, 0.06), "phase": uniform(r, 0, 2 * math.pi)},
+    truth_switches=lambda ep, c: {"fc_pos_amp": ep["amp"], "fc_pos_period_m": ep["period"],
+                                  "fc_pos_phase_rad": ep["phase"]},
     emps=EMPS_FORM,
 )
 

@@ -42,6 +42,8 @@ EFFECT = Effect(
                   nonneg=("dfs",)),
     # break-away 1.5-2.2 x Coulomb, Stribeck speed 2-6 rad/s (3-10 mm/s at the nut)
     lambda r: {"fs_ratio": uniform(r, 1.5, 2.2), "ws": uniform(r, 2.0, 6.0)},
+    truth_switches=lambda ep, c: {"stribeck_excess_Nm": (ep["fs_ratio"] - 1.0) * c.fc_Nm,
+                                  "stribeck_speed_rad_s": ep["ws"]},
     emps=EMPS_FORM,
 )
 

@@ -90,6 +90,8 @@ EFFECT = Effect(
                   acts_on=("i_cmd", "acc_meas"), to_report=_to_report),
     # motor|nut resonance 25-70 Hz, damping ratio 0.03-0.1
     lambda r: {"fn": uniform(r, 25, 70), "zeta": uniform(r, 0.03, 0.1)},
+    truth_switches=lambda ep, c: {"two_body": True, "k_nut_N_m": c.m_n_kg * (2 * math.pi * ep["fn"]) ** 2,
+                                  "c_nut_Ns_m": 2 * ep["zeta"] * c.m_n_kg * (2 * math.pi * ep["fn"])},
     emps=EMPS_FORM,
 )
 
