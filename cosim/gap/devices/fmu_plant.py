@@ -1010,7 +1010,9 @@ class FmuPlantDevice:
         the nominal parameters move by more than ``RELIN_REL``, again linearised where they moved
         to (at most ``RELIN_ROUNDS`` times; the result with the lower exact gap is kept)."""
         out, g = self._fit_effects_at(logs, params, effects, descend)
-        for _ in range(RELIN_ROUNDS):
+        # a fit that does not lower the gap (in the linearisation) is not worth a new one
+        rounds = RELIN_ROUNDS if g < self.gap(logs, params) else 0
+        for _ in range(rounds):
             nom0, _ = self._split_all(params, {})
             first = next(iter(out.values()), {})
             nom1 = {k: float(first.get(NOMINAL_PREFIX + k, nom0[k])) for k in self.rec_params}
