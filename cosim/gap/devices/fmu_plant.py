@@ -1010,8 +1010,9 @@ class FmuPlantDevice:
         the nominal parameters move by more than ``RELIN_REL``, again linearised where they moved
         to (at most ``RELIN_ROUNDS`` times; the result with the lower exact gap is kept)."""
         out, g = self._fit_effects_at(logs, params, effects, descend)
-        # a fit that does not lower the gap (in the linearisation) is not worth a new one
-        rounds = RELIN_ROUNDS if g < self.gap(logs, params) else 0
+        # a fit that does not lower the gap (in the linearisation) is not worth a new one, nor
+        # the quick joint fits that only rank the second effect of a pair (descend=False)
+        rounds = RELIN_ROUNDS if descend and g < self.gap(logs, params) else 0
         for _ in range(rounds):
             nom0, _ = self._split_all(params, {})
             first = next(iter(out.values()), {})
