@@ -550,9 +550,14 @@ class FmuPlantDevice:
                         for k in self.rec_params)
                 if best is None or d < best[0]:
                     best = (d, e)
-        if best is None or best[0] > RELIN_REL ** 2:
+        if best is None or (best[0] > RELIN_REL ** 2 and self._inside(params)):
             return self._anchor(log, params)
         return best[1]
+
+    def _inside(self, params: Mapping[str, float]) -> bool:
+        """``params`` within the binding's ranges (the plant is evaluated only there: an
+        effect fit's refit of the nominal parameters is unbounded)."""
+        return all(self._bounds[k][0] <= float(params[k]) <= self._bounds[k][1] for k in self.rec_params)
 
     def _anchor(self, log: TrialLog, params: Mapping[str, float]) -> dict:
         e = self._eval(log, params)
@@ -1016,7 +1021,7 @@ class FmuPlantDevice:
         for _ in range(rounds):
             nom0, _ = self._split_all(params, {})
             first = next(iter(out.values()), {})
-            nom1 = {k: float(first.get(NOMINAL_PREFIX + k, nom0[k])) for k in self.rec_params}
+            nom1 = {k: float(np.clip(first.get(NOMINAL_PREFIX + k, nom0[k]), *self._bounds[k])) for k in self.rec_params}
             moved = max((abs(nom1[k] - float(nom0[k])) / max(abs(float(nom0[k])), 1e-12) for k in self.rec_params),
                         default=0.0)
             if moved <= RELIN_REL:
