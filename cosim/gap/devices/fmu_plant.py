@@ -1037,7 +1037,8 @@ class FmuPlantDevice:
             # the exact gap of the current result at its own nominal point, then the fit from there
             g = self.gap(logs, nom1, out)
             params = dict(params, **nom1)
-            out2, g2 = self._fit_effects_at(logs, params, effects, descend)
+            # the shapes searched near those found (the hints), not descended jointly again
+            out2, g2 = self._fit_effects_at(logs, params, effects, False)
             if not g2 < g:
                 break
             out, g = out2, g2
