@@ -40,7 +40,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 from scipy import signal
 
-__all__ = ["FmuForm", "log_grid", "period_grid", "travel_period_grid"]
+__all__ = ["FmuForm", "log_grid", "period_grid", "travel_period_grid", "sample_mean"]
 
 
 @dataclass(frozen=True)
@@ -104,3 +104,26 @@ def base_excited_cached(a_in: np.ndarray, fn: float, zeta: float, ts: float) -> 
     """:func:`cosim.gap.effects.base.base_excited` with its filter designed once per shape."""
     b, a = _base_excited_ba(float(fn), float(zeta), float(ts))
     return signal.lfilter(b, a, a_in)
+
+
+#: sub-sample points per half of the encoder's second-difference kernel (:func:`sample_mean`)
+SAMPLE_MEAN_POINTS = 8
+
+
+def sample_mean(c: Any, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """A force that is a function ``fn`` of the speed, as the encoder's second difference
+    sees it: its mean over the kernel of (x[k+1] - 2 x[k] + x[k-1]) / ts^2 (a triangle over
+    [t_k - ts, t_k + ts]), the speed linear across it (``ctx.v`` and its slope). A feature
+    narrower than a sample in speed (a Stribeck bump crossed at a reversal within a fraction of
+    a sample) acts on the motion by its impulse; the point value at t_k would give it in full
+    or not at all, at random."""
+    v = np.asarray(c.v, float)
+    a = np.gradient(v, c.ts) if v.size > 1 else np.zeros_like(v)
+    n = SAMPLE_MEAN_POINTS
+    s = (np.arange(n) + 0.5) / n
+    w = 1.0 - s
+    out = np.zeros_like(v)
+    for sj, wj in zip(s, w):
+        dv = a * (sj * c.ts)
+        out += wj * (fn(v + dv) + fn(v - dv))
+    return out / (2.0 * float(w.sum()))

@@ -1,7 +1,7 @@
 """Stribeck friction: static friction above Coulomb, decaying with speed."""
 import numpy as np
 
-from .fmu_form import FmuForm, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
+from .fmu_form import FmuForm, log_grid, period_grid, sample_mean  # noqa: F401 (the FMU_FORM below)
 from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, params, uniform
 
 
@@ -49,9 +49,10 @@ EFFECT = Effect(
 
 
 # ---- the form in the diagnosis of a user's own plant FMU (cosim/gap/devices/fmu_plant.py):
-# extra friction -dfs exp(-(v/vs)^2) sign(v) at the disturbance input, vs on a grid
+# extra friction -dfs exp(-(v/vs)^2) sign(v) at the disturbance input, vs on a grid; its mean
+# over the encoder's sample kernel (a reversal crosses the bump within a sample on a fast trial)
 def _fmu_cols(c, sh):
-    return {"dfs": -np.sign(c.v) * np.exp(-(c.v / sh["vs"]) ** 2)}
+    return {"dfs": -sample_mean(c, lambda v: np.sign(v) * np.exp(-(v / sh["vs"]) ** 2))}
 
 
 FMU_FORM = FmuForm("force", grid=lambda c: [{"vs": v} for v in log_grid(c.v_rest, c.v_scale, 14)],
