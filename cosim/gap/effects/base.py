@@ -46,7 +46,9 @@ class Terms:
     * ``fixed_i``: torque added with a fixed coefficient [N m];
     * ``a_nut``: the nut's acceleration replacing the rigid ``S w'`` [m/s^2];
     * ``cols_a``: acceleration-equation columns [m/s^2 per unit coefficient];
-    * ``joint``: (torque column, acceleration column) sharing one coefficient.
+    * ``joint``: (torque column, acceleration column) sharing one coefficient;
+    * ``prefiltered``: ``a_nut`` and ``fixed_i`` are already through the comparison's
+      low-pass (the device's cache of :attr:`BallscrewForm.cache_terms` effects).
     """
     y_map: Callable[[np.ndarray], np.ndarray] | None = None
     cols_i: dict[str, np.ndarray] = field(default_factory=dict)
@@ -54,6 +56,7 @@ class Terms:
     a_nut: np.ndarray | None = None
     cols_a: dict[str, np.ndarray] = field(default_factory=dict)
     joint: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    prefiltered: bool = False
 
 
 @dataclass(frozen=True)
@@ -93,6 +96,9 @@ class BallscrewForm:
     #: tell (e.g. a clip limit above every fitted command is "no clip seen": off, not a
     #: limit just above the fit part's peak that a faster held-out trial would hit)
     settle: Callable[[Mapping[str, float], Sequence[Any]], dict[str, float]] | None = None
+    #: the terms (``a_nut`` and ``fixed_i`` only) cost a simulation: the device keeps them
+    #: filtered per log and shape
+    cache_terms: bool = False
 
 
 def _no_shape(prm: Mapping[str, float]) -> dict[str, float]:

@@ -16,16 +16,6 @@ def _sensor_hz(p):
     return float(v) if isinstance(v, (int, float)) and v > 0 else None
 
 
-def _nut(p, nl, nom):
-    """(mean nut acceleration per interval, mean guide friction per interval, the
-    accelerometer's point samples) of one log, cached per shape."""
-    key = ("tc_nut", nl["fn"], nl["zeta_tr"], nl.get("F_nut", 0.0), nom["m_n"])
-    if key not in p.cache:
-        p.cache[key] = nut_on_spring(p.x, p.f, p.ts, nl["fn"], nl["zeta_tr"], nom["m_n"],
-                                     nl.get("F_nut", 0.0), sensor_hz=_sensor_hz(p))
-    return p.cache[key]
-
-
 def _terms(p, nl, nom):
     # the nut (m_n) on a spring-damper (fn against a screw held still, zeta_tr) behind the
     # measured screw motion, pushed by the external force on the handle and held by its
@@ -39,7 +29,8 @@ def _terms(p, nl, nom):
     # times (interval means centred by Ts/2)
     S, m_n = p.S, nom["m_n"]
     F_n = nl.get("F_nut", 0.0)
-    a_mean, fr_mean, a_pt = _nut(p, nl, nom)
+    a_mean, fr_mean, a_pt = nut_on_spring(p.x, p.f, p.ts, nl["fn"], nl["zeta_tr"], m_n, F_n,
+                                          sensor_hz=_sensor_hz(p))
     a_c = shift(a_mean, 0.5 * p.ts, p.ts)
     fr_c = shift(fr_mean, 0.5 * p.ts, p.ts)
     return Terms(a_nut=shift(a_pt, -0.5 * p.ts, p.ts),
@@ -59,7 +50,7 @@ def _grid(preps):
         nom = nominal_of(p.log)
         Fc_nut = nom["fc"] / p.S
         for fn in np.geomspace(10.0, 150.0, 16):
-            for z in (0.03, 0.07, 0.15):
+            for z in (0.04, 0.12):
                 for r in F_NUT_GRID:
                     out.append({"fn": float(fn), "zeta_tr": z, "F_nut": r * Fc_nut})
     return out
@@ -67,7 +58,7 @@ def _grid(preps):
 
 #: the nut's guide friction searched, as fractions of the nominal Coulomb friction
 #: carried to the nut (fc/S)
-F_NUT_GRID = (0.01, 0.1, 0.3)
+F_NUT_GRID = (0.03, 0.2)
 
 
 # ---- emps-1dof: the mass M splits into a motor-side mass (column qdd) and a load m_load
@@ -127,7 +118,7 @@ EFFECT = Effect(
     BallscrewForm(_terms, grid=_grid,
                   refine=("fn", "zeta_tr", "F_nut"),
                   bounds={"fn": (5.0, 400.0), "zeta_tr": (0.005, 1.0), "F_nut": (1e-3, 10.0)},
-                  acts_on=("i_cmd", "acc_meas"), to_report=_to_report),
+                  acts_on=("i_cmd", "acc_meas"), to_report=_to_report, cache_terms=True),
     # motor|nut resonance 25-70 Hz, damping ratio 0.03-0.1
     lambda r: {"fn": uniform(r, 25, 70), "zeta": uniform(r, 0.03, 0.1)},
     emps=EMPS_FORM,
