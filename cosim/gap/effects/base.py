@@ -18,7 +18,7 @@ import numpy as np
 from scipy import signal
 
 __all__ = ["ParamSpec", "Effect", "BallscrewForm", "EmpsForm", "Terms", "BALLSCREW", "EMPS", "BOTH",
-           "shift", "lag", "base_excited", "nut_force_response", "nut_backlash", "fine_to_samples"]
+           "shift", "lag", "base_excited", "nut_force_response", "nut_on_spring", "nut_backlash", "fine_to_samples"]
 
 BALLSCREW = "ballscrew-1dof"
 EMPS = "emps-1dof"
