@@ -82,6 +82,10 @@ def code_version() -> str:
             continue
         h.update(f.relative_to(REPO).as_posix().encode())
         h.update(_code_of(f))
+    # the compiled twins the evidence code runs (the nut simulation), byte for byte
+    for f in sorted((REPO / "cosim/gap/effects/c").glob("*.c")):
+        h.update(f.relative_to(REPO).as_posix().encode())
+        h.update(f.read_bytes())
     return h.hexdigest()[:16]
 
 

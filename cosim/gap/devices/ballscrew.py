@@ -58,6 +58,7 @@ nominal J, b, fc[, 1/Kt]); parameter names follow the catalogue's Modelica model
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -79,6 +80,11 @@ EFFECTS = effects_for(DEVICE)
 #: the acceleration equation (not torques: no Kt scaling), over all effects
 _NONNEG_KEYS = frozenset(k for e in EFFECTS for k in CATALOGUE[e].ballscrew.nonneg)
 _ACC_ONLY_KEYS = frozenset(k for e in EFFECTS for k in CATALOGUE[e].ballscrew.acc_only)
+
+#: filtered terms kept per log for the effects that simulate the nut (2 arrays per shape:
+#: 160 kB for a 10 s log at 1 kHz)
+_TERMS_MEMO = 256
+
 
 def _lstsq(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Least squares through the normal equations of the column-scaled problem (the
@@ -156,7 +162,26 @@ class BallscrewDevice:
 
     # ------------------------------------------------------------------ effects
     def _terms(self, p: Prep, effect: str, nl: Mapping[str, float], nom: Mapping[str, float]) -> Terms:
-        return CATALOGUE[effect].ballscrew.terms(p, nl, nom)
+        form = CATALOGUE[effect].ballscrew
+        if not form.cache_terms:
+            return form.terms(p, nl, nom)
+        # an effect whose terms cost a simulation of the nut: its filtered nut acceleration
+        # and fixed torque kept per log and shape (the folds and pairs refit the same
+        # shapes on the same logs), the least recently used dropped first
+        memo = p.cache.setdefault("F_terms", OrderedDict())
+        key = (effect, tuple(sorted(nl.items())), tuple(sorted(nom.items())))
+        T = memo.get(key)
+        if T is None:
+            R = form.terms(p, nl, nom)
+            if R.y_map is not None or R.cols_i or R.cols_a or R.joint:
+                raise ValueError(f"{effect}: cache_terms needs terms made of a_nut and fixed_i only")
+            T = memo[key] = Terms(a_nut=None if R.a_nut is None else p.F(R.a_nut),
+                                  fixed_i=None if R.fixed_i is None else p.F(R.fixed_i), prefiltered=True)
+            while len(memo) > _TERMS_MEMO:
+                memo.popitem(last=False)
+        else:
+            memo.move_to_end(key)
+        return T
 
     def _grid(self, logs: Sequence[TrialLog], effect: str) -> list[dict[str, float]]:
         return CATALOGUE[effect].ballscrew.grid([self._prep(lg) for lg in logs])
@@ -182,16 +207,24 @@ class BallscrewDevice:
                     "a_nut": p.F(S * p.wd)}
             y_i_raw = p.i
             a_nut = None
+            a_nut_f = None                 # a nut's acceleration already through F
             Fc_i = {"J": base["J"], "b": base["b"], "fc": base["fc"]}
             cols_a: dict[str, np.ndarray] = {}
             fixed_t = None
+            fixed_f = None                 # fixed torques already through F
             # the driver's chain in its physical order: delay, clip, current-loop lag
             for name, tf in sorted(eff_terms, key=lambda nt: CATALOGUE[nt[0]].ballscrew.driver_stage):
                 T = tf(p)
                 if T.y_map is not None:
                     y_i_raw = T.y_map(y_i_raw)
+                if T.prefiltered:
+                    if T.a_nut is not None:
+                        a_nut, a_nut_f = None, T.a_nut
+                    if T.fixed_i is not None:
+                        fixed_f = T.fixed_i if fixed_f is None else fixed_f + T.fixed_i
+                    continue
                 if T.a_nut is not None:
-                    a_nut = T.a_nut
+                    a_nut, a_nut_f = T.a_nut, None
                 if T.fixed_i is not None:
                     fixed_t = T.fixed_i if fixed_t is None else fixed_t + T.fixed_i
                 for k, v in T.cols_i.items():
@@ -204,8 +237,10 @@ class BallscrewDevice:
             # ZOH centre: the command acts half a sample after its stamp
             y_i = base["y_i"] if y_i_raw is p.i else p.F(shift(y_i_raw, 0.5 * p.ts, p.ts))
             Ff = base["f"] if fixed_t is None else base["f"] + p.F(fixed_t)
+            if fixed_f is not None:
+                Ff = Ff + fixed_f
             rows_i.append((y_i, Fc_i, Ff, p.comp_i, p.has_force))
-            F_anut = base["a_nut"] if a_nut is None else p.F(a_nut)
+            F_anut = a_nut_f if a_nut_f is not None else (base["a_nut"] if a_nut is None else p.F(a_nut))
             if p.acc is not None:
                 ya = p.acc - F_anut
                 Fc_a = {k: (F_anut if k == "ds_acc" else p.F(v)) for k, v in cols_a.items()}

@@ -42,7 +42,7 @@ EFFECT = Effect(
     BallscrewForm(_terms, grid=lambda preps: [{"backlash": v, "nut_fc": F} for v in np.geomspace(1e-6, 5e-4, 10)
                                               for F in (0.2, 1.0)],
                   refine=("backlash", "nut_fc"), bounds={"backlash": (1e-7, 5e-3), "nut_fc": (0.02, 5.0)},
-                  acts_on=("i_cmd", "acc_meas")),
+                  acts_on=("i_cmd", "acc_meas"), cache_terms=True),
     # play 0.1-0.3 mm at the nut
     lambda r: {"width": uniform(r, 1e-4, 3e-4)},
     # a stiff contact across the play; the nut's 1 N guide friction keeps it where the

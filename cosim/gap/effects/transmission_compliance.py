@@ -6,27 +6,59 @@ from scipy import signal
 
 from .backlash import ZETA_TR
 from .fmu_form import FmuForm, base_excited_cached, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
-from .base import (BOTH, BallscrewForm, EmpsForm, Effect, Terms, base_excited, nut_force_response, params,
-                   uniform)
+from .base import BOTH, BallscrewForm, EmpsForm, Effect, Terms, nut_on_spring, params, shift, uniform
+
+
+def _sensor_hz(p):
+    """The accelerometer's bandwidth [Hz] from the log's sidecar (None: not given)."""
+    acc = (((p.log.meta or {}).get("sensors") or {}).get("accelerometer") or {})
+    v = acc.get("bandwidth_hz")
+    return float(v) if isinstance(v, (int, float)) and v > 0 else None
 
 
 def _terms(p, nl, nom):
-    # the nut on a spring-damper (fn, zeta) driven by the screw's motion AND by the forces
-    # on the nut itself: the external force on the handle (known) and the nut's Coulomb
-    # guide friction F_nut sign(w) (a linear coefficient shared by both equations), whose
-    # steps at every reversal ring the resonance although the screw's part of that ring is
-    # below the encoder's resolution; torque S m_n (a_nut - S w')
+    # the nut (m_n) on a spring-damper (fn against a screw held still, zeta_tr) behind the
+    # measured screw motion, pushed by the external force on the handle and held by its
+    # Coulomb guide friction F_nut, which sticks (base.nut_on_spring): the nut stays put
+    # while the screw starts until the spring holds more than F_nut, then slides and
+    # rings, and stops dead when its speed reaches zero. A linear spring-damper rings on
+    # through those stops, and a fit can only damp it (zeta twice the truth's).
+    # acc: the accelerometer's point samples, advanced by Ts/2 like the measurement;
+    # torque: the screw gives the nut m_n a_nut + its friction - f; the rigid model
+    # charges m_n S w' (in J) and F_nut sign(w) (in fc): the difference, at the sample
+    # times (interval means centred by Ts/2)
     S, m_n = p.S, nom["m_n"]
-    an = base_excited(S * p.wd, nl["fn"], nl["zeta_tr"], p.ts)
-    if np.any(p.f):
-        an = an + nut_force_response(p.f / m_n, nl["fn"], nl["zeta_tr"], p.ts)
-    hs = nut_force_response(-np.sign(p.w) / m_n, nl["fn"], nl["zeta_tr"], p.ts)
-    return Terms(a_nut=an, fixed_i=S * m_n * (an - S * p.wd), joint={"F_nut": (S * m_n * hs, hs)})
+    F_n = nl.get("F_nut", 0.0)
+    a_mean, fr_mean, a_pt = nut_on_spring(p.x, p.f, p.ts, nl["fn"], nl["zeta_tr"], m_n, F_n,
+                                          sensor_hz=_sensor_hz(p))
+    a_c = shift(a_mean, 0.5 * p.ts, p.ts)
+    fr_c = shift(fr_mean, 0.5 * p.ts, p.ts)
+    return Terms(a_nut=shift(a_pt, -0.5 * p.ts, p.ts),
+                 fixed_i=S * (m_n * (a_c - S * p.wd) + fr_c - F_n * np.sign(p.w)))
 
 
 def _to_report(nl, c, nom):
     return {"fn": nl["fn"], "zeta_tr": nl["zeta_tr"], "c_tr": 1.0 / (nom["m_n"] * (2 * math.pi * nl["fn"]) ** 2),
-            "F_nut": c.get("F_nut", 0.0)}
+            "F_nut": nl.get("F_nut", 0.0)}
+
+
+def _grid(preps):
+    # the guide friction relative to the nominal friction at the nut (fc/S): none, light, heavy
+    from ..devices.ballscrew_data import nominal_of      # (the devices import the effects)
+    out = []
+    for p in preps[:1]:
+        nom = nominal_of(p.log)
+        Fc_nut = nom["fc"] / p.S
+        for fn in np.geomspace(10.0, 150.0, 16):
+            for z in (0.04, 0.12):
+                for r in F_NUT_GRID:
+                    out.append({"fn": float(fn), "zeta_tr": z, "F_nut": r * Fc_nut})
+    return out
+
+
+#: the nut's guide friction searched, as fractions of the nominal Coulomb friction
+#: carried to the nut (fc/S)
+F_NUT_GRID = (0.03, 0.2)
 
 
 # ---- emps-1dof: the mass M splits into a motor-side mass (column qdd) and a load m_load
@@ -83,11 +115,10 @@ EFFECT = Effect(
     "TransmissionCompliance", BOTH,
     params(c_tr=("m/N", 0.0, 0.0, 1e-3, "axial compliance 1/k between screw and nut (0: rigid)"),
            zeta_tr=ZETA_TR),
-    BallscrewForm(_terms, grid=lambda preps: [{"fn": fn, "zeta_tr": z} for fn in np.geomspace(10.0, 150.0, 16)
-                                              for z in (0.03, 0.07, 0.15)],
-                  refine=("fn", "zeta_tr"), bounds={"fn": (5.0, 400.0), "zeta_tr": (0.005, 1.0)},
-                  linear=("F_nut",), nonneg=("F_nut",), acc_only=("F_nut",),
-                  acts_on=("i_cmd", "acc_meas"), to_report=_to_report),
+    BallscrewForm(_terms, grid=_grid,
+                  refine=("fn", "zeta_tr", "F_nut"),
+                  bounds={"fn": (5.0, 400.0), "zeta_tr": (0.005, 1.0), "F_nut": (1e-3, 10.0)},
+                  acts_on=("i_cmd", "acc_meas"), to_report=_to_report, cache_terms=True),
     # motor|nut resonance 25-70 Hz, damping ratio 0.03-0.1
     lambda r: {"fn": uniform(r, 25, 70), "zeta": uniform(r, 0.03, 0.1)},
     truth_switches=lambda ep, c: {"two_body": True, "k_nut_N_m": c.m_n_kg * (2 * math.pi * ep["fn"]) ** 2,
