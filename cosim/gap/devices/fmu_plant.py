@@ -416,7 +416,7 @@ class FmuPlantDevice:
                                v_rest=max(p.cache["v_rest"] for p in ps),
                                v_scale=max(p.cache["v_scale"] for p in ps),
                                x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
-                               u_abs_q=sorted(set(v for v in qs if v > 0)))
+                               u_abs_q=sorted(set(v for v in qs if v > 0)), u_abs_max=float(np.max(u)))
 
     def _m_eff(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None) -> float | None:
         """The plant's effective mass (inertia) at the disturbance's point, 1 / (d acc / d
@@ -1032,6 +1032,12 @@ class FmuPlantDevice:
                     g = self._fit_cfg(logs, nom, trial)[0]
                     if g < cur:
                         cur, cfg = g, trial
+        ctx = None
+        for e in list(cfg):                     # the shapes to apply to other logs (FmuForm.settle)
+            st = self.forms[self._alias.get(e, e)].settle
+            if st is not None:
+                ctx = ctx or self._ctx_all(logs)
+                cfg[e] = dict(st(ctx, cfg[e]))
         g, coef, _ = self._fit_cfg(logs, nom, cfg)
         return self._pack(nom, cfg, coef), g
 
