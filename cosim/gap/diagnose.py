@@ -526,14 +526,15 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
         + provenance_for(device.name))
 
     # ---- FMU confirmation of the top candidates (same replay without the effect as reference)
+    confirm = getattr(device, "confirm", None)     # optional: a device with an FMU replay of its effects
     try:
-        out["confirm_gap_nominal"] = device.confirm(fit, rec, {}) if confirm_top else None
+        out["confirm_gap_nominal"] = confirm(fit, rec, {}) if (confirm_top and confirm is not None) else None
     except Exception as e:  # noqa: BLE001 - a failing replay must not lose the diagnosis
         out["confirm_gap_nominal"] = None
         out["confirm_error"] = f"{type(e).__name__}: {e}"
     for c in cands[:confirm_top if out["confirm_gap_nominal"] is not None else 0]:
         try:
-            cg = device.confirm(fit, c["refit_nominal"], {c["effect"]: c["params"]})
+            cg = confirm(fit, c["refit_nominal"], {c["effect"]: c["params"]})
         except Exception as e:  # noqa: BLE001 - a failing replay must not lose the diagnosis
             cg = None
             c["confirm_error"] = f"{type(e).__name__}: {e}"

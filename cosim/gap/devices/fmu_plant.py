@@ -41,6 +41,11 @@ Effects: each catalogue effect's FMU form (``FMU_FORM`` in its module,
 the FMU's d acc / d command, force-path effects via d acc / d disturbance, sensor and
 sensed-point effects on the sensor's prediction; linear coefficients jointly with the
 nominal parameters' sensitivities by least squares, shape parameters on a grid then refined.
+No ``confirm`` (the built-in devices re-simulate a candidate with their own FMU, which carries
+every catalogue effect in Modelica): a user's plant FMU carries none, the effects exist only as
+the forms composed around its equation error (linearised at the measured motion); re-simulating
+them would need every form written a second time inside a simulation loop around the FMU, which
+is not done. The engine skips the step for a device without ``confirm``; the selection never used it.
 """
 from __future__ import annotations
 
@@ -1067,5 +1072,3 @@ class FmuPlantDevice:
             return {**cfg, e: sh}
         return cfg
 
-    def confirm(self, logs, params, effects):
-        return None
