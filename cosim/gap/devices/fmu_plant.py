@@ -215,6 +215,7 @@ class FmuPlantDevice:
         self._hints: dict[str, dict] = {}
         self._rec_cache: dict[tuple, dict] = {}
         self._rec_first: dict[str, float] | None = None
+        self._eff_cal: dict[tuple, tuple[frozenset, dict[str, float]]] = {}
 
     def _map_states(self, binding: PlantBinding) -> None:
         """Which FMU states the measured motion sets, and the others (internal, integrated).
@@ -1005,6 +1006,17 @@ class FmuPlantDevice:
 
     def fit_effects(self, logs, params, effects, descend: bool = True):
         nom, _ = self._split_all(params, {})
+        # a held-out fold (a strict subset of the logs this model was first fitted on) starts
+        # from, and is pulled to, the nominal parameters the model identified on all of them:
+        # each model's folds use its own calibration, as the no-effect model's folds start from
+        # the recalibration on all the fit logs. A direction a fold cannot determine (the common
+        # scale of the plant's forces without the trial with a known external force) then keeps
+        # the value the effect's own fit gave it, not the no-effect recalibration's, which the
+        # unmodelled effect biased (the engine's ``kt`` for a parameter named Kt, generalised)
+        ids = frozenset(id(lg) for lg in logs)
+        own_cal = self._eff_cal.get(tuple(effects))
+        if own_cal is not None and ids < own_cal[0]:
+            nom = dict(nom, **own_cal[1])
         pk = tuple(id(lg) for lg in logs) + tuple(round(float(nom[k]), 10) for k in self.rec_params)
         cfg = {}
         for e in effects:                       # each alone first (cached: pairs reuse it)
@@ -1044,7 +1056,12 @@ class FmuPlantDevice:
                 ctx = ctx or self._ctx_all(logs)
                 cfg[e] = dict(st(ctx, cfg[e]))
         g, coef, _ = self._fit_cfg(logs, nom, cfg)
-        return self._pack(nom, cfg, coef), g
+        packed = self._pack(nom, cfg, coef)
+        if own_cal is None or not ids < own_cal[0]:
+            first = next(iter(packed.values()), {})
+            self._eff_cal[tuple(effects)] = (ids, {k: float(first[NOMINAL_PREFIX + k]) for k in self.rec_params
+                                                   if NOMINAL_PREFIX + k in first})
+        return packed, g
 
     def fit_effects_quick(self, logs, params, effects):
         return self.fit_effects(logs, params, effects, descend=False)[1]
