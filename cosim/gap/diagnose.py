@@ -505,7 +505,8 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
         out["unknown_factor"] = th.unknown_factor
     out["heldout_residual_gap"] = dec["heldout_residual_gap"]
     out["gap_floor"] = dec["gap_floor"]
-    for k in ("heldout_signal_z", "unexplained_signals", "selected_before_signal_check", "ambiguous",
+    for k in ("heldout_signal_z", "unexplained_signals", "selected_before_signal_check", "heldout_rest_over_removed",
+              "selected_before_rest_check", "ambiguous",
               "ambiguity", "decision_notes"):
         if k in dec:
             out[k] = dec[k]

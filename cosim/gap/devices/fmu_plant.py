@@ -409,7 +409,15 @@ class FmuPlantDevice:
                                xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
                                xd_mid=self.dist_gain * 0.5 * (float(np.min(xs)) + float(np.max(xs))) + self.dist_offset,
                                specific=bool(self.motion is not None and self.motion.sensor.specific_force),
-                               g=self._g_out)
+                               g=self._g_out, vd=self.dist_gain * p.v, f_dist=self._f_dist(p))
+
+    def _f_dist(self, p: _Prep) -> np.ndarray:
+        """The known external force (torque) at the disturbance's input (FMU units; 0 without one)."""
+        f = np.zeros(p.t.size)
+        for j, e in enumerate(self.b.external):
+            if e.input == self.b.disturbance.input:
+                f = f + p.fext[:, j]
+        return f
 
     def _ctx_all(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None = None):
         ps = [self._prep(lg) for lg in logs]
@@ -641,6 +649,14 @@ class FmuPlantDevice:
                 if f.kind == "sensed_point":
                     s = f.transform(s, shape, p.ts)
                     cols_s = {k: f.transform(c, shape, p.ts) for k, c in cols_s.items()}
+            for name, shape, f in forms:          # the sensed body's own response to the forces on it
+                if f.kind == "sensed_point" and f.columns is not None:
+                    key = ("sensed", name, tuple(sorted(shape.items())))
+                    if key not in p.cache:
+                        p.cache[key] = {c: self._sensor(col, p) for c, col in f.columns(self._ctx(p), shape).items()
+                                        if np.any(col)}
+                    for c, col in p.cache[key].items():
+                        cols_s[f"{name}:{c}"] = col
             for name, shape, f in forms:
                 if f.kind == "sensor":
                     for c, col in self._sensor_columns(f, p, shape, s).items():

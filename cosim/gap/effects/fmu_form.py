@@ -16,7 +16,9 @@ that evaluation in one of four places, which is its ``kind``:
   is the sensor's predicted reading;
 * ``"sensed_point"``: the sensed point is a second body behind the plant's point (a
   structure between them): ``transform(pred, shape, ts)`` maps the plant's acceleration to
-  the sensed point's.
+  the sensed point's; its ``columns(ctx, shape)`` (optional) add the sensed body's own response
+  to the forces on it (in the reading's unit per unit coefficient; ``ctx.vd`` the speed and
+  ``ctx.f_dist`` the known external force at the disturbance's point).
 
 ``ctx`` (per log): ``t`` [s], ``ts``, ``x`` position and ``v`` speed of the plant (FMU units,
 smoothed), ``pred`` (sensor effects), ``angle`` (the position is an angle in rad); ``xd``
