@@ -215,7 +215,7 @@ class FmuPlantDevice:
         self._hints: dict[str, dict] = {}
         self._rec_cache: dict[tuple, dict] = {}
         self._rec_first: dict[str, float] | None = None
-        self._eff_cal: dict[tuple, tuple[frozenset, dict[str, float]]] = {}
+        self._eff_cal: dict[tuple, tuple[frozenset, dict[str, float], dict[str, float]]] = {}
 
     def _map_states(self, binding: PlantBinding) -> None:
         """Which FMU states the measured motion sets, and the others (internal, integrated).
@@ -1023,16 +1023,19 @@ class FmuPlantDevice:
     def fit_effects(self, logs, params, effects, descend: bool = True):
         nom, _ = self._split_all(params, {})
         # a held-out fold (a strict subset of the logs this model was first fitted on) starts
-        # from, and is pulled to, the nominal parameters the model identified on all of them:
-        # each model's folds use its own calibration, as the no-effect model's folds start from
-        # the recalibration on all the fit logs. A direction a fold cannot determine (the common
-        # scale of the plant's forces without the trial with a known external force) then keeps
-        # the value the effect's own fit gave it, not the no-effect recalibration's, which the
-        # unmodelled effect biased (the engine's ``kt`` for a parameter named Kt, generalised)
+        # from, and is pulled to, the fold's recalibration times the ratio by which this model's
+        # fit on all the fit logs moved the nominal parameters from the recalibration there: a
+        # direction a fold cannot determine (the common scale of the plant's forces without the
+        # trial with a known external force) then keeps the model's own value, not the no-effect
+        # recalibration's, which the unmodelled effect biased (the engine's ``kt`` for a parameter
+        # named Kt, generalised); a determined one stays the fold's own (nothing of the held-out
+        # trial leaks in through the start an effect fit is pulled to)
         ids = frozenset(id(lg) for lg in logs)
         own_cal = self._eff_cal.get(tuple(effects))
         if own_cal is not None and ids < own_cal[0]:
-            nom = dict(nom, **own_cal[1])
+            eff_all, rec_all = own_cal[1], own_cal[2]
+            nom = dict(nom, **{k: float(nom[k]) * eff_all[k] / rec_all[k] for k in eff_all
+                               if rec_all.get(k) and k in nom})
         pk = tuple(id(lg) for lg in logs) + tuple(round(float(nom[k]), 10) for k in self.rec_params)
         cfg = {}
         for e in effects:                       # each alone first (cached: pairs reuse it)
@@ -1076,7 +1079,8 @@ class FmuPlantDevice:
         if own_cal is None or not ids < own_cal[0]:
             first = next(iter(packed.values()), {})
             self._eff_cal[tuple(effects)] = (ids, {k: float(first[NOMINAL_PREFIX + k]) for k in self.rec_params
-                                                   if NOMINAL_PREFIX + k in first})
+                                                   if NOMINAL_PREFIX + k in first},
+                                             {k: float(nom[k]) for k in self.rec_params})
         return packed, g
 
     def fit_effects_quick(self, logs, params, effects):
