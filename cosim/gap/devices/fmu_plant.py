@@ -1034,8 +1034,9 @@ class FmuPlantDevice:
         own_cal = self._eff_cal.get(tuple(effects))
         if own_cal is not None and ids < own_cal[0]:
             eff_all, rec_all = own_cal[1], own_cal[2]
+            # (a value the engine already set to this model's own, its ``kt``, is kept)
             nom = dict(nom, **{k: float(nom[k]) * eff_all[k] / rec_all[k] for k in eff_all
-                               if rec_all.get(k) and k in nom})
+                               if rec_all.get(k) and k in nom and float(nom[k]) != eff_all[k]})
         pk = tuple(id(lg) for lg in logs) + tuple(round(float(nom[k]), 10) for k in self.rec_params)
         cfg = {}
         for e in effects:                       # each alone first (cached: pairs reuse it)
