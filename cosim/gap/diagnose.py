@@ -635,7 +635,7 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
     the binding's device has its own. Raises :class:`GapInputError` on bad input (nothing
     is written then)."""
     from .binding import load_binding
-    from .devices.fmu_plant import THRESHOLDS_OF, FmuPlantDevice
+    from .devices.fmu_plant import THRESHOLD_OVERRIDES, THRESHOLDS_OF, FmuPlantDevice
     fmu_path, binding_path = Path(fmu_path), Path(binding_path)
     if not fmu_path.is_file():
         raise GapInputError("no such plant FMU", fmu_path)
@@ -648,10 +648,11 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
     th = kw.pop("thresholds", None)
     chosen = None
     if th is None and not provenance_for(device.name).startswith("bench"):
-        th, chosen = thresholds_for(THRESHOLDS_OF), provenance_for(THRESHOLDS_OF)
+        th, chosen = thresholds_for(THRESHOLDS_OF).with_(**THRESHOLD_OVERRIDES), provenance_for(THRESHOLDS_OF)
     result, extras = run_diagnosis(device, fit, test, thresholds=th, **kw)
     if chosen is not None and "thresholds" in result:
-        result["thresholds"]["chosen_by"] = f"those of {THRESHOLDS_OF} (cross-validated): {chosen}"
+        result["thresholds"]["chosen_by"] = (f"those of {THRESHOLDS_OF} (cross-validated): {chosen}; set a priori "
+                                             f"for a user's plant: {THRESHOLD_OVERRIDES}")
     result["plant"] = {"fmu": str(fmu_path), "binding": str(binding_path),
                        "signals": device.signal_units()}
     result = jsonable(result)

@@ -67,12 +67,18 @@ from ..fmu_me import FmuVariables, MePlant
 
 from ..binding import PlantBinding
 
-__all__ = ["FmuPlantDevice", "fmu_forms", "THRESHOLDS_OF"]
+__all__ = ["FmuPlantDevice", "fmu_forms", "THRESHOLDS_OF", "THRESHOLD_OVERRIDES"]
 
 #: the decision thresholds a plant without its own use: the engine's cross-validated ones
 #: (``cosim/gap/thresholds.json``; the only set chosen by cross-validation over devices; this
 #: device's metric is built the same way: noise-weighted per-signal nrmse)
 THRESHOLDS_OF = "ballscrew-1dof"
+#: ... with these set a priori for a plant the package has never seen (not cross-validated):
+#: ``unknown`` alone when the selection leaves more held-out gap energy above the floor than it
+#: removed (``Thresholds.unknown_rest_ratio``): an effect outside the catalogue that shares a
+#: part with a catalogue effect (a position-periodic force beside a drag) is not named after
+#: that part
+THRESHOLD_OVERRIDES = {"unknown_rest_ratio": 1.0}
 
 #: fraction of the sample rate of the state-smoothing and the comparison low-pass (as the
 #: ball-screw device: 200 Hz and 100 Hz at 1 kHz)
