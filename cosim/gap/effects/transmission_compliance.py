@@ -97,7 +97,9 @@ EFFECT = Effect(
 # ---- the form in the diagnosis of a user's own plant FMU: the sensed point is a second body
 # on a spring-damper (fn, zeta on a grid) behind the plant's point
 def _fmu_grid(c):
-    return [{"fn_hz": f, "zeta": z} for f in log_grid(0.01 / c.ts, 0.4 / c.ts, 8) for z in (0.05, 0.2, 0.5)]
+    # the damping ratio is not refined, so its grid is the built-in form's light damping (a
+    # resonance of a contact or a screw: 0.03-0.15) and two heavier values
+    return [{"fn_hz": f, "zeta": z} for f in log_grid(0.01 / c.ts, 0.4 / c.ts, 12) for z in (0.03, 0.07, 0.15, 0.3, 0.6)]
 
 
 def _fmu_columns(c, sh):
