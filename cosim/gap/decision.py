@@ -203,8 +203,11 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
                 effective = []
             else:
                 selected = selected + ["unknown"]
-    if effective and "unknown" in selected and floor is not None and th.unknown_rest_ratio < 1e8:
-        # the rest the selection leaves above the floor against what it removed, held out
+    if effective and "unknown" in selected and floor is not None and th.unknown_rest_ratio < 1e8 \
+            and resid > th.signal_z_limit * floor:
+        # a large rest (held out above signal_z_limit x the floor; a clip that only one trial
+        # shows leaves a small one in the fold that holds that trial out) against what the
+        # selection removed
         ge_sel = list(entry["ge"])
         gb_sel = list(entry["gb"]) if "effects" not in entry else list(singles.get(entry["effects"][0], {}).get("gb", []))
         if len(gb_sel) == len(ge_sel) and ge_sel:
