@@ -187,3 +187,28 @@ def test_a_resonance_on_a_signal_the_first_effect_does_not_act_on_is_added_to_it
     ev["acts_on"] = dict(ev["acts_on"], stribeck_friction=["i_cmd", "acc_meas"])
     assert decide(ev, th.with_(named_min_explained=0.2))["selected"] == ["stribeck_friction"]
 
+
+
+def test_unknown_alone_when_the_rest_left_outweighs_what_the_effect_removed():
+    """With ``unknown`` already added (a signal left above the limit) and the held-out gap above
+    ``signal_z_limit`` x the floor, the answer is ``unknown`` alone when the held-out energy left
+    above the floor is at least ``unknown_rest_ratio`` of the energy the selection removed:
+    floor 2 x 0.008, removed = 3 x 0.2^2 - (0.1^2 + 0.1^2 + 0.19^2) = 0.0639, left = 0.0561 -
+    3 x 0.016^2 = 0.05533, ratio 0.866; held-out rms 0.136 > 4 x 0.016."""
+    base = (0.2, 0.2, 0.2)
+    lag = _single(base, (0.1, 0.1, 0.19), z={"i_cmd": 9.0, "acc_meas": 1.0, "acc_dc": 1.0}, test_after=0.3)
+    ev = _ev({"current_loop_lag": lag}, base=base, floor=0.008)
+    th = DEFAULTS.with_(margin=0.1, fold_factor=0.0, signal_z_limit=4.0, unknown_factor=2.0)
+    d = decide(ev, th)
+    assert d["selected"] == ["current_loop_lag", "unknown"] and d["test_after"] == 0.3   # off by default
+    d = decide(ev, th.with_(unknown_rest_ratio=0.8))
+    assert d["heldout_rest_over_removed"] == pytest.approx(0.05533 / 0.0639, rel=1e-3)
+    assert d["selected"] == ["unknown"] and d["selected_before_rest_check"] == ["current_loop_lag", "unknown"]
+    assert d["test_after"] == 1.0                       # the recalibrated model's test gap
+    assert decide(ev, th.with_(unknown_rest_ratio=0.9))["selected"] == ["current_loop_lag", "unknown"]
+    # the same folds with a floor of 2 x 0.02: 0.136 < 4 x 0.04, a small rest: named kept
+    ev_small = _ev({"current_loop_lag": lag}, base=base, floor=0.02)
+    assert decide(ev_small, th.with_(unknown_rest_ratio=0.1))["selected"] == ["current_loop_lag", "unknown"]
+    # no unknown added (nothing left above the signal limit): the rule does not apply
+    ev_ok = _ev({"current_loop_lag": dict(lag, z={"i_cmd": 2.0})}, base=base, floor=0.008)
+    assert decide(ev_ok, th.with_(unknown_rest_ratio=0.1))["selected"] == ["current_loop_lag"]

@@ -203,6 +203,20 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
                 effective = []
             else:
                 selected = selected + ["unknown"]
+    if effective and "unknown" in selected and floor is not None and th.unknown_rest_ratio < 1e8 \
+            and resid > th.signal_z_limit * floor:
+        # a large rest (held out above signal_z_limit x the floor; a clip that only one trial
+        # shows leaves a small one in the fold that holds that trial out) against what the
+        # selection removed
+        ge_sel = list(entry["ge"])
+        gb_sel = list(entry["gb"]) if "effects" not in entry else list(singles.get(entry["effects"][0], {}).get("gb", []))
+        if len(gb_sel) == len(ge_sel) and ge_sel:
+            removed = sum(x * x for x in gb_sel) - sum(x * x for x in ge_sel)
+            rest = sum(x * x for x in ge_sel) - len(ge_sel) * floor ** 2
+            res["heldout_rest_over_removed"] = rest / removed if removed > 0 else math.inf
+            if res["heldout_rest_over_removed"] >= th.unknown_rest_ratio:
+                res["selected_before_rest_check"] = list(selected)
+                selected, effective = ["unknown"], []
     res["selected"] = selected
     # the evidence entry's own order (its key), whatever the order of ``selected``
     res["effects_after"] = list(entry["effects"]) if (entry is not None and effective and "effects" in entry) \

@@ -505,7 +505,8 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
         out["unknown_factor"] = th.unknown_factor
     out["heldout_residual_gap"] = dec["heldout_residual_gap"]
     out["gap_floor"] = dec["gap_floor"]
-    for k in ("heldout_signal_z", "unexplained_signals", "selected_before_signal_check", "ambiguous",
+    for k in ("heldout_signal_z", "unexplained_signals", "selected_before_signal_check", "heldout_rest_over_removed",
+              "selected_before_rest_check", "ambiguous",
               "ambiguity", "decision_notes"):
         if k in dec:
             out[k] = dec[k]
@@ -526,14 +527,15 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
         + provenance_for(device.name))
 
     # ---- FMU confirmation of the top candidates (same replay without the effect as reference)
+    confirm = getattr(device, "confirm", None)     # optional: a device with an FMU replay of its effects
     try:
-        out["confirm_gap_nominal"] = device.confirm(fit, rec, {}) if confirm_top else None
+        out["confirm_gap_nominal"] = confirm(fit, rec, {}) if (confirm_top and confirm is not None) else None
     except Exception as e:  # noqa: BLE001 - a failing replay must not lose the diagnosis
         out["confirm_gap_nominal"] = None
         out["confirm_error"] = f"{type(e).__name__}: {e}"
     for c in cands[:confirm_top if out["confirm_gap_nominal"] is not None else 0]:
         try:
-            cg = device.confirm(fit, c["refit_nominal"], {c["effect"]: c["params"]})
+            cg = confirm(fit, c["refit_nominal"], {c["effect"]: c["params"]})
         except Exception as e:  # noqa: BLE001 - a failing replay must not lose the diagnosis
             cg = None
             c["confirm_error"] = f"{type(e).__name__}: {e}"
@@ -633,7 +635,7 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
     the binding's device has its own. Raises :class:`GapInputError` on bad input (nothing
     is written then)."""
     from .binding import load_binding
-    from .devices.fmu_plant import THRESHOLDS_OF, FmuPlantDevice
+    from .devices.fmu_plant import THRESHOLD_OVERRIDES, THRESHOLDS_OF, FmuPlantDevice
     fmu_path, binding_path = Path(fmu_path), Path(binding_path)
     if not fmu_path.is_file():
         raise GapInputError("no such plant FMU", fmu_path)
@@ -646,12 +648,13 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
     th = kw.pop("thresholds", None)
     chosen = None
     if th is None and not provenance_for(device.name).startswith("bench"):
-        th, chosen = thresholds_for(THRESHOLDS_OF), provenance_for(THRESHOLDS_OF)
+        th, chosen = thresholds_for(THRESHOLDS_OF).with_(**THRESHOLD_OVERRIDES), provenance_for(THRESHOLDS_OF)
     from .fmu_me import blas_threads
     with blas_threads(1):          # thousands of small products: threads only wait
         result, extras = run_diagnosis(device, fit, test, thresholds=th, **kw)
     if chosen is not None and "thresholds" in result:
-        result["thresholds"]["chosen_by"] = f"those of {THRESHOLDS_OF} (cross-validated): {chosen}"
+        result["thresholds"]["chosen_by"] = (f"those of {THRESHOLDS_OF} (cross-validated): {chosen}; set a priori "
+                                             f"for a user's plant: {THRESHOLD_OVERRIDES}")
     result["plant"] = {"fmu": str(fmu_path), "binding": str(binding_path),
                        "signals": device.signal_units()}
     result["runtime_budget"] = device.budget_report()

@@ -365,7 +365,7 @@ class MePlant:
         bad = 0
         eye = np.eye(m)
         izl = iz.tolist()
-        mx, mdx, mdp = x.reshape(-1).data, dx.reshape(-1).data, dp.data
+        mx, mdp = x.reshape(-1).data, dp.data
         j0 = izl[0] if m else 0
         sc0 = float(scale[0]) if m else 0.0
         for k in range(n):

@@ -64,6 +64,12 @@ class Thresholds:
     #: while its in-sample fit, of a form with two shape parameters, is far above any other
     #: effect's; the value is chosen by cross-validation like the others
     named_min_explained: float = 1e9
+    #: with ``unknown`` already added (a signal left above ``signal_z_limit``) and the held-out
+    #: gap left above ``signal_z_limit`` x the floor, ``unknown`` alone is the answer when the
+    #: held-out gap energy the selection leaves above the floor is at least this fraction of the
+    #: energy it removed: the named effect is then the smaller part of what the logs show
+    #: (1e9: never)
+    unknown_rest_ratio: float = 1e9
 
     def with_(self, **kw: float) -> "Thresholds":
         return replace(self, **kw)

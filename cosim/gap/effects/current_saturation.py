@@ -37,6 +37,23 @@ EFFECT = Effect(
 
 
 # ---- the form in the diagnosis of a user's own plant FMU: the plant input clips at a limit
-# below the commanded peaks (limit on a grid of the commands' quantiles)
-FMU_FORM = FmuForm("command", grid=lambda c: [{"limit": float(v)} for v in c.u_abs_q], refine="limit",
+# below the commanded peaks (limit on a grid of the commands' quantiles, and the largest command:
+# no clip); a limit at or above every fitted command clipped nothing there, so it is settled to
+# "off" (as ``_settle`` for the built-in device): a held-out log with larger peaks is not clipped
+# at a level no data chose
+#: the settled "no limit", in units of the largest fitted command
+FMU_OFF = 1e6
+
+
+def _fmu_grid(c):
+    top = float(getattr(c, "u_abs_max", 0.0) or 0.0)
+    return [{"limit": float(v)} for v in c.u_abs_q if not top or v < top] + ([{"limit": top}] if top > 0 else [])
+
+
+def _fmu_settle(c, sh):
+    top = float(getattr(c, "u_abs_max", 0.0) or 0.0)
+    return {"limit": FMU_OFF * top} if top > 0 and sh["limit"] >= top * (1 - 1e-9) else dict(sh)
+
+
+FMU_FORM = FmuForm("command", grid=_fmu_grid, refine="limit", settle=_fmu_settle,
                    command=lambda u, sh, ts: np.clip(u, -sh["limit"], sh["limit"]))

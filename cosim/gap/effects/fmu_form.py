@@ -16,7 +16,9 @@ that evaluation in one of four places, which is its ``kind``:
   is the sensor's predicted reading;
 * ``"sensed_point"``: the sensed point is a second body behind the plant's point (a
   structure between them): ``transform(pred, shape, ts)`` maps the plant's acceleration to
-  the sensed point's.
+  the sensed point's; its ``columns(ctx, shape)`` (optional) add the sensed body's own response
+  to the forces on it (in the reading's unit per unit coefficient; ``ctx.vd`` the speed and
+  ``ctx.f_dist`` the known external force at the disturbance's point).
 
 ``ctx`` (per log): ``t`` [s], ``ts``, ``x`` position and ``v`` speed of the plant (FMU units,
 smoothed), ``pred`` (sensor effects), ``angle`` (the position is an angle in rad); ``xd``
@@ -25,7 +27,7 @@ tied to the encoder by the FMU's own ratio) and whether it is an angle; ``specif
 accelerometer reads specific force) and ``g`` (g in the reading's unit).
 ``grid(ctx_all)`` gives the shapes searched from the logs' ranges (``ctx_all``: speed
 scale ``v_scale``, rest speed ``v_rest``, travel ``x_min``/``x_max``, encoder quantum ``q``,
-command quantiles ``u_abs_q``, ``ts``, ``angle``, ``dist_angle``, ``m_eff``: the effective mass or
+command quantiles ``u_abs_q`` and largest command ``u_abs_max``, ``ts``, ``angle``, ``dist_angle``, ``m_eff``: the effective mass or
 inertia at the disturbance's point, None before the recalibration; ``q_d`` the encoder quantum
 and ``xd_span`` the travel there); ``refine``: the one shape parameter refined
 between its grid neighbours; ``nonneg``: coefficients that physics keeps >= 0.
@@ -62,6 +64,10 @@ class FmuForm:
     #: for ``sensor`` effects: the generic catalogue name (``sensor_scale_error``) used when the
     #: motion sensor is not an accelerometer
     generic_name: str | None = None
+    #: ``settle(ctx_all, shape) -> shape``: the shape found on the logs turned into the one to
+    #: apply to other logs (a command limit at or above every fitted command clipped nothing:
+    #: it is "no limit", not "a limit just above these logs' peak")
+    settle: Callable[[Any, Mapping[str, float]], Mapping[str, float]] | None = None
     notes: str = field(default="")
 
 
