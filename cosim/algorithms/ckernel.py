@@ -149,29 +149,36 @@ def compile_shared(sources: Sequence[Path], out: Path, extra: Sequence[str] = ()
 _CACHED: dict[Path, ctypes.CDLL] = {}
 
 
-def cached_library(names: Sequence[str]) -> ctypes.CDLL:
-    """The kernels ``names`` compiled into one shared library in the cache, loaded once
-    per process. The file is named by the hash of the sources, the ABI header and
-    :data:`CFLAGS` (an edited source is recompiled) and written atomically (two
-    processes may build it at once)."""
+def cached_shared(srcs: Sequence[Path], stem: str, also_hashed: Sequence[Path] = ()) -> ctypes.CDLL:
+    """C sources ``srcs`` compiled into one shared library in the cache, loaded once per
+    process. The file (``<stem>_<hash>.so``) is named by the hash of :data:`CFLAGS`, the
+    sources and ``also_hashed`` (headers: an edited file is recompiled) and written
+    atomically (two processes may build it at once). Raises what :func:`compile_shared`
+    raises when there is no working compiler."""
     import hashlib
     import tempfile
 
     from ..paths import cache_dir
-    srcs = [kernel_source(n) for n in names]
     h = hashlib.sha256(" ".join(CFLAGS).encode())
-    for src in [*srcs, KERNEL_DIR / "cosim_kernel.h"]:
-        h.update(src.read_bytes())
-    so = cache_dir() / "kernels" / f"{'+'.join(names)}_{h.hexdigest()[:16]}.so"
+    for src in [*srcs, *also_hashed]:
+        h.update(Path(src).read_bytes())
+    so = cache_dir() / "kernels" / f"{stem}_{h.hexdigest()[:16]}.so"
     lib = _CACHED.get(so)
     if lib is not None:
         return lib
     if not so.is_file():
         so.parent.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
-            os.replace(compile_shared(srcs, Path(tmp) / so.name), so)
+            os.replace(compile_shared([Path(s) for s in srcs], Path(tmp) / so.name), so)
     lib = _CACHED[so] = ctypes.CDLL(str(so))
     return lib
+
+
+def cached_library(names: Sequence[str]) -> ctypes.CDLL:
+    """The kernels ``names`` (``c/<name>.c``) compiled into one shared library in the
+    cache (:func:`cached_shared`, the ABI header hashed with them)."""
+    return cached_shared([kernel_source(n) for n in names], "+".join(names),
+                         also_hashed=[KERNEL_DIR / "cosim_kernel.h"])
 
 
 class KernelLibrary:

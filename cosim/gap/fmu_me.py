@@ -98,18 +98,9 @@ def _points_kernel():
         return _POINTS[0]
     fn = None
     try:
-        import hashlib
-
-        from ..algorithms.ckernel import CFLAGS, compile_shared
-        from ..paths import cache_dir
+        from ..algorithms.ckernel import cached_shared
         src = Path(__file__).resolve().parent / "c" / "fmu_me_points.c"
-        h = hashlib.sha256(" ".join(CFLAGS).encode() + src.read_bytes()).hexdigest()[:16]
-        so = cache_dir() / "kernels" / f"gap_me_points_{h}.so"
-        if not so.is_file():
-            so.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
-                os.replace(compile_shared([src], Path(tmp) / so.name), so)
-        fn = ctypes.CDLL(str(so)).gap_me_points
+        fn = cached_shared([src], "gap_me_points").gap_me_points
         vp, lg, dbl = ctypes.c_void_p, ctypes.c_long, ctypes.c_double
         fn.argtypes = [vp, vp, lg, lg, lg, lg, vp, vp, vp, vp, vp, vp, vp, vp, lg, lg, dbl, vp]
         fn.restype = ctypes.c_int

@@ -315,21 +315,11 @@ def _nut_spring_c():
         fn = None
         try:
             import ctypes
-            import hashlib
-            import os
-            import tempfile
             from pathlib import Path
 
-            from ...algorithms.ckernel import CFLAGS, compile_shared
-            from ...paths import cache_dir
+            from ...algorithms.ckernel import cached_shared
             src = Path(__file__).resolve().parent / "c" / "nut_spring.c"
-            h = hashlib.sha256(" ".join(CFLAGS).encode() + src.read_bytes()).hexdigest()[:16]
-            so = cache_dir() / "kernels" / f"gap_nut_spring_{h}.so"
-            if not so.is_file():
-                so.parent.mkdir(parents=True, exist_ok=True)
-                with tempfile.TemporaryDirectory(dir=so.parent) as tmp:
-                    os.replace(compile_shared([src], Path(tmp) / so.name), so)
-            fn = ctypes.CDLL(str(so)).cosim_nut_spring_run
+            fn = cached_shared([src], "gap_nut_spring").cosim_nut_spring_run
             D, P, L = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long
             fn.restype = L
             fn.argtypes = [P, P, L, D, D, D, D, D, L, D, D, D, P, P, P]
