@@ -31,9 +31,17 @@ def cosim(*args, **kw) -> subprocess.CompletedProcess:
                           env=ENV, capture_output=True, text=True, timeout=600, **kw)
 
 
+def sigint_default():
+    # a child of a background job inherits SIGINT ignored (POSIX shells without job
+    # control), and Python then installs no KeyboardInterrupt: the interrupt the test
+    # sends must reach the command as it does from a terminal
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def popen(*args) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "cosim.cli", *map(str, args)], cwd=REPO,
-                            env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=sigint_default)
 
 
 def no_traceback(p):
@@ -159,7 +167,7 @@ def test_ctrl_c_on_a_dask_suite_is_one_message(tmp_path, fmus):
     proc = subprocess.Popen([sys.executable, "-m", "cosim.cli", "suite", str(sc), "--out",
                              str(out), "--workers", "2", "--no-build", "--no-progress"],
                             cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True, preexec_fn=sigint_default)
     assert _wait_for(lambda: len(_finished(runs)) >= 1, timeout=300)
     os.killpg(proc.pid, signal.SIGINT)
     _, stderr = proc.communicate(timeout=120)

@@ -333,7 +333,9 @@ def test_ctrl_c_during_an_isolated_run_ends_its_child(probes, tmp_path):
     out = tmp_path / "out"
     p = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", str(f), "--out", str(out),
                           "--no-build"], cwd=REPO, env=env, stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True)
+                         stderr=subprocess.PIPE, text=True,
+                         # SIGINT as from a terminal, also when the tests run in a background job
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     child = None
     t0 = time.monotonic()
     while time.monotonic() - t0 < 120 and child is None:

@@ -126,8 +126,10 @@ def test_timing_in_summary_durations_and_report(suite_dir):
     assert by["spin"]["longest_run_s"] <= by["spin"]["runs_wall_s"]
     assert abs(sum(b["runs_wall_s"] for b in by.values()) - t["runs_wall_s"]) < 1e-6
     d = json.loads((out / "durations.json").read_text())
-    assert sorted(d["spin"]) == ["default/seed1", "default/seed2", "nc.half_current/default/seed1",
-                                 "nc.half_current/default/seed2"]
+    # this suite's runs (a suite of another "spin" before it, e.g. another test's, may
+    # have left more in the machine-wide history that the file merges)
+    assert {"default/seed1", "default/seed2", "nc.half_current/default/seed1",
+            "nc.half_current/default/seed2"} <= set(d["spin"])
     run = json.loads((out / "spin" / "runs" / "default_seed1" / "run.json").read_text())
     assert abs(d["spin"]["default/seed1"] - run["wall_s"]) < 0.5     # the task's time
     saved = json.loads((out / "summary.json").read_text())
