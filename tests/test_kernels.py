@@ -394,6 +394,7 @@ def test_kernel_sources_ship_in_the_wheel(tmp_path):
     ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
     shutil.copytree(REPO / "cosim", src / "cosim", ignore=ignore)
     shutil.copytree(REPO / "modelica", src / "modelica", ignore=ignore)
+    shutil.copytree(REPO / "scenarios", src / "scenarios", ignore=ignore)   # package data too
     names = set(zipfile.ZipFile(_build_wheel(src, tmp_path / "dist")).namelist())
     want = {f"cosim/algorithms/c/{p.name}" for p in kernel_sources()}
     want.add("cosim/algorithms/c/cosim_kernel.h")
