@@ -13,7 +13,13 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 FMU = ROOT / "fmus" / "BallScrewUnit.fmu"
 
-pytestmark = pytest.mark.skipif(not FMU.is_file(), reason="fmus/BallScrewUnit.fmu absent (cosim fmus build)")
+
+
+@pytest.fixture(autouse=True)
+def _plant_built(fmus):
+    # built from source by the session fixture (a fresh clone has no fmus/ yet: a skip
+    # decided at import skipped these tests in every fresh-clone run)
+    assert FMU.is_file()
 
 
 def _motion(n=3000, ts=1e-3, seed=7):

@@ -18,7 +18,13 @@ FMU = ROOT / "fmus" / "BallScrewUnit.fmu"
 BINDING = ROOT / "examples" / "gap-own-plant" / "ballscrew-unit.yaml"
 NOM = {"J": 1.7e-5, "b": 1.6e-5, "fc": 3e-3, "Kt": 0.0603, "lead": 0.01}
 
-pytestmark = pytest.mark.skipif(not FMU.is_file(), reason="fmus/BallScrewUnit.fmu absent (cosim fmus build)")
+
+
+@pytest.fixture(autouse=True)
+def _plant_built(fmus):
+    # built from source by the session fixture (a fresh clone has no fmus/ yet: a skip
+    # decided at import skipped these tests in every fresh-clone run)
+    assert FMU.is_file()
 
 
 def simulate_log(tmp: Path, T=3.0, ts=1e-3, seed=3) -> Path:
