@@ -337,9 +337,9 @@ def _fold_fits(device: GapDevice, folds, effects: Sequence[str], basis: Sequence
     identified. A fold whose fit part cannot identify Kt (no known force) fits the effects
     with it, as the recalibration without effects uses the Kt that recalibration
     identified on all the fit logs: each model is calibrated by its own fit. (With the
-    no-effect Kt, an effect that biases the nominal fit, a clip of the fast trial, was
-    validated with a Kt 22 % low on the held-out force trial and judged to make it worse:
-    gap-dev2 case-47.)"""
+    no-effect Kt, an effect that biases the nominal fit, such as a clip of the fast trial,
+    would be validated with a biased Kt on the held-out force trial and judged to make it
+    worse; figures in ``docs/decisions.md``.)"""
     for fit_part, val_part, _ in _folds_for(device, folds, effects if basis is None else basis):
         rec = device.recalibrate(fit_part)
         start = rec if kt is None else dict(rec, Kt=float(kt))

@@ -63,10 +63,9 @@ def blas_threads(n: int = 1):
     """Run the enclosed code with OpenBLAS limited to ``n`` threads (restored after; nested
     uses set it once). Why: the diagnosis's least squares are thousands of small products
     (10^4 rows x ~10 columns); with OpenBLAS's default of a thread per core they spend most of
-    their time waking and waiting for threads, all the more on a loaded machine (foreign-dev
-    case-03, in-process screening of every effect: 29.9 s wall with the default
-    threads, 8.6 s with one). Results differ only in rounding (a product's partial sums are
-    split differently)."""
+    their time waking and waiting for threads, all the more on a loaded machine (measured:
+    ``docs/decisions.md``, "the diagnosis's cost"). Results differ only in rounding (a
+    product's partial sums are split differently)."""
     if _BLAS_DEPTH[0] > 0:
         _BLAS_DEPTH[0] += 1
         try:

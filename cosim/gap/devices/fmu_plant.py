@@ -1118,10 +1118,9 @@ class FmuPlantDevice:
         # a command-path effect changes what the linearisation leaves out (d acc / d command
         # times the change of the command, which a lag or a delay makes of the order of the
         # command itself); a force-path effect that the recalibration had absorbed in the
-        # nominal parameters moves them far too (a tilt: Kt +24 %), and the test logs' gap
-        # is evaluated exactly there (gap-dev case-13 through BallScrewUnit.fmu, gravity:
-        # test gap 0.266 -> 0.119 linearised, 0.012 re-linearised). Not for a fit that does
-        # not lower the gap, nor for the quick joint fits that only rank a pair's second
+        # nominal parameters moves them far too (a tilt absorbed in the force constant), and
+        # the test logs' gap is evaluated exactly there (docs/decisions.md). Not for a fit that
+        # does not lower the gap, nor for the quick joint fits that only rank a pair's second
         # effect (descend=False)
         rounds = RELIN_ROUNDS if descend and g < self.gap(logs, params) else 0
         for _ in range(rounds):
