@@ -1,10 +1,11 @@
-"""``cosim gap diagnose``: the sim-to-real gap diagnosis command (``spec/gap-diagnosis.md``)."""
+"""``cosim gap diagnose``: the sim-to-real gap diagnosis command (``spec/gap-diagnosis.md``);
+``cosim gap draft-binding``: a first binding file of a user's plant FMU to their logs."""
 from __future__ import annotations
 
 import sys
 from typing import Any
 
-from .exitcodes import BAD_INPUT, CANNOT_TELL, OK
+from .exitcodes import BAD_INPUT, CANNOT_TELL, FAILED, OK
 
 __all__ = ["add_commands"]
 
@@ -52,6 +53,22 @@ def _cmd_diagnose(a: Any) -> int:
     return CANNOT_TELL if res.get("cannot_diagnose") else OK
 
 
+def _cmd_draft_binding(a: Any) -> int:
+    from ..gap.binding_draft import write_draft
+    from ..gap.device import GapInputError
+    try:
+        out, problem = write_draft(a.plant, a.log, a.out, overwrite=a.force)
+    except GapInputError as e:
+        print(f"cosim: error: {e}", file=sys.stderr)
+        return BAD_INPUT
+    if problem:
+        print(f"wrote {out}, but it does not check yet (complete it from the datasheet): {problem}")
+        return FAILED
+    print(f"wrote {out}: it checks against {a.plant} and the {len(a.log)} logs; "
+          "CHECK every field against the datasheet before `cosim gap diagnose --plant`")
+    return OK
+
+
 def add_commands(subparsers: Any) -> None:
     """Register ``cosim gap diagnose`` (exit 0: diagnosed; 2: bad input, message on
     stderr; 4: the logs cannot tell, ``cannot_diagnose`` in diagnosis.json)."""
@@ -78,3 +95,15 @@ def add_commands(subparsers: Any) -> None:
                    help="minimum held-out reduction of the gap energy to select an effect (default: the device's chosen value, cosim/gap/thresholds.json)")
     d.add_argument("--no-report", action="store_true", help="skip report.html")
     d.set_defaults(func=_cmd_diagnose, heartbeat=True)
+    b = gsub.add_parser(
+        "draft-binding", help="draft a binding file of your plant FMU to your logs (to check, then diagnose)",
+        description="Write a first gap-binding/1 file for --plant from its modelDescription and the logs' "
+                    "sidecars: roles matched by dimension and name, sensor figures from the sidecars (or the "
+                    "samples), recalibrated parameters within +-25 %%. Each guess is commented; check them "
+                    "against the datasheet. Exit 0: the draft checks against the FMU and the logs; 1: written "
+                    "but incomplete (the message names the field); 2: an FMU or log cannot be read.")
+    b.add_argument("--plant", required=True, metavar="PLANT.fmu", help="your plant FMU")
+    b.add_argument("--log", nargs="+", required=True, metavar="LOG", help="trial logs of the device (.csv or stem)")
+    b.add_argument("--out", required=True, metavar="BINDING.yaml", help="the binding file to write")
+    b.add_argument("--force", action="store_true", help="replace --out if it exists")
+    b.set_defaults(func=_cmd_draft_binding)

@@ -319,6 +319,7 @@ class _Var:
     min: float | None
     max: float | None
     start: str | None
+    description: str = ""
 
 
 @dataclass
@@ -378,7 +379,7 @@ def _read_fmu(fmu_path: Path) -> _Fmu:
 
     variables = {v.name: _Var(v.name, v.causality or "local", v.variability or "continuous",
                               v.type, unit(v), bound(v, "min"), bound(v, "max"),
-                              None if v.start is None else str(v.start))
+                              None if v.start is None else str(v.start), v.description or "")
                  for v in md.modelVariables}
     states = {d.variable.derivative.name for d in (md.derivatives or [])
               if getattr(d.variable, "derivative", None) is not None}
