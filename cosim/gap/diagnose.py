@@ -382,7 +382,9 @@ def collect_evidence(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[
     out["fit_logs"] = [str(lg.csv_path) for lg in fit]
     out["test_logs"] = [str(lg.csv_path) for lg in test]
     rec = device.recalibrate(fit)
-    plausibility.check_recalibrated(device, fit, rec)  # before any effect is fitted
+    warnings = plausibility.check_recalibrated(device, fit, rec)  # before any effect is fitted
+    if warnings:            # plausible but unusual: said in diagnosis.json and the report, exit 0
+        out.setdefault("warnings", []).extend(warnings)
     out["recalibrated"] = {k: float(rec[k]) for k in device.param_names}
     out["recalibration_note"] = getattr(device, "recalibration_note", "")
     nominal = dict(fit[0].nominal or {})
