@@ -237,7 +237,7 @@ def scenarios(dev: str, spec: dict) -> list[tuple[str, str, int, object]]:
         lg.header = lg.header + ["temp_c", "bus_v"]
         n = lg.data.shape[0]
         lg.data = np.column_stack([lg.data, np.full(n, 24.5), 24.0 + 0.01 * np.sin(np.arange(n))])
-        if lg.meta.get("signals") is not None and dev == "foreign":
+        if lg.meta.get("signals") is not None:
             lg.meta["signals"].update({"temp_c": "K", "bus_v": "V"})
 
     @add("extra-columns", "two unmapped columns (temp_c, bus_v): refused, naming one and 'ignore'", expect=2)
@@ -308,14 +308,17 @@ def scenarios(dev: str, spec: dict) -> list[tuple[str, str, int, object]]:
             p.pop("high", None)
         return b, logs
 
+    @add("no-parameters", "the binding without its 'parameters' section (nothing to recalibrate)")
+    def _(b, logs):
+        b.pop("parameters", None)
+        return b, logs
+
     return out
 
 
 def run_one(dev: str, name: str, expect: int, fn, fmu: Path, work: Path, timeout: float) -> dict:
     spec = DEVS[dev]
     b = yaml.safe_load(spec["binding"].read_text())
-    spec = dict(spec, quantum=next(m["sensor"]["resolution"] for m in b["measurements"]
-                                   if m["column"] == spec["enc"]))
     logs = load_case(spec["case"])
     b, logs = fn(b, logs)
     d = work / dev / name
@@ -388,6 +391,9 @@ def main(argv=None) -> int:
                 if not fmu.is_file():
                     print(f"skip {dev}: {fmu} absent (cosim fmus build)")
                     continue
+            b0 = yaml.safe_load(spec["binding"].read_text())
+            spec = dict(spec, quantum=next(m["sensor"]["resolution"] for m in b0["measurements"]
+                                           if m["column"] == spec["enc"]))
             for name, what, expect, fn in scenarios(dev, spec):
                 if a.only and name not in a.only:
                     continue

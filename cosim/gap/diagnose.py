@@ -76,7 +76,9 @@ def load_logs(paths: Sequence[str | os.PathLike], role: str) -> list[TrialLog]:
         try:
             logs.append(read_trial_log(p))
         except TrialLogError as e:
-            raise GapInputError(f"--{role} log is not a valid trial log: {e.reason}", e.file, e.column) from None
+            row = f"data row {e.row} (file line {e.row + 1}): " if e.row is not None else ""
+            raise GapInputError(f"--{role} log is not a valid trial log: {row}{e.reason}", e.file,
+                                e.column) from None
     return logs
 
 
@@ -627,6 +629,30 @@ def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_path
     return result
 
 
+def _range_warnings(binding, rec: Mapping[str, float] | None) -> list[str]:
+    """What the user should know about the binding's parameter ranges: a range the binding
+    did not give (a default was used), a recalibrated value stopped at its range's end (the
+    device may lie beyond it: its nominal or its range is off, or the range absorbs an
+    effect)."""
+    out = [p.range_note for p in binding.parameters if p.range_note]
+    if not any(p.recalibrate for p in binding.parameters):
+        out.append(f"the binding {Path(binding.path).name} recalibrates no parameter: the model runs with the "
+                   f"FMU's own values, so the gap includes any parameter error (the spec recalibrates "
+                   f"inertia, friction and the torque constant first; list them under 'parameters' "
+                   f"with their range)")
+    for p in binding.parameters:
+        v = (rec or {}).get(p.name)
+        if not p.recalibrate or v is None or not math.isfinite(float(v)) or not p.high > p.low:
+            continue
+        tol = 1e-3 * (p.high - p.low)
+        for end, bound in (("low", p.low), ("high", p.high)):
+            if abs(float(v) - bound) <= tol:
+                out.append(f"recalibrated {p.name} = {float(v):.4g} {p.unit} stopped at its range's {end} end "
+                           f"({bound:.4g}; nominal {p.nominal:.4g}): the device may lie beyond the binding's "
+                           f"range (check its nominal and range), or the range absorbs an unmodelled effect")
+    return out
+
+
 def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
                    fit_paths: Sequence[str | os.PathLike], test_paths: Sequence[str | os.PathLike],
                    out_dir: str | os.PathLike, *, report: bool = True, progress=None, **kw: Any) -> dict[str, Any]:
@@ -659,6 +685,9 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
                                              f"for a user's plant: {THRESHOLD_OVERRIDES}")
     result["plant"] = {"fmu": str(fmu_path), "binding": str(binding_path),
                        "signals": device.signal_units()}
+    notes = _range_warnings(binding, result.get("recalibrated"))
+    if notes:
+        result.setdefault("warnings", []).extend(notes)
     result["runtime_budget"] = device.budget_report()
     result = jsonable(result)
     out = Path(out_dir)

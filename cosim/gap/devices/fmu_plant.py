@@ -915,14 +915,15 @@ class FmuPlantDevice:
         if key in self._rec_cache:
             return dict(self._rec_cache[key])
         p = dict(self._rec_first) if self._rec_first else {k: self._nominal(k) for k in self.rec_params}
-        g = self._gap_exact(logs, p)
-        # chord Gauss-Newton: the sensitivities of the starting point for every step
-        self._chord = {id(lg): self._jacobian(self._eval(lg, p)) for lg in logs}
-        self._chord_at = dict(p)
-        try:
-            p, g = self._gauss_newton(logs, p, g)
-        finally:
-            self._chord, self._chord_at = None, None
+        if self.rec_params:     # a binding without parameters: the FMU's own values, nothing to fit
+            g = self._gap_exact(logs, p)
+            # chord Gauss-Newton: the sensitivities of the starting point for every step
+            self._chord = {id(lg): self._jacobian(self._eval(lg, p)) for lg in logs}
+            self._chord_at = dict(p)
+            try:
+                p, g = self._gauss_newton(logs, p, g)
+            finally:
+                self._chord, self._chord_at = None, None
         if self._rec_first is None:
             self._rec_first = dict(p)
         for lg in logs:
