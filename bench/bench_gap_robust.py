@@ -150,6 +150,34 @@ def scenarios(dev: str, spec: dict) -> list[tuple[str, str, int, object]]:
         drop_measurement(b, logs, acc)
         return b, logs
 
+    @add("accelerometer-in-some-logs", "accelerometer marked optional, absent from the partner-push logs")
+    def _(b, logs):
+        for m in b["measurements"]:
+            if m["column"] == acc:
+                m["optional"] = True
+        for lg in logs:
+            if lg.kind == "partner-push":
+                lg.drop(acc)
+        return b, logs
+
+    @add("fit-log-at-rest", "an extra fit log of the device held at rest (encoder still, command ~0)")
+    def _(b, logs):
+        src = next(lg for lg in logs if lg.role == "fit" and lg.kind == "identification")
+        hold = Log("fit", "hold-1", list(src.header), src.data.copy(), copy.deepcopy(src.meta))
+        rng = np.random.default_rng(7)
+        n = hold.data.shape[0]
+        for h in hold.header[1:]:
+            j = hold.header.index(h)
+            if h == enc:
+                hold.data[:, j] = hold.data[0, j]
+            elif h == cmd:
+                hold.data[:, j] = np.round(rng.normal(0, 2e-3, n), 3)
+            elif h == acc:
+                hold.data[:, j] = hold.data[0, j] + rng.normal(0, 0.05, n)
+            else:
+                hold.data[:, j] = 0.0
+        return b, logs + [hold]
+
     @add("no-loadcell", "binding and logs without the load cell (f_lc)")
     def _(b, logs):
         drop_measurement(b, logs, "f_lc")

@@ -473,6 +473,35 @@ def collect_evidence(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[
     return out, ev, ctx
 
 
+def _without_unusable_logs(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[TrialLog]):
+    """When the logs together cannot be diagnosed (:class:`CannotDiagnose`), the logs that
+    cannot on their own (too short, the plant at rest throughout) are left out, if what
+    remains (at least one fit and one test log) can: ``(fit, test, warnings)``, else None.
+    A valid set of logs with one unusable trial (a hold, a push that never came) gives a
+    diagnosis on the others, and says which were left out and why."""
+    def why(lg) -> str | None:
+        try:
+            device.check_logs([lg], [lg])
+        except CannotDiagnose as e:
+            return e.reason
+        return None
+    notes, keep = [], {"fit": [], "test": []}
+    for role, logs in (("fit", fit), ("test", test)):
+        for lg in logs:
+            r = why(lg)
+            if r is None:
+                keep[role].append(lg)
+            else:
+                notes.append(f"--{role} log {lg.csv_path} left out: {r}")
+    if not notes or not keep["fit"] or not keep["test"]:
+        return None
+    try:
+        device.check_logs(keep["fit"], keep["test"])
+    except CannotDiagnose:
+        return None
+    return keep["fit"], keep["test"], notes
+
+
 def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[TrialLog], *,
                   margin: float | None = None, thresholds: Thresholds | None = None, n_validate: int = 4,
                   max_effects: int = 2, confirm_top: int = 3) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -483,16 +512,26 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     th = thresholds or thresholds_for(device.name)
     if margin is not None:
         th = th.with_(margin=float(margin))
+    dropped_notes: list[str] = []
+    refusal = None
     try:
         device.check_logs(fit, test)
     except CannotDiagnose as e:
+        kept = _without_unusable_logs(device, fit, test)
+        if kept is not None:
+            fit, test, dropped_notes = kept
+        else:
+            refusal = e.reason
+    if refusal is not None:
         out = {"device": device.name, "fit_logs": [str(lg.csv_path) for lg in fit],
                "test_logs": [str(lg.csv_path) for lg in test]}
-        out.update({"cannot_diagnose": e.reason, "recalibrated": None, "localization": None,
+        out.update({"cannot_diagnose": refusal, "recalibrated": None, "localization": None,
                     "candidates": [], "selected": [], "gap": {"metric": "nrmse", "test_before": None,
                                                              "test_after": None}})
         return out, {}
     out, ev, ctx = collect_evidence(device, fit, test, n_validate=n_validate, max_effects=max_effects)
+    if dropped_notes:
+        out["warnings"] = dropped_notes + list(out.get("warnings") or [])
     rec, cands, by_name, folds, g_fit, t0 = (ctx[k] for k in ("rec", "cands", "by_name", "folds", "g_fit", "t0"))
     out["heldout_folds"] = ev["fold_kind"]
     dec = decide(ev, th)
