@@ -54,8 +54,10 @@ DEVS = {
 #: scenarios that change only the binding (not run through a built-in device)
 BINDING_ONLY = ("extra-columns-ignored", "no-ranges", "no-parameters", "params-35pct-off",
                 "accelerometer-in-some-logs", "units-mm-mA-gn", "units-g-gram")
-#: a built-in device keeps and ignores unknown columns its sidecar lists (trial-log.md)
-BUILTIN_EXPECT = {"extra-columns": 0}
+#: a built-in device keeps and ignores unknown columns its sidecar lists (trial-log.md); its
+#: plausibility check refuses any log whose encoder never moves (issue 25 item 2, exit 4 with
+#: diagnosis.json saying why; tests/test_hostile_gap.py "constant theta")
+BUILTIN_EXPECT = {"extra-columns": 0, "fit-log-at-rest": 4}
 
 
 # ---------------------------------------------------------------- a case in memory
@@ -392,6 +394,8 @@ def run_one(dev: str, name: str, expect: int, fn, fmu: Path, work: Path, timeout
     fin = all(isinstance(res.get(k), (int, float)) and math.isfinite(res[k]) for k in ("before", "after"))
     if expect == 0:
         res["ok"] = rc == 0 and fin and dt < 300
+    elif expect == 4:           # refused with the reason in diagnosis.json
+        res["ok"] = rc == 4 and not res.get("nofile", False)
     else:
         res["ok"] = rc == expect and res.get("nofile", False) and res["msg"].startswith("cosim: error")
     return res

@@ -29,7 +29,7 @@ def test_negative_viscous_friction_is_a_warning_not_a_refusal(tmp_path, capsys):
                            effect="stribeck_friction", device_seed=2000)[0]
     out = tmp_path / "out"
     rc = main(["gap", "diagnose", "--device", "ballscrew-1dof", "--fit", *map(str, fit),
-               "--test", str(test), "--out", str(out), "--no-report"])
+               "--test", str(test), "--out", str(out)])
     cap = capsys.readouterr()
     assert rc == 0, cap.out + cap.err
     res = json.loads((out / "diagnosis.json").read_text())
@@ -37,6 +37,7 @@ def test_negative_viscous_friction_is_a_warning_not_a_refusal(tmp_path, capsys):
     assert res["recalibrated"]["b"] < 0                 # kept as fitted, not clamped
     assert any("recalibrated b" in w and "kept as fitted" in w for w in res["warnings"]), res.get("warnings")
     assert "warning: recalibrated b" in cap.err
+    assert "<b>Warning:</b> recalibrated b" in (out / "report.html").read_text()
     g = res["gap"]
     assert math.isfinite(g["test_before"]) and math.isfinite(g["test_after"])
     assert g["test_after"] <= g["test_before"] + 1e-12
