@@ -297,7 +297,7 @@ def test_wrong_causality(tmp_path, fmus):
 @pytest.mark.parametrize("old, new, column, words", [
     ("low: 600, high: 2400", "low: 1300, high: 2400", "parameters.M.low", "low < nominal < high"),
     ("low: 0.6, high: 60", "low: 0, high: 60", "parameters.b.low", "positive"),
-    ("low: 0.6, high: 60", "high: 60", "parameters.b.low", "missing required key 'low'"),
+    ("low: 0.6, high: 60", "low: 70", "parameters.b.low", "low < nominal < high"),
     ("format: gap-binding/1", "format: gap-binding/2", "format", "expected 'gap-binding/1'"),
     ("column: x_enc", "colum: x_enc", "measurements[0].colum", "did you mean 'column'"),
     ("kind: encoder", "kind: encodr", "measurements[0].sensor.kind", "did you mean 'encoder'"),
@@ -313,6 +313,31 @@ def test_bad_fields(tmp_path, fmus, old, new, column, words):
     p = _binding(tmp_path, BINDING.replace(old, new, 1))
     e = _err(load_binding, p, fmus[0])
     assert e.file == str(p) and e.column == column and words in e.reason
+
+
+def test_a_recalibrated_parameter_without_a_range_gets_a_default_and_says_so(tmp_path, fmus):
+    # a range used to be required ("missing required key 'low'", exit 2): a plant whose
+    # datasheet gives none is valid input; it is recalibrated within 2x of nominal (in the
+    # FMU's unit: M 1200 g -> 0.6..2.4 kg) and diagnosis.json says so
+    from cosim.gap.binding import DEFAULT_RANGE_FACTOR
+    from cosim.gap.diagnose import _range_warnings
+    assert DEFAULT_RANGE_FACTOR == 2.0
+    text = (BINDING.replace("M:  {nominal: 1200, unit: g, low: 600, high: 2400}", "M:  {nominal: 1200, unit: g}")
+            .replace("low: 0.6, high: 60", "high: 60")
+            .replace("Kf: {nominal: 18.5, unit: N/A, low: 9, high: 37}", "Kf: {nominal: 0, unit: N/A}"))
+    b = load_binding(_binding(tmp_path, text), fmus[0])
+    M, bv, Kf = b.parameter("M"), b.parameter("b"), b.parameter("Kf")
+    assert M.recalibrate and (M.low, M.nominal, M.high) == pytest.approx((0.6, 1.2, 2.4))
+    assert "no low/high" in M.range_note and "[600, 2400] g" in M.range_note
+    assert bv.recalibrate and (bv.low, bv.high) == pytest.approx((3.0, 60.0)) and "no low" in bv.range_note
+    assert not Kf.recalibrate and "zero nominal" in Kf.range_note          # no scale to default from
+    notes = _range_warnings(b, {"M": 2.4, "b": 6.0})
+    assert sum("no low" in n for n in notes) == 3
+    assert [n for n in notes if "stopped at" in n] == [
+        n for n in notes if n.startswith("recalibrated M = 2.4 kg stopped at its range's high end")]
+    assert any(n.startswith("recalibrated M") for n in notes)
+    assert _range_warnings(load_binding(_binding(tmp_path, BINDING, "full.yaml"), fmus[0]),
+                           {"M": 1.3, "b": 6.0}) == []
 
 
 def test_malformed_yaml_names_the_line(tmp_path, fmus):

@@ -43,6 +43,8 @@ def _cmd_diagnose(a: Any) -> int:
         print(f"cannot diagnose: implausible input: {e}")
         write_refusal(a.out, a.device or str(a.plant), e)
         return CANNOT_TELL
+    for w in res.get("warnings") or ():
+        print(f"warning: {w}", file=sys.stderr)
     if res.get("cannot_diagnose"):
         print(f"cannot diagnose: {res['cannot_diagnose']}")
     else:

@@ -6,8 +6,8 @@ an SI prefix, followed by an integer exponent ("m2", "s-1"); "1" is dimensionles
 
 Besides the SI symbols, the non-SI units exporters write for a drive: ``rev`` (one
 revolution, 2 pi rad; ``rev/min`` is Modelica's ``NonSI.AngularVelocity_rpm``), ``rpm``
-(= ``rev/min``), ``deg``, ``min`` and ``h`` (so ``m/min``, ``mm/min``, ``rev/h``), ``bar``
-and ``Nm`` (a common spelling of ``N.m``; Modelica writes ``N.m``).
+(= ``rev/min``), ``deg``, ``min`` and ``h`` (so ``m/min``, ``mm/min``, ``rev/h``), ``bar``,
+``gn`` (standard gravity, 9.80665 m/s2) and ``Nm`` (a common spelling of ``N.m``; Modelica writes ``N.m``).
 """
 from __future__ import annotations
 
@@ -34,6 +34,9 @@ _UNITS: dict[str, tuple[float, dict[str, int]]] = {
     "rpm": (2 * 3.141592653589793 / 60.0, {"rad": 1, "s": -1}),
     "bar": (1e5, {"kg": 1, "m": -1, "s": -2}),
     "Nm": (1.0, {"kg": 1, "m": 2, "s": -2}),
+    # standard gravity g_n (SI brochure), the unit accelerometer logs are often in; 'g'
+    # is the gram
+    "gn": (9.80665, {"m": 1, "s": -2}),
 }
 _PREFIX = {"m": 1e-3, "u": 1e-6, "n": 1e-9, "k": 1e3, "M": 1e6, "c": 1e-2}
 _FACTOR = re.compile(r"^([A-Za-z]+)(-?\d+)?$")

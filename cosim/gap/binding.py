@@ -178,6 +178,12 @@ class Measurement:
         return (fmu_values - self.offset) / self.scale
 
 
+#: a recalibrated parameter without low/high in the binding is recalibrated within
+#: [nominal / this, nominal * this] (clipped to the FMU's min/max): a device of a kind
+#: is within a factor 2 of its datasheet (the independent devices: within 15 %)
+DEFAULT_RANGE_FACTOR = 2.0
+
+
 @dataclass(frozen=True)
 class Parameter:
     """A nominal FMU parameter (values in the FMU parameter's unit ``unit``)."""
@@ -194,6 +200,9 @@ class Parameter:
     #: Coulomb friction in the nominal model): value = same_scale * that parameter's value
     same_as: str | None = None
     same_scale: float = 1.0
+    #: said in diagnosis.json ``warnings`` when the range is not the binding's own (a
+    #: recalibrated parameter given without low/high: :data:`DEFAULT_RANGE_FACTOR`)
+    range_note: str = ""
 
 
 @dataclass(frozen=True)
@@ -507,7 +516,8 @@ class _Ctx:
         b = unit_si(u, self.fmu.unit_defs)
         if b is None:
             raise self.fail(f"{where}.{key}", f"unit {u!r} is not one the package converts (SI "
-                            "symbols with prefixes, deg, rev, rpm, min, h, bar, g; products with '.', "
+                            "symbols with prefixes, deg, rev, rpm, min, h, bar, g (gram), gn (standard "
+                            "gravity); products with '.', "
                             "one '/', powers as 'm/s2' or 'm/s^2'; or a unit the FMU defines)", node, key)
         return u, b
 
@@ -522,9 +532,12 @@ class _Ctx:
                             f"{var.unit!r}, which neither the FMU's UnitDefinitions nor the unit "
                             f"syntax define: cannot convert {u!r} to it", node, key)
         if fb.exponents != b.exponents:
+            acc = unit_si("m/s2")
+            hint = ("; 'g' is the gram: an acceleration in multiples of standard gravity is 'gn'"
+                    if acc is not None and fb.exponents == acc.exponents and dimension(b) == "kg" else "")
             raise self.fail(f"{where}.{key}", f"unit {u!r} ({dimension(b)}) does not convert to "
                             f"{var.unit!r} ({dimension(fb)}) of {var.name!r} in {self.fmu.path.name}: "
-                            "different dimensions", node, key)
+                            "different dimensions" + hint, node, key)
         return affine(b, fb)
 
 
@@ -794,8 +807,30 @@ def _parameter(c: _Ctx, parent: _Map, name: str, spec: Any, w: str) -> Parameter
     if same_as is not None and recal:
         raise c.fail(f"{w}.recalibrate", f"a parameter set with {same_as!r} (same_as) is not "
                      "recalibrated on its own", s, "recalibrate")
-    low = c.number(s, "low", w, required=recal)
-    high = c.number(s, "high", w, required=recal)
+    low = c.number(s, "low", w, required=False)
+    high = c.number(s, "high", w, required=False)
+    range_note = ""
+    if recal and (low is None or high is None):
+        # a plant whose binding declares no range (valid input: the datasheet may give
+        # none) is recalibrated within DEFAULT_RANGE_FACTOR of nominal, clipped to the
+        # FMU's min/max, and the diagnosis says so; a zero nominal has no scale: kept
+        if nominal == 0:
+            recal = False
+            range_note = (f"parameter {name!r} has no low/high in {c.path.name} and a zero nominal: "
+                          "kept at nominal, not recalibrated")
+        else:
+            lo_d, hi_d = sorted((nominal / DEFAULT_RANGE_FACTOR, nominal * DEFAULT_RANGE_FACTOR))
+            vmin = None if var.min is None else var.min / g
+            vmax = None if var.max is None else var.max / g
+            if g < 0:
+                vmin, vmax = vmax, vmin
+            if low is None:
+                low = lo_d if vmin is None or not math.isfinite(vmin) or vmin >= nominal else max(lo_d, vmin)
+            if high is None:
+                high = hi_d if vmax is None or not math.isfinite(vmax) or vmax <= nominal else min(hi_d, vmax)
+            range_note = (f"parameter {name!r} has no {'low/high' if s.get('low') is None and s.get('high') is None else 'low' if s.get('low') is None else 'high'} "
+                          f"in {c.path.name}: recalibrated within [{low:g}, {high:g}] {u or ''} "
+                          f"({DEFAULT_RANGE_FACTOR:g}x of nominal, a default; give the datasheet's range)")
     if low is None:
         low = nominal
     if high is None:
@@ -821,7 +856,7 @@ def _parameter(c: _Ctx, parent: _Map, name: str, spec: Any, w: str) -> Parameter
         raise c.fail(f"{w}.low", f"below the FMU's min {var.min:g} {var.unit} of {name!r}", s, "low")
     if var.max is not None and fh > var.max + 1e-12 * max(1.0, abs(var.max)):
         raise c.fail(f"{w}.high", f"above the FMU's max {var.max:g} {var.unit} of {name!r}", s, "high")
-    return Parameter(name, fn, var.unit or u, fl, fh, recal, u, g, same_as)
+    return Parameter(name, fn, var.unit or u, fl, fh, recal, u, g, same_as, range_note=range_note)
 
 
 def _tie(c: _Ctx, pnode: _Map, parameters: list[Parameter]) -> list[Parameter]:

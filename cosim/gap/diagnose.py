@@ -76,7 +76,9 @@ def load_logs(paths: Sequence[str | os.PathLike], role: str) -> list[TrialLog]:
         try:
             logs.append(read_trial_log(p))
         except TrialLogError as e:
-            raise GapInputError(f"--{role} log is not a valid trial log: {e.reason}", e.file, e.column) from None
+            row = f"data row {e.row} (file line {e.row + 1}): " if e.row is not None else ""
+            raise GapInputError(f"--{role} log is not a valid trial log: {row}{e.reason}", e.file,
+                                e.column) from None
     return logs
 
 
@@ -382,7 +384,9 @@ def collect_evidence(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[
     out["fit_logs"] = [str(lg.csv_path) for lg in fit]
     out["test_logs"] = [str(lg.csv_path) for lg in test]
     rec = device.recalibrate(fit)
-    plausibility.check_recalibrated(device, fit, rec)  # before any effect is fitted
+    warnings = plausibility.check_recalibrated(device, fit, rec)  # before any effect is fitted
+    if warnings:            # plausible but unusual: said in diagnosis.json and the report, exit 0
+        out.setdefault("warnings", []).extend(warnings)
     out["recalibrated"] = {k: float(rec[k]) for k in device.param_names}
     out["recalibration_note"] = getattr(device, "recalibration_note", "")
     nominal = dict(fit[0].nominal or {})
@@ -469,6 +473,35 @@ def collect_evidence(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[
     return out, ev, ctx
 
 
+def _without_unusable_logs(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[TrialLog]):
+    """When the logs together cannot be diagnosed (:class:`CannotDiagnose`), the logs that
+    cannot on their own (too short, the plant at rest throughout) are left out, if what
+    remains (at least one fit and one test log) can: ``(fit, test, warnings)``, else None.
+    A valid set of logs with one unusable trial (a hold, a push that never came) gives a
+    diagnosis on the others, and says which were left out and why."""
+    def why(lg) -> str | None:
+        try:
+            device.check_logs([lg], [lg])
+        except CannotDiagnose as e:
+            return e.reason
+        return None
+    notes, keep = [], {"fit": [], "test": []}
+    for role, logs in (("fit", fit), ("test", test)):
+        for lg in logs:
+            r = why(lg)
+            if r is None:
+                keep[role].append(lg)
+            else:
+                notes.append(f"--{role} log {lg.csv_path} left out: {r}")
+    if not notes or not keep["fit"] or not keep["test"]:
+        return None
+    try:
+        device.check_logs(keep["fit"], keep["test"])
+    except CannotDiagnose:
+        return None
+    return keep["fit"], keep["test"], notes
+
+
 def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[TrialLog], *,
                   margin: float | None = None, thresholds: Thresholds | None = None, n_validate: int = 4,
                   max_effects: int = 2, confirm_top: int = 3) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -479,16 +512,26 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     th = thresholds or thresholds_for(device.name)
     if margin is not None:
         th = th.with_(margin=float(margin))
+    dropped_notes: list[str] = []
+    refusal = None
     try:
         device.check_logs(fit, test)
     except CannotDiagnose as e:
+        kept = _without_unusable_logs(device, fit, test)
+        if kept is not None:
+            fit, test, dropped_notes = kept
+        else:
+            refusal = e.reason
+    if refusal is not None:
         out = {"device": device.name, "fit_logs": [str(lg.csv_path) for lg in fit],
                "test_logs": [str(lg.csv_path) for lg in test]}
-        out.update({"cannot_diagnose": e.reason, "recalibrated": None, "localization": None,
+        out.update({"cannot_diagnose": refusal, "recalibrated": None, "localization": None,
                     "candidates": [], "selected": [], "gap": {"metric": "nrmse", "test_before": None,
                                                              "test_after": None}})
         return out, {}
     out, ev, ctx = collect_evidence(device, fit, test, n_validate=n_validate, max_effects=max_effects)
+    if dropped_notes:
+        out["warnings"] = dropped_notes + list(out.get("warnings") or [])
     rec, cands, by_name, folds, g_fit, t0 = (ctx[k] for k in ("rec", "cands", "by_name", "folds", "g_fit", "t0"))
     out["heldout_folds"] = ev["fold_kind"]
     dec = decide(ev, th)
@@ -625,6 +668,30 @@ def diagnose(device_name: str, fit_paths: Sequence[str | os.PathLike], test_path
     return result
 
 
+def _range_warnings(binding, rec: Mapping[str, float] | None) -> list[str]:
+    """What the user should know about the binding's parameter ranges: a range the binding
+    did not give (a default was used), a recalibrated value stopped at its range's end (the
+    device may lie beyond it: its nominal or its range is off, or the range absorbs an
+    effect)."""
+    out = [p.range_note for p in binding.parameters if p.range_note]
+    if not any(p.recalibrate for p in binding.parameters):
+        out.append(f"the binding {Path(binding.path).name} recalibrates no parameter: the model runs with the "
+                   f"FMU's own values, so the gap includes any parameter error (the spec recalibrates "
+                   f"inertia, friction and the torque constant first; list them under 'parameters' "
+                   f"with their range)")
+    for p in binding.parameters:
+        v = (rec or {}).get(p.name)
+        if not p.recalibrate or v is None or not math.isfinite(float(v)) or not p.high > p.low:
+            continue
+        tol = 1e-3 * (p.high - p.low)
+        for end, bound in (("low", p.low), ("high", p.high)):
+            if abs(float(v) - bound) <= tol:
+                out.append(f"recalibrated {p.name} = {float(v):.4g} {p.unit} stopped at its range's {end} end "
+                           f"({bound:.4g}; nominal {p.nominal:.4g}): the device may lie beyond the binding's "
+                           f"range (check its nominal and range), or the range absorbs an unmodelled effect")
+    return out
+
+
 def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
                    fit_paths: Sequence[str | os.PathLike], test_paths: Sequence[str | os.PathLike],
                    out_dir: str | os.PathLike, *, report: bool = True, progress=None, **kw: Any) -> dict[str, Any]:
@@ -657,6 +724,9 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
                                              f"for a user's plant: {THRESHOLD_OVERRIDES}")
     result["plant"] = {"fmu": str(fmu_path), "binding": str(binding_path),
                        "signals": device.signal_units()}
+    notes = _range_warnings(binding, result.get("recalibrated"))
+    if notes:
+        result.setdefault("warnings", []).extend(notes)
     result["runtime_budget"] = device.budget_report()
     result = jsonable(result)
     out = Path(out_dir)

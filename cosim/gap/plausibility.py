@@ -19,10 +19,14 @@ do not say", :class:`Implausible` naming the file, the column and the likely uni
   Sec. 2.4) and stays within :data:`TRAVEL_MAX_M` of nut travel;
 
 :func:`check_recalibrated` (after the recalibration, before the effects): the
-inertia, viscous friction and torque constant positive and within :data:`FACTOR` of
-nominal. The Coulomb friction's sign is not checked: the recalibration absorbs an
-unmodelled delay as a negative ``fc`` on valid logs (docs/decisions.md, "Hostile
-input").
+inertia (mass) and torque constant positive and within :data:`FACTOR` of nominal; the
+viscous friction within :data:`FACTOR_BY_PARAMETER` of nominal in magnitude. A viscous
+friction recalibrated to about zero or below is NOT refused: on a device whose friction
+falls with speed (Stribeck, an asymmetric friction, a drive lag) the least-squares slope
+of friction against speed is legitimately ~0 or negative; it is returned as a warning
+that ``diagnosis.json`` carries (``warnings``) and the diagnosis goes on (exit 0). The
+Coulomb friction's sign is not checked: the recalibration absorbs an unmodelled delay as
+a negative ``fc`` on valid logs (docs/decisions.md, "Hostile input").
 """
 from __future__ import annotations
 
@@ -61,7 +65,9 @@ ENCODER_QUANTUM_RAD = ENCODER_RESOLUTION_RAD
 #: what a column may hold instead of the unit the sidecar says: name -> factor
 _ANGLE_UNITS = {"degrees": 180 / math.pi, "milliradians": 1000.0, "revolutions": 1 / (2 * math.pi),
                 "microradians": 1e6}
-_POSITIVE = ("J", "b", "Kt", "M", "Fv")
+_POSITIVE = ("J", "Kt", "M")
+#: viscous friction: judged by magnitude only (a fit's slope may be ~0 or negative)
+_VISCOUS = ("b", "Fv")
 _DRIVE = {"ballscrew-1dof": "i_cmd", "emps-1dof": "f_cmd"}
 _REQUIRED = {"ballscrew-1dof": ("i_cmd", "theta_enc")}     # EMPS: its own check
 
@@ -176,29 +182,47 @@ def check_logs(device, fit: Sequence, test: Sequence) -> None:
             _check_drive(log, drive)
 
 
-def check_recalibrated(device, fit: Sequence, rec: Mapping[str, float]) -> None:
-    """Refuse a recalibration that left the nominal model's plausible range: inertia,
-    viscous friction, torque constant (mass, viscous friction) not positive or further
-    than :data:`FACTOR` (viscous friction: :data:`FACTOR_BY_PARAMETER`) from nominal
-    (:class:`Implausible`, exit 4)."""
+def check_recalibrated(device, fit: Sequence, rec: Mapping[str, float]) -> list[str]:
+    """Refuse a recalibration that left the nominal model's plausible range: inertia
+    (mass) or torque constant not positive or further than :data:`FACTOR` from nominal,
+    a viscous friction (``b``, EMPS ``Fv``) not finite or larger in magnitude than
+    :data:`FACTOR_BY_PARAMETER` x nominal (:class:`Implausible`, exit 4).
+
+    Returns the warnings of a plausible recalibration: a viscous friction ~0 or negative
+    (within the magnitude limit) is a valid fit of friction that falls with speed, kept as
+    fitted (the effects refit it) and said in ``diagnosis.json`` ``warnings``."""
     nominal = dict((fit[0].nominal if fit else None) or {})
     cols = ", ".join(c for c in ("theta_enc", "i_cmd", "x_enc", "f_cmd")
                      if fit and c in fit[0].data)
     units = (fit[0].meta.get("signals") or {}) if fit else {}
     hint = ("check the units of " + ", ".join(f"{c} ({units.get(c, '?')})" for c in cols.split(", "))
             if cols else "")
-    for k in _POSITIVE:
+    warnings: list[str] = []
+    for k in _POSITIVE + _VISCOUS:
         if k not in rec or k not in nominal:
             continue
         v, nom = float(rec[k]), float(nominal[k])
-        if not math.isfinite(v) or v <= 0:
+        if not math.isfinite(v) or (k in _POSITIVE and v <= 0):
             raise Implausible(f"recalibrated {k} = {_g(v)} is not positive (nominal {_g(nom)}): the "
                               f"logs do not fit the nominal model; {hint}", fit[0].csv_path)
         factor = FACTOR_BY_PARAMETER.get(k, FACTOR)
+        if k in _VISCOUS:
+            if nom > 0 and abs(v) > factor * nom:
+                raise Implausible(f"recalibrated {k} = {_g(v)} is {_g(v / nom)}x its nominal {_g(nom)} "
+                                  f"(a plausible device is within +-{factor:g}x in magnitude): the logs do "
+                                  f"not fit the nominal model; {hint}", fit[0].csv_path)
+            if nom > 0 and v < nom / factor:
+                warnings.append(
+                    f"recalibrated {k} = {_g(v)} ({_g(v / nom)}x its nominal {_g(nom)}): "
+                    f"{'negative' if v < 0 else 'about zero'} viscous friction, kept as fitted: the fit "
+                    f"takes up friction that falls with speed (Stribeck, an asymmetry, a drive lag) "
+                    f"that the nominal model lacks; the effects refit it")
+            continue
         if nom > 0 and not (1 / factor <= v / nom <= factor):
             raise Implausible(f"recalibrated {k} = {_g(v)} is {_g(v / nom)}x its nominal {_g(nom)} "
                               f"(a plausible device is within {factor:g}x): the logs do not fit the "
                               f"nominal model; {hint}", fit[0].csv_path)
+    return warnings
 
 
 def write_refusal(out_dir, device: str, exc: Implausible) -> None:

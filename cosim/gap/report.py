@@ -128,6 +128,8 @@ def render_report(result: Mapping[str, Any], extras: Mapping[str, Any]) -> str:
              "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
              "td,th{border:1px solid #ccc;padding:2px 6px;font-size:12px}</style></head><body>",
              f"<h1>Sim-to-real gap diagnosis: {html.escape(str(result.get('device')))}</h1>"]
+    for w in result.get("warnings") or ():
+        parts.append(f"<p><b>Warning:</b> {html.escape(str(w))}</p>")
     if result.get("cannot_diagnose"):
         parts.append(f"<p><b>Cannot diagnose:</b> {html.escape(result['cannot_diagnose'])}</p>")
     else:

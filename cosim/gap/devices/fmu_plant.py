@@ -391,7 +391,7 @@ class FmuPlantDevice:
         add[1:-1] = (xs[2:] - 2 * xs[1:-1] + xs[:-2]) / ts ** 2
         a_enc = signal.sosfiltfilt(sosF, add)
         acc = None
-        if self.motion is not None:
+        if self.motion is not None and (self.motion.column in log.data or not self.motion.optional):
             acc = signal.sosfiltfilt(sosF, self.motion.scale * self._col(log, self.motion.column))
         # compared samples: away from rest (set-valued friction) and the filters' edges
         q = self.enc.sensor.resolution
@@ -458,7 +458,7 @@ class FmuPlantDevice:
         gdd = np.abs(hs) ** 4 * (2 - 2 * np.cos(wT)) ** 2 / ts ** 4 * gF
         q = p.cache["q"]
         out = {self.sig_enc: q * q / 12.0 * float(np.mean(gdd))}
-        if self.motion is not None:
+        if p.acc is not None:        # an optional motion sensor may be absent from a log
             raw = self.motion.scale * np.asarray(p.log.data[self.motion.column], float)
             hp = signal.sosfiltfilt(signal.butter(4, 0.6 * 0.5 / ts, "highpass", fs=1.0 / ts, output="sos"), raw)
             mad = 1.4826 * float(np.median(np.abs(hp - np.median(hp))))
@@ -674,7 +674,7 @@ class FmuPlantDevice:
         J = (self._chord.get(id(log)) if self._chord is not None else None) if refit and not lin else None
         if J is None and (lin or refit):
             J = self._jacobian(e)
-        has_s = e["s"] is not None
+        has_s = e["s"] is not None and p.acc is not None
         a = self._filtered(e, "a", e["a"], p, False).copy()
         s = self._filtered(e, "s", e["s"], p, True).copy() if has_s else None
         if lin:
@@ -900,7 +900,8 @@ class FmuPlantDevice:
             if lg.device != b.device:
                 raise GapInputError(f"device is {lg.device!r}, the binding is for {b.device!r}", lg.json_path)
             for c in [c.column for c in b.commands] + [m.column for m in b.measurements
-                                                          if m.sensor.kind in ("encoder", "accelerometer", "gyroscope")]:
+                                                          if m.sensor.kind in ("encoder", "accelerometer", "gyroscope")
+                                                          and not m.optional]:
                 if c not in lg.data:
                     raise GapInputError(f"missing column the binding maps (has: {', '.join(lg.data)})", lg.csv_path, c)
             if lg.n_samples * lg.sample_time < 0.5:
@@ -915,14 +916,15 @@ class FmuPlantDevice:
         if key in self._rec_cache:
             return dict(self._rec_cache[key])
         p = dict(self._rec_first) if self._rec_first else {k: self._nominal(k) for k in self.rec_params}
-        g = self._gap_exact(logs, p)
-        # chord Gauss-Newton: the sensitivities of the starting point for every step
-        self._chord = {id(lg): self._jacobian(self._eval(lg, p)) for lg in logs}
-        self._chord_at = dict(p)
-        try:
-            p, g = self._gauss_newton(logs, p, g)
-        finally:
-            self._chord, self._chord_at = None, None
+        if self.rec_params:     # a binding without parameters: the FMU's own values, nothing to fit
+            g = self._gap_exact(logs, p)
+            # chord Gauss-Newton: the sensitivities of the starting point for every step
+            self._chord = {id(lg): self._jacobian(self._eval(lg, p)) for lg in logs}
+            self._chord_at = dict(p)
+            try:
+                p, g = self._gauss_newton(logs, p, g)
+            finally:
+                self._chord, self._chord_at = None, None
         if self._rec_first is None:
             self._rec_first = dict(p)
         for lg in logs:
