@@ -34,7 +34,9 @@ Recalibration: Gauss-Newton (chord: the Jacobian of the first point) on the ``re
 true`` parameters within [low, high], finite-difference sensitivities (one FMU instance
 initialised per perturbed parameter set), per-trial accelerometer offsets as nuisances; the
 directions the logs do not determine (e.g. a force constant without a known external force)
-keep their previous value (minimum-norm step).
+keep their previous value (minimum-norm step); in a held-out fold, the directions only the
+left-out trial determined keep the recalibration on all the fit logs, and an effect model's
+those of its own fit there (:meth:`FmuPlantDevice._add_hold`).
 
 Effects: each catalogue effect's FMU form (``FMU_FORM`` in its module,
 :mod:`cosim.gap.effects.fmu_form`) enters the linearised evaluation: command-path effects via
