@@ -252,6 +252,42 @@ def test_a_current_clip_is_recovered_and_a_log_without_one_settles_to_no_clip(fm
     assert dev.gap([clipped], nom_s, {"current_saturation": own}) == pytest.approx(dev.gap([clipped], nom_s), rel=1e-9)
 
 
+def test_a_fold_without_the_known_force_keeps_the_models_force_scale(fmu, tmp_path):
+    """A 4 ms driver lag on an axis 10 % off nominal; three trials, one with a known external
+    force (the only one that fixes the common scale of M, Kf, b, Fc). Fitted on all three the
+    lag model's nominal parameters are near the truth. In the held-out fold without the force
+    trial the same model, refitted on the other two, keeps the all-logs fit's scale (one
+    direction held, M and Kf within 2 % of that fit) and predicts the held-out force trial
+    (its gap below a quarter of the no-effect model's there); a fold with the force trial
+    holds nothing."""
+    from cosim.gap.device import split_params
+    true = {"M": 1.2 * 1.1, "Kf": 18.5 * 0.9, "b": 6.0 * 1.1, "Fc": 2.0 * 0.9}
+    push = lambda t: 6.0 * np.sin(2 * np.pi * 1.0 * t)          # noqa: E731
+    logs = [read(write_log(tmp_path / "f" / "identification-1", simulate(2.0, true, 11, lag_s=0.004))),
+            read(write_log(tmp_path / "f" / "chirp-1", simulate(2.0, true, 12, lag_s=0.004, exc_rms=0.6), "chirp")),
+            read(write_log(tmp_path / "f" / "partner-push-1", simulate(2.0, true, 13, lag_s=0.004, f_ext=push),
+                           "partner-push"))]
+    dev = device(fmu, tmp_path)
+    eff = "current_loop_lag"
+    rec = dev.recalibrate(logs)
+    prm, _ = dev.fit_effect(logs, rec, eff)
+    nom_all, _ = split_params(rec, prm)
+    for k in ("M", "Kf"):
+        assert abs(nom_all[k] / true[k] - 1) < 0.03, (k, nom_all)
+    for out in (2, 0):
+        fold, held = [lg for j, lg in enumerate(logs) if j != out], [logs[out]]
+        rf = dev.recalibrate(fold)
+        p2, _ = dev.fit_effect(fold, rf, eff)
+        nom, own = split_params(rf, p2)
+        if out == 2:
+            for k in ("M", "Kf"):
+                assert abs(nom[k] / nom_all[k] - 1) < 0.02, (k, nom, nom_all)
+            assert dev.gap(held, nom, {eff: own}) < 0.25 * dev.gap(held, rf)
+            assert dev._held_last == 1
+        else:
+            assert dev._held_last == 0
+
+
 @pytest.mark.skipif(not (FOREIGN / "labels.json").is_file(), reason="foreign-dev data absent")
 def test_cli_end_to_end_on_a_foreign_dev_case(fmu, tmp_path):
     """``cosim gap diagnose --plant --binding`` on the first 2.5 s of each log of foreign-dev's

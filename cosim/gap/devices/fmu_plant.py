@@ -34,7 +34,9 @@ Recalibration: Gauss-Newton (chord: the Jacobian of the first point) on the ``re
 true`` parameters within [low, high], finite-difference sensitivities (one FMU instance
 initialised per perturbed parameter set), per-trial accelerometer offsets as nuisances; the
 directions the logs do not determine (e.g. a force constant without a known external force)
-keep their previous value (minimum-norm step).
+keep their previous value (minimum-norm step); in a held-out fold, the directions only the
+left-out trial determined keep the recalibration on all the fit logs, and an effect model's
+those of its own fit there (:meth:`FmuPlantDevice._add_hold`).
 
 Effects: each catalogue effect's FMU form (``FMU_FORM`` in its module,
 :mod:`cosim.gap.effects.fmu_form`) enters the linearised evaluation: command-path effects via
@@ -103,6 +105,11 @@ RIDGE = 1e-2
 #: for a command-path effect that the recalibration had absorbed in the mass (a 33 Hz driver
 #: lag: M at its bound, 20 % off) is of the order of the effect itself
 RELIN_REL, RELIN_ROUNDS = 0.02, 2
+#: in a held-out fold, a direction of the nominal parameters about which the fold's logs give
+#: less than this fraction of the information they give about their best-determined one
+#: (relative to what all the fit logs give about each) is the left-out trial's: it keeps the
+#: model's value on all the fit logs (:meth:`FmuPlantDevice._add_hold`)
+HOLD_FRACTION = 0.1
 
 
 def fmu_forms() -> dict[str, Any]:
@@ -282,6 +289,11 @@ class FmuPlantDevice:
         self._t_created = time.perf_counter()
         self._dropped: dict[str, int] = {}
         self._eff_cal: dict[tuple, tuple[frozenset, dict[str, float], dict[str, float]]] = {}
+        self._hold: tuple[dict[str, float], tuple] | None = None
+        self._last_info: tuple | None = None
+        self._held_last = 0
+        self._rec_info: tuple | None = None
+        self._rec_first_ids: frozenset | None = None
 
     def _map_states(self, binding: PlantBinding) -> None:
         """Which FMU states the measured motion sets, and the others (internal, integrated).
@@ -843,6 +855,13 @@ class FmuPlantDevice:
                     G[bi, bi] += pw * pw
                     used[bi] |= pw != 0
                     offs.append((bi, pw))
+        nom_idx = [i for i, c in enumerate(names) if c.startswith(NOMINAL_PREFIX)]
+        if refit and nom_idx:
+            # what these logs tell about the nominal parameters, the other columns profiled out
+            S, nom_names = self._information(G, used, nom_idx, names)
+            self._last_info = (nom_names, S)
+            if self._hold is not None:
+                self._add_hold(G, Ab, used, nom_idx, nom_names, S, params)
         if refit and cfg and RIDGE > 0:
             # an effect fit re-fits the nominal parameters: each is pulled to its current value
             # (RIDGE per unit relative change), so that a direction the logs barely determine
@@ -851,7 +870,7 @@ class FmuPlantDevice:
             at = self._chord_at or params
             for i, c in enumerate(names):
                 if c.startswith(NOMINAL_PREFIX):
-                    rr = RIDGE / max(abs(float(at[c[len(NOMINAL_PREFIX):]])), 1e-300)
+                    rr = RIDGE / self._unit(c[len(NOMINAL_PREFIX):], at)
                     G[i, i] += rr * rr
                     used[i] |= rr != 0
         used = np.flatnonzero(used)
@@ -859,10 +878,9 @@ class FmuPlantDevice:
         # them): a direction the logs do not determine (M, Kf, b, Fc scaled together without
         # a known external force) has a vanishing singular value there and stays where it is
         nrm = np.sqrt(np.diag(G)).copy()
-        nom_idx = [i for i, c in enumerate(names) if c.startswith(NOMINAL_PREFIX)]
         if nom_idx:
             at = self._chord_at or params       # the chord's point: the scaling of its Jacobian
-            rel = np.array([abs(float(at[names[i][len(NOMINAL_PREFIX):]])) for i in nom_idx])
+            rel = np.array([self._unit(names[i][len(NOMINAL_PREFIX):], at) for i in nom_idx])
             top = max(float(np.max(nrm[nom_idx] * rel)), 1e-300)
             nrm[nom_idx] = top / np.maximum(rel, 1e-300)
         th = np.zeros(ncol)
@@ -891,6 +909,68 @@ class FmuPlantDevice:
         coef = {c: float(th[i]) for i, c in enumerate(names)}
         return gap, coef, per
 
+    def _scale(self, k: str) -> float:
+        """The fixed unit of the nominal parameter ``k`` in which the logs' information about the
+        nominal parameters is compared between a fold and all the fit logs: the binding's
+        nominal's magnitude (the range's width for a nominal of 0)."""
+        nom = abs(self._nominal(k))
+        if nom == 0:
+            lo, hi = self._bounds[k]
+            nom = abs(float(hi) - float(lo)) if math.isfinite(float(hi) - float(lo)) else 1.0
+        return nom
+
+    def _information(self, G: np.ndarray, used: np.ndarray, nom_idx: list[int], names: list[str]):
+        """The normal equations' information about the nominal parameters with every other free
+        column (effect coefficients, the per-trial offsets) profiled out (the Schur complement),
+        in the parameters' fixed units (:meth:`_scale`); and the parameters' names."""
+        nom_names = tuple(names[i][len(NOMINAL_PREFIX):] for i in nom_idx)
+        oth = [i for i in range(G.shape[0]) if used[i] and i not in nom_idx]
+        S = G[np.ix_(nom_idx, nom_idx)].copy()
+        if oth:
+            C = G[np.ix_(nom_idx, oth)]
+            S -= C @ np.linalg.pinv(G[np.ix_(oth, oth)], rcond=1e-12, hermitian=True) @ C.T
+        u = np.array([self._scale(k) for k in nom_names])
+        S = 0.5 * (S + S.T) * np.outer(u, u)
+        return S, nom_names
+
+    def _add_hold(self, G, Ab, used, nom_idx, nom_names, S, params) -> None:
+        """A held-out fold: the directions of the nominal parameters that the left-out trial
+        determined hold this model's values on all the fit logs (``self._hold``: target values and
+        the information all the fit logs gave, :meth:`_information`); the others are the
+        fold's own.
+
+        Those directions are the generalised eigenvectors of the fold's information ``S`` against
+        all the logs' ``S_all`` whose eigenvalue (the fraction of the information the fold's own
+        logs give) is below ``HOLD_FRACTION`` of the largest: without the trial with a known
+        external force, the common scale of the plant's forces (eigenvalue ~0). Each such
+        component ``c = v' S_all z`` is pulled to the target's with a weight equal to the largest
+        eigenvalue of ``S``: the fold's data barely move it."""
+        target, S_all = self._hold
+        ref_names, S_ref = S_all
+        if not all(k in ref_names and k in target for k in nom_names):
+            return
+        ix = [ref_names.index(k) for k in nom_names]
+        Sr = S_ref[np.ix_(ix, ix)]
+        top = float(np.max(np.linalg.eigvalsh(S))) if S.size else 0.0
+        tr = float(np.trace(Sr))
+        if not (top > 0 and tr > 0):
+            return
+        from scipy.linalg import eigh
+        Srr = Sr + 1e-12 * tr / len(ix) * np.eye(len(ix))
+        mu, V = eigh(S, Srr)
+        held = mu < HOLD_FRACTION * float(np.max(mu))
+        self._held_last = int(held.sum())
+        if not held.any():
+            return
+        u = np.array([self._scale(k) for k in nom_names])
+        C = (Srr @ V[:, held]).T                    # rows: the held components, in z = dp / u
+        C /= np.linalg.norm(C, axis=1, keepdims=True)
+        zt = np.array([(float(target[k]) - float(params[k])) / u[j] for j, k in enumerate(nom_names)])
+        Cd = C / u                                  # the same rows in dp
+        G[np.ix_(nom_idx, nom_idx)] += top * (Cd.T @ Cd)
+        Ab[nom_idx] += top * (Cd.T @ (C @ zt))
+        used[nom_idx] = True
+
     # ------------------------------------------------------------------ protocol
     def check_logs(self, fit: Sequence[TrialLog], test: Sequence[TrialLog]) -> None:
         if not fit:
@@ -916,19 +996,30 @@ class FmuPlantDevice:
         if key in self._rec_cache:
             return dict(self._rec_cache[key])
         p = dict(self._rec_first) if self._rec_first else {k: self._nominal(k) for k in self.rec_params}
+        ids = frozenset(id(lg) for lg in logs)
+        fold = self._rec_first_ids is not None and ids < self._rec_first_ids and self._rec_info is not None
         if self.rec_params:     # a binding without parameters: the FMU's own values, nothing to fit
             g = self._gap_exact(logs, p)
             # chord Gauss-Newton: the sensitivities of the starting point for every step
             self._chord = {id(lg): self._jacobian(self._eval(lg, p)) for lg in logs}
             self._chord_at = dict(p)
+            # a held-out fold holds the directions only the left-out trial determined at the
+            # recalibration on all the fit logs (as each effect model's fold holds them at that
+            # model's own fit there: :meth:`_add_hold`)
+            self._hold = (dict(self._rec_first), self._rec_info) if fold else None
             try:
                 p, g = self._gauss_newton(logs, p, g)
             finally:
-                self._chord, self._chord_at = None, None
-        if self._rec_first is None:
-            self._rec_first = dict(p)
+                self._chord, self._chord_at, self._hold = None, None, None
         for lg in logs:
             self._anchor(lg, p)
+        if self._rec_first is None:
+            self._rec_first = dict(p)
+            self._rec_first_ids = ids
+            if self.rec_params:
+                # the information all the fit logs give about the nominal parameters there
+                self._solve(logs, p, {}, True)
+                self._rec_info = self._last_info
         self._rec_cache[key] = dict(p)
         return dict(p)
 
@@ -967,6 +1058,13 @@ class FmuPlantDevice:
         for lg in logs:
             self._eval(lg, p)
         return self._solve(logs, p, {}, False)[0]
+
+    def _unit(self, k: str, at: Mapping[str, float]) -> float:
+        """The unit of a relative change of the nominal parameter ``k`` at ``at``: its value
+        there, but not below its binding nominal's magnitude (a parameter the recalibration
+        pushed to a bound near 0 would otherwise make a change back to its nominal cost
+        100x its relative size); the range's width for a nominal of 0."""
+        return max(abs(float(at[k])), self._scale(k), 1e-300)
 
     def _nominal(self, k: str) -> float:
         return next(p.nominal for p in self.b.parameters if p.name == k)
@@ -1115,53 +1213,65 @@ class FmuPlantDevice:
     def fit_effects(self, logs, params, effects, descend: bool = True):
         """Fit ``effects`` jointly with the nominal parameters, linearised at ``params``; when
         the nominal parameters move by more than ``RELIN_REL``, again linearised where they moved
-        to (at most ``RELIN_ROUNDS`` times; the result with the lower exact gap is kept)."""
-        out, g = self._fit_effects_at(logs, params, effects, descend)
-        # a command-path effect changes what the linearisation leaves out (d acc / d command
-        # times the change of the command, which a lag or a delay makes of the order of the
-        # command itself); a force-path effect that the recalibration had absorbed in the
-        # nominal parameters moves them far too (a tilt absorbed in the force constant), and
-        # the test logs' gap is evaluated exactly there (docs/decisions.md). Not for a fit that
-        # does not lower the gap, nor for the quick joint fits that only rank a pair's second
-        # effect (descend=False)
-        rounds = RELIN_ROUNDS if descend and g < self.gap(logs, params) else 0
-        for _ in range(rounds):
-            nom0, _ = self._split_all(params, {})
+        to (at most ``RELIN_ROUNDS`` times; a round is kept when it lowers the exact gap).
+
+        A held-out fold (a strict subset of the logs this model was first fitted on) starts from
+        the fold's recalibration times the ratio by which this model's fit on all the fit logs
+        moved the nominal parameters from the recalibration there, and holds the directions of
+        the nominal parameters that only the left-out trial determined at that fit's values
+        (:meth:`_add_hold`: without the trial with a known external force, the common scale of
+        the plant's forces); the directions the fold determines are its own."""
+        ids = frozenset(id(lg) for lg in logs)
+        own_cal = self._eff_cal.get(tuple(effects))
+        fold = own_cal is not None and ids < own_cal[0]
+        rec0 = {k: float(params[k]) for k in self.rec_params}
+        if fold:
+            eff_all, rec_all, info_all = own_cal[1], own_cal[2], own_cal[3]
+            # (a value the engine already set to this model's own, its ``kt``, is kept)
+            params = dict(params, **{k: float(params[k]) * eff_all[k] / rec_all[k] for k in eff_all
+                                     if rec_all.get(k) and k in params and float(params[k]) != eff_all[k]})
+            self._hold = (dict(eff_all), info_all) if info_all is not None else None
+        try:
+            out, g, info = self._fit_effects_at(logs, params, effects, descend)
+            # a command-path effect changes what the linearisation leaves out (d acc / d command
+            # times the change of the command, which a lag or a delay makes of the order of the
+            # command itself); a force-path effect that the recalibration had absorbed in the
+            # nominal parameters moves them far too (a tilt absorbed in the force constant), and
+            # the test logs' gap is evaluated exactly there (docs/decisions.md). Not for a fit that
+            # does not lower the gap, nor for the quick joint fits that only rank a pair's second
+            # effect (descend=False)
+            rounds = RELIN_ROUNDS if descend and g < self.gap(logs, params) else 0
+            for _ in range(rounds):
+                nom0, _ = self._split_all(params, {})
+                first = next(iter(out.values()), {})
+                nom1 = {k: float(np.clip(first.get(NOMINAL_PREFIX + k, nom0[k]), *self._bounds[k]))
+                        for k in self.rec_params}
+                moved = max((abs(nom1[k] - float(nom0[k])) / max(abs(float(nom0[k])), 1e-12)
+                             for k in self.rec_params), default=0.0)
+                if moved <= RELIN_REL:
+                    break
+                for lg in logs:
+                    self._anchor(lg, nom1)
+                # the exact gap of the current result at its own nominal point, then the fit from there
+                g = self.gap(logs, nom1, out)
+                params = dict(params, **nom1)
+                # the shapes searched near those found (the hints), not descended jointly again
+                out2, g2, info2 = self._fit_effects_at(logs, params, effects, False)
+                if not g2 < g:
+                    break
+                out, g, info = out2, g2, info2
+        finally:
+            self._hold = None
+        if not fold:
             first = next(iter(out.values()), {})
-            nom1 = {k: float(np.clip(first.get(NOMINAL_PREFIX + k, nom0[k]), *self._bounds[k])) for k in self.rec_params}
-            moved = max((abs(nom1[k] - float(nom0[k])) / max(abs(float(nom0[k])), 1e-12) for k in self.rec_params),
-                        default=0.0)
-            if moved <= RELIN_REL:
-                break
-            for lg in logs:
-                self._anchor(lg, nom1)
-            # the exact gap of the current result at its own nominal point, then the fit from there
-            g = self.gap(logs, nom1, out)
-            params = dict(params, **nom1)
-            # the shapes searched near those found (the hints), not descended jointly again
-            out2, g2 = self._fit_effects_at(logs, params, effects, False)
-            if not g2 < g:
-                break
-            out, g = out2, g2
+            self._eff_cal[tuple(effects)] = (ids, {k: float(first[NOMINAL_PREFIX + k]) for k in self.rec_params
+                                                   if NOMINAL_PREFIX + k in first}, rec0, info)
         return out, g
 
     def _fit_effects_at(self, logs, params, effects, descend: bool = True):
+        """One fit of ``effects`` linearised at ``params`` (:meth:`fit_effects`): (effects' parameters
+        with the refitted nominal ones, gap, the logs' information about the nominal parameters)."""
         nom, _ = self._split_all(params, {})
-        # a held-out fold (a strict subset of the logs this model was first fitted on) starts
-        # from, and is pulled to, the fold's recalibration times the ratio by which this model's
-        # fit on all the fit logs moved the nominal parameters from the recalibration there: a
-        # direction a fold cannot determine (the common scale of the plant's forces without the
-        # trial with a known external force) then keeps the model's own value, not the no-effect
-        # recalibration's, which the unmodelled effect biased (the engine's ``kt`` for a parameter
-        # named Kt, generalised); a determined one stays the fold's own (nothing of the held-out
-        # trial leaks in through the start an effect fit is pulled to)
-        ids = frozenset(id(lg) for lg in logs)
-        own_cal = self._eff_cal.get(tuple(effects))
-        if own_cal is not None and ids < own_cal[0]:
-            eff_all, rec_all = own_cal[1], own_cal[2]
-            # (a value the engine already set to this model's own, its ``kt``, is kept)
-            nom = dict(nom, **{k: float(nom[k]) * eff_all[k] / rec_all[k] for k in eff_all
-                               if rec_all.get(k) and k in nom and float(nom[k]) != eff_all[k]})
         pk = tuple(id(lg) for lg in logs) + tuple(round(float(nom[k]), 10) for k in self.rec_params)
         cfg = {}
         for e in effects:                       # each alone first (cached: pairs reuse it)
@@ -1201,13 +1311,7 @@ class FmuPlantDevice:
                 ctx = ctx or self._ctx_all(logs)
                 cfg[e] = dict(st(ctx, cfg[e]))
         g, coef, _ = self._fit_cfg(logs, nom, cfg)
-        packed = self._pack(nom, cfg, coef)
-        if own_cal is None or not ids < own_cal[0]:
-            first = next(iter(packed.values()), {})
-            self._eff_cal[tuple(effects)] = (ids, {k: float(first[NOMINAL_PREFIX + k]) for k in self.rec_params
-                                                   if NOMINAL_PREFIX + k in first},
-                                             {k: float(nom[k]) for k in self.rec_params})
-        return packed, g
+        return self._pack(nom, cfg, coef), g, self._last_info
 
     def _over_budget(self, what: str) -> bool:
         """True (and ``what`` counted as dropped) once the diagnosis has run longer than
