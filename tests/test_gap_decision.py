@@ -64,6 +64,25 @@ def test_a_signal_left_unexplained_makes_unknown_or_adds_it():
     assert decide(ev, DEFAULTS.with_(signal_z_limit=20.0))["selected"] == ["current_loop_lag"]
 
 
+def test_an_effect_that_spoils_a_signal_it_acts_on_is_not_the_explanation():
+    """gap-dev case-12's evidence through the plant FMU (a 2-sample encoder delay, outside the
+    catalogue): an actuator delay brings the encoder's signal from 38 to 3.8 x its floor held
+    out but the accelerometer's from 5.7 to 11.8 x: the delay is not what the logs show."""
+    base = (0.2, 0.2, 0.2)
+    delay = _single(base, (0.06, 0.06, 0.06), z={"i_cmd": 3.8, "acc_meas": 11.8, "acc_dc": 1.0})
+    ev = _ev({"actuator_delay": delay}, base_z={"i_cmd": 38.0, "acc_meas": 5.7, "acc_dc": 1.0})
+    ev["acts_on"]["actuator_delay"] = ["i_cmd", "acc_meas"]
+    assert decide(ev, DEFAULTS)["selected"] == ["actuator_delay", "unknown"]      # the rule off (1e9)
+    d = decide(ev, DEFAULTS.with_(worse_signal_factor=1.5))
+    assert d["selected"] == ["unknown"] and d["selected_before_worse_check"] == ["actuator_delay", "unknown"]
+    assert d["signals_made_worse"] == {"acc_meas": {"without": 5.7, "with": 11.8}}
+    # 11.8 / 5.7 = 2.07: a factor above it keeps the delay; so does a signal left below the limit
+    assert decide(ev, DEFAULTS.with_(worse_signal_factor=2.2))["selected"] == ["actuator_delay", "unknown"]
+    ev["singles"]["actuator_delay"]["z"]["acc_meas"] = 3.9
+    ev["base_z"]["acc_meas"] = 1.0
+    assert decide(ev, DEFAULTS.with_(worse_signal_factor=1.5))["selected"] == ["actuator_delay"]
+
+
 def test_an_effect_on_signals_already_at_their_floor_is_not_selected():
     base = (0.1, 0.1, 0.1)
     drift = _single(base, (0.08, 0.08, 0.08), z={"i_cmd": 1.0, "acc_meas": 1.0, "acc_dc": 0.5})

@@ -203,6 +203,15 @@ def decide(ev: Mapping[str, Any], th: Thresholds) -> dict[str, Any]:
                 effective = []
             else:
                 selected = selected + ["unknown"]
+    base_z = ev.get("base_z") or {}
+    if effective and entry is not None and entry.get("z") and th.worse_signal_factor < 1e8 and acts_map is not None:
+        acts = set().union(*[set(acts_map.get(e, ())) for e in effective])
+        worse = {k: (base_z[k], v) for k, v in entry["z"].items()
+                 if k in acts and k in base_z and v > th.signal_z_limit and v >= th.worse_signal_factor * base_z[k]}
+        if worse:
+            res["signals_made_worse"] = {k: {"without": b, "with": w} for k, (b, w) in worse.items()}
+            res["selected_before_worse_check"] = list(selected)
+            selected, effective = ["unknown"], []
     if effective and "unknown" in selected and floor is not None and th.unknown_rest_ratio < 1e8 \
             and resid > th.signal_z_limit * floor:
         # a large rest (held out above signal_z_limit x the floor; a clip that only one trial

@@ -549,7 +549,7 @@ def run_diagnosis(device: GapDevice, fit: Sequence[TrialLog], test: Sequence[Tri
     out["heldout_residual_gap"] = dec["heldout_residual_gap"]
     out["gap_floor"] = dec["gap_floor"]
     for k in ("heldout_signal_z", "unexplained_signals", "selected_before_signal_check", "heldout_rest_over_removed",
-              "selected_before_rest_check", "ambiguous",
+              "selected_before_rest_check", "signals_made_worse", "selected_before_worse_check", "ambiguous",
               "ambiguity", "decision_notes"):
         if k in dec:
             out[k] = dec[k]
@@ -698,8 +698,9 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
     """The diagnosis of a user's own plant FMU (``--plant``/``--binding``): the same
     ``diagnosis.json``/``report.html`` as :func:`diagnose`, the device built from the FMU and
     its binding (:class:`cosim.gap.devices.fmu_plant.FmuPlantDevice`). Thresholds: the
-    engine's cross-validated ones (:data:`cosim.gap.devices.fmu_plant.THRESHOLDS_OF`) unless
-    the binding's device has its own. Raises :class:`GapInputError` on bad input (nothing
+    binding's device's cross-validated ones if it has them, else the engine's
+    (:data:`cosim.gap.devices.fmu_plant.THRESHOLDS_OF`), with the plant path's a-priori
+    rules (``THRESHOLD_OVERRIDES``) on top. Raises :class:`GapInputError` on bad input (nothing
     is written then)."""
     from .binding import load_binding
     from .devices.fmu_plant import THRESHOLD_OVERRIDES, THRESHOLDS_OF, FmuPlantDevice
@@ -714,13 +715,16 @@ def diagnose_plant(fmu_path: str | os.PathLike, binding_path: str | os.PathLike,
     _check_devices(device.name, fit, test)
     th = kw.pop("thresholds", None)
     chosen = None
-    if th is None and not provenance_for(device.name).startswith("bench"):
-        th, chosen = thresholds_for(THRESHOLDS_OF).with_(**THRESHOLD_OVERRIDES), provenance_for(THRESHOLDS_OF)
+    if th is None:
+        # the device's own cross-validated thresholds when it has them, else the engine's; the
+        # a-priori rules for a plant FMU on top either way: the evidence is the plant path's
+        base = device.name if provenance_for(device.name).startswith("bench") else THRESHOLDS_OF
+        th, chosen = thresholds_for(base).with_(**THRESHOLD_OVERRIDES), (base, provenance_for(base))
     from .fmu_me import blas_threads
     with blas_threads(1):          # thousands of small products: threads only wait
         result, extras = run_diagnosis(device, fit, test, thresholds=th, **kw)
     if chosen is not None and "thresholds" in result:
-        result["thresholds"]["chosen_by"] = (f"those of {THRESHOLDS_OF} (cross-validated): {chosen}; set a priori "
+        result["thresholds"]["chosen_by"] = (f"those of {chosen[0]} (cross-validated): {chosen[1]}; set a priori "
                                              f"for a user's plant: {THRESHOLD_OVERRIDES}")
     result["plant"] = {"fmu": str(fmu_path), "binding": str(binding_path),
                        "signals": device.signal_units()}

@@ -70,6 +70,12 @@ class Thresholds:
     #: energy it removed: the named effect is then the smaller part of what the logs show
     #: (1e9: never)
     unknown_rest_ratio: float = 1e9
+    #: ``unknown`` alone when the selection leaves a comparison signal it acts on above
+    #: ``signal_z_limit`` and at least this factor worse held out than without any effect:
+    #: an effect that fits one signal by spoiling another is not what the logs show (an
+    #: encoder delay fitted as an actuator delay moves the predicted acceleration away from
+    #: the accelerometer's); 1e9: never
+    worse_signal_factor: float = 1e9
 
     def with_(self, **kw: float) -> "Thresholds":
         return replace(self, **kw)

@@ -85,8 +85,9 @@ THRESHOLDS_OF = "ballscrew-1dof"
 #: ``unknown`` alone when the selection leaves more held-out gap energy above the floor than it
 #: removed (``Thresholds.unknown_rest_ratio``): an effect outside the catalogue that shares a
 #: part with a catalogue effect (a position-periodic force beside a drag) is not named after
-#: that part
-THRESHOLD_OVERRIDES = {"unknown_rest_ratio": 1.0}
+#: that part; and ``unknown`` alone when the selection leaves a signal it acts on above the
+#: limit and 1.5x worse held out than without any effect (``Thresholds.worse_signal_factor``)
+THRESHOLD_OVERRIDES = {"unknown_rest_ratio": 1.0, "worse_signal_factor": 1.5}
 
 #: fraction of the sample rate of the state-smoothing and the comparison low-pass (as the
 #: ball-screw device: 200 Hz and 100 Hz at 1 kHz)
