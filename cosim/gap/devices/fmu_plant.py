@@ -475,7 +475,8 @@ class FmuPlantDevice:
                                xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
                                xd_mid=self.dist_gain * 0.5 * (float(np.min(xs)) + float(np.max(xs))) + self.dist_offset,
                                specific=bool(self.motion is not None and self.motion.sensor.specific_force),
-                               g=self._g_out, vd=self.dist_gain * p.v, f_dist=self._f_dist(p))
+                               g=self._g_out, vd=self.dist_gain * p.v, f_dist=self._f_dist(p),
+                               speed_reading=bool(self.motion is not None and self.motion.sensor.kind == "gyroscope"))
 
     def _f_dist(self, p: _Prep) -> np.ndarray:
         """The known external force (torque) at the disturbance's input (FMU units; 0 without one)."""
@@ -496,6 +497,7 @@ class FmuPlantDevice:
                                v_rest=max(p.cache["v_rest"] for p in ps),
                                v_scale=max(p.cache["v_scale"] for p in ps),
                                x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
+                               a_scale=abs(self.dist_gain) * max(float(np.percentile(np.abs(p.a_enc), 95)) for p in ps),
                                u_abs_q=sorted(set(v for v in qs if v > 0)), u_abs_max=float(np.max(u)))
 
     def _m_eff(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None) -> float | None:
@@ -719,9 +721,15 @@ class FmuPlantDevice:
                               e["Gu"][0][m] if e.get("Gu") else None)}
         if has_s:
             for name, shape, f in forms:          # the filters commute: transform the filtered pieces
-                if f.kind == "sensed_point":
+                if f.kind == "sensed_point" and f.transform is not None:
                     s = f.transform(s, shape, p.ts)
                     cols_s = {k: f.transform(c, shape, p.ts) for k, c in cols_s.items()}
+            for name, shape, f in forms:          # the second body's own motion, simulated
+                if f.kind == "sensed_point" and f.body is not None:
+                    key = ("body", name, tuple(sorted(shape.items())))
+                    if key not in p.cache:
+                        p.cache[key] = self._sensor(self._reading_per_point(e, p) * f.body(self._ctx(p), shape), p)
+                    s = s + p.cache[key]
             for name, shape, f in forms:          # the sensed body's own response to the forces on it
                 if f.kind == "sensed_point" and f.columns is not None:
                     key = ("sensed", name, tuple(sorted(shape.items())))
@@ -738,6 +746,24 @@ class FmuPlantDevice:
             cs["bias"] = np.ones(int(m.sum()))
             out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e.get("Gs") else None)
         return out
+
+    def _reading_per_point(self, e: dict, p: _Prep) -> float:
+        """The motion sensor's reading per unit acceleration (a gyroscope: speed) of the
+        disturbance's point, read from the plant FMU itself: the least-squares slope of its
+        predicted reading on its predicted acceleration (speed) there, at the evaluation ``e``
+        (1 for an accelerometer in m/s^2 on a point measured in m; a radius for one on an arm
+        measured in rad). Kept per log."""
+        k = p.cache.get("reading_per_point")
+        if k is None:
+            if self.motion is not None and self.motion.sensor.kind == "gyroscope":
+                z = self.dist_gain * p.v
+            else:
+                z = self.dist_gain * np.asarray(e["a"], float)
+            y = np.asarray(e["s"], float)
+            z, y = z - z.mean(), y - y.mean()
+            zz = float(z @ z)
+            k = p.cache["reading_per_point"] = float(z @ y) / zz if zz > 0 else 1.0
+        return k
 
     def _sensor_columns(self, f, p: _Prep, shape, s_filtered: np.ndarray) -> dict[str, np.ndarray]:
         """A sensor effect's columns, filtered like the reading: a column proportional to the
@@ -1172,8 +1198,10 @@ class FmuPlantDevice:
                     # them (five grid points around it), then refine
                     key = self.forms[self._alias.get(e, e)].refine
                     if key is not None:
-                        order = sorted(range(len(grid)), key=lambda i: abs(math.log(max(grid[i].get(key, 1.0), 1e-300))
-                                                                           - math.log(max(hint.get(key, 1.0), 1e-300))))
+                        keys = (key,) if isinstance(key, str) else tuple(key)
+                        order = sorted(range(len(grid)), key=lambda i: sum(
+                            abs(math.log(max(grid[i].get(k, 1.0), 1e-300)) - math.log(max(hint.get(k, 1.0), 1e-300)))
+                            for k in keys))
                         grid = [grid[i] for i in sorted(order[:5])]
                 best = None
                 for sh in grid:
@@ -1225,11 +1253,26 @@ class FmuPlantDevice:
 
     def _refine(self, logs, nom, cfg, e, grid):
         key = self.forms[self._alias.get(e, e)].refine
+        if isinstance(key, tuple):
+            # several shape parameters: each refined in turn between its grid neighbours
+            for k in key:
+                cfg = self._refine_key(logs, nom, cfg, e, grid, k)
+            return cfg
+        return self._refine_key(logs, nom, cfg, e, grid, key)
+
+    def _refine_key(self, logs, nom, cfg, e, grid, key):
         if key is None or len(grid) < 2 or self._over_budget("shape refinement"):
             return cfg
         vals = sorted({float(s[key]) for s in grid})
-        i = vals.index(float(cfg[e][key]))
+        cur = float(cfg[e][key])
+        if cur not in vals:                     # a shape off the grid (given, not searched) is kept
+            return cfg
+        i = vals.index(cur)
         lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]
+        if cur <= 0:                            # a parameter's "none" (0) is kept
+            return cfg
+        if lo <= 0:                             # the neighbour below is "none": as far below as the one above
+            lo = cur * cur / hi if hi > cur else cur
         if hi <= lo:
             return cfg
         base = dict(cfg[e])
