@@ -470,9 +470,12 @@ class FmuPlantDevice:
 
     def _ctx(self, p: _Prep, pred: np.ndarray | None = None):
         xs = p.x
+        xd = p.cache.get("xd")
+        if xd is None:                          # one array per log: the forms' memo keys on it
+            xd = p.cache["xd"] = self.dist_gain * xs + self.dist_offset
         return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
                                x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))),
-                               xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
+                               xd=xd, dist_angle=self.dist_angle, memo=p.cache,
                                xd_mid=self.dist_gain * 0.5 * (float(np.min(xs)) + float(np.max(xs))) + self.dist_offset,
                                specific=bool(self.motion is not None and self.motion.sensor.specific_force),
                                g=self._g_out, vd=self.dist_gain * p.v, f_dist=self._f_dist(p),

@@ -5,7 +5,7 @@ import numpy as np
 
 from .base import (NFINE, BALLSCREW, BallscrewForm, Effect, Terms, fine_to_samples, nut_backlash, params,
                    uniform)
-from .fmu_form import CONTACT_HZ_PER_FS, CONTACT_ZETA, FmuForm, body_reading, guide_friction_grid, log_grid, second_body
+from .fmu_form import CONTACT_HZ_PER_FS, CONTACT_ZETA, FmuForm, body_reading, guide_friction_grid, log_grid, point_of, second_body
 
 #: damping ratio of the nut on the transmission (contact) stiffness (shared with compliance)
 ZETA_TR = ("1", 0.05, 0.0, 1.0, "damping ratio of the nut on the transmission (contact) "
@@ -65,7 +65,7 @@ def _fmu_grid(c):
 
 
 def _fmu_body(c, sh):
-    d, _ = second_body(c.xd, c.ts, sh["width"], CONTACT_HZ_PER_FS / c.ts, CONTACT_ZETA, sh["mu"])
+    d, _ = second_body(c.xd, c.ts, sh["width"], CONTACT_HZ_PER_FS / c.ts, CONTACT_ZETA, sh["mu"], **point_of(c))
     return body_reading(c, d)
 
 

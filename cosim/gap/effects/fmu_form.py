@@ -50,7 +50,7 @@ import numpy as np
 from scipy import signal
 
 __all__ = ["FmuForm", "log_grid", "period_grid", "travel_period_grid", "sample_mean", "second_body",
-           "second_body_py", "point_spline", "SECOND_BODY_SUBSTEPS", "body_reading", "guide_friction_grid",
+           "second_body_py", "point_spline", "SECOND_BODY_SUBSTEPS", "body_reading", "guide_friction_grid", "point_of",
            "CONTACT_HZ_PER_FS", "CONTACT_ZETA"]
 
 
@@ -147,9 +147,9 @@ def sample_mean(c: Any, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
 
 # ---- the sensed second body of the structural effects (backlash, transmission_compliance)
 
-#: integration steps per sample of :func:`second_body` (a coupling up to the Nyquist frequency:
-#: omega h <= pi / SECOND_BODY_SUBSTEPS)
-SECOND_BODY_SUBSTEPS = 20
+#: integration steps per sample of :func:`second_body` (omega h <= 0.25 for a coupling up to
+#: 0.4 of the sample rate, the highest resonance searched)
+SECOND_BODY_SUBSTEPS = 10
 
 
 def point_spline(x: np.ndarray, ts: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -275,8 +275,8 @@ def _second_body_c():
 
 
 def second_body(x: np.ndarray, ts: float, width: float, fn_hz: float, zeta: float, mu: float = 0.0,
-                g: np.ndarray | None = None, sub: int = SECOND_BODY_SUBSTEPS, compiled: bool = True
-                ) -> tuple[np.ndarray, np.ndarray]:
+                g: np.ndarray | None = None, sub: int = SECOND_BODY_SUBSTEPS, compiled: bool = True,
+                memo: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """A second body behind a point of known positions ``x`` (sampled every ``ts``): coupled
     to it by a spring-damper of natural frequency ``fn_hz`` and damping ratio ``zeta`` (per
     unit mass of the body: k = (2 pi fn)^2, c = 2 zeta 2 pi fn) with a dead zone of total
@@ -289,13 +289,21 @@ def second_body(x: np.ndarray, ts: float, width: float, fn_hz: float, zeta: floa
     Returns per sample ``k`` the means over [t_k - ts/2, t_k + ts/2) of the body's
     acceleration minus the point's (zero while a rigid coupling carries it) and of the guide
     friction on it (per unit mass; the static force while stuck): what a sensor on the body
-    reads besides the point's own acceleration."""
+    reads besides the point's own acceleration. ``memo``: a dict that keeps the point's spline
+    for the same array ``x`` (a search calls this for many shapes on one log)."""
+    x_in = x
     x = np.ascontiguousarray(x, float)
     n = x.size
     gg = np.zeros(n) if g is None else np.ascontiguousarray(np.broadcast_to(np.asarray(g, float), x.shape), float)
     wn = 2 * math.pi * float(fn_hz)
     k, c = wn * wn, 2 * float(zeta) * wn
-    xk, vk, ak, jk = point_spline(x, ts)
+    key = ("point_spline", float(ts))
+    if memo is not None and key in memo and memo[key][0] is x_in:
+        xk, vk, ak, jk = memo[key][1]
+    else:
+        xk, vk, ak, jk = point_spline(x, ts)
+        if memo is not None:
+            memo[key] = (x_in, (xk, vk, ak, jk))
     cf = _second_body_c() if compiled else None
     if cf is None or n < 2:
         return second_body_py(xk, vk, ak, jk, gg, ts, float(width), k, c, float(mu), int(sub))
@@ -307,6 +315,12 @@ def second_body(x: np.ndarray, ts: float, width: float, fn_hz: float, zeta: floa
        gg.ctypes.data_as(P), n, float(ts), float(width), k, c, float(mu), int(sub),
        delta.ctypes.data_as(P), fr.ctypes.data_as(P))
     return delta, fr
+
+
+def point_of(c: Any) -> dict:
+    """``second_body``'s keyword arguments common to every shape on the log of ``c``: its memo
+    (the point's spline, kept while the log's ``ctx.xd`` is the same array)."""
+    return {"memo": getattr(c, "memo", None)}
 
 
 def body_reading(c: Any, delta: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ import numpy as np
 from scipy import signal
 
 from .backlash import ZETA_TR
-from .fmu_form import FmuForm, body_reading, guide_friction_grid, log_grid, second_body
+from .fmu_form import FmuForm, body_reading, guide_friction_grid, log_grid, point_of, second_body
 from .base import (BOTH, BallscrewForm, EmpsForm, Effect, Terms, nut_force_response, nut_on_spring, params, shift,
                    uniform)
 
@@ -137,11 +137,11 @@ EFFECT = Effect(
 # its speed reaches zero; a linear spring-damper rings on through those stops
 def _fmu_grid(c):
     return [{"fn_hz": f, "zeta": z, "mu": mu} for f in log_grid(0.01 / c.ts, 0.4 / c.ts, 12)
-            for z in (0.04, 0.12, 0.4) for mu in guide_friction_grid(c)]
+            for z in (0.05, 0.2) for mu in guide_friction_grid(c)]
 
 
 def _fmu_body(c, sh):
-    d, _ = second_body(c.xd, c.ts, 0.0, sh["fn_hz"], sh["zeta"], sh.get("mu", 0.0))
+    d, _ = second_body(c.xd, c.ts, 0.0, sh["fn_hz"], sh["zeta"], sh.get("mu", 0.0), **point_of(c))
     return body_reading(c, d)
 
 
