@@ -61,7 +61,7 @@ EFFECT = Effect(
 def _fmu_grid(c):
     # play from one encoder quantum at the point to a thousand (a wider one shows plainly in the
     # encoder's own motion); guide friction none to the acceleration scale
-    return [{"width": w, "mu": mu} for w in log_grid(c.q_d, 1000 * c.q_d, 13) for mu in guide_friction_grid(c)]
+    return [{"width": w, "mu": mu} for w in log_grid(c.q_d, 1000 * c.q_d, 9) for mu in guide_friction_grid(c)]
 
 
 def _fmu_body(c, sh):

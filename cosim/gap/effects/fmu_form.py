@@ -339,8 +339,9 @@ CONTACT_HZ_PER_FS, CONTACT_ZETA = 0.25, 0.5
 
 
 def guide_friction_grid(c: Any) -> tuple[float, ...]:
-    """The second body's guide friction per unit mass searched: none, and 0.1, 0.3, 1 times the
-    acceleration scale at the point (``c.a_scale``): a friction far below the accelerations
-    never holds the body, one far above holds it wherever the coupling leaves it."""
+    """The second body's guide friction per unit mass searched: none, and 0.3 and 1 times the
+    acceleration scale at the point (``c.a_scale``; refined between them, and down to 0.09):
+    a friction far below the accelerations never holds the body, one far above holds it
+    wherever the coupling leaves it."""
     a = float(getattr(c, "a_scale", 0.0) or 0.0)
-    return (0.0,) + tuple(r * a for r in (0.1, 0.3, 1.0) if a > 0)
+    return (0.0,) + tuple(r * a for r in (0.3, 1.0) if a > 0)
