@@ -752,20 +752,30 @@ class FmuPlantDevice:
 
     def _reading_per_point(self, e: dict, p: _Prep) -> float:
         """The motion sensor's reading per unit acceleration (a gyroscope: speed) of the
-        disturbance's point, read from the plant FMU itself: the least-squares slope of its
-        predicted reading on its predicted acceleration (speed) there, at the evaluation ``e``
-        (1 for an accelerometer in m/s^2 on a point measured in m; a radius for one on an arm
-        measured in rad). Kept per log."""
+        disturbance's point, read from the plant FMU itself at the evaluation ``e`` (1 for an
+        accelerometer in m/s^2 on a point measured in m; a radius for one on an arm measured
+        in rad). An accelerometer: the median ratio of the reading's and the point's
+        sensitivities to a constant disturbance force (the same instant, unlike the reading and
+        the acceleration themselves, which the logs' command timing puts half a sample apart);
+        a gyroscope: the least-squares slope of its predicted reading on the point's speed.
+        Kept per log."""
         k = p.cache.get("reading_per_point")
         if k is None:
+            k = 1.0
             if self.motion is not None and self.motion.sensor.kind == "gyroscope":
                 z = self.dist_gain * p.v
+                y = np.asarray(e["s"], float)
+                z, y = z - z.mean(), y - y.mean()
+                zz = float(z @ z)
+                if zz > 0:
+                    k = float(z @ y) / zz
             else:
-                z = self.dist_gain * np.asarray(e["a"], float)
-            y = np.asarray(e["s"], float)
-            z, y = z - z.mean(), y - y.mean()
-            zz = float(z @ z)
-            k = p.cache["reading_per_point"] = float(z @ y) / zz if zz > 0 else 1.0
+                self._sens(e)
+                ga = self.dist_gain * np.asarray(e["GFa"], float)
+                ok = np.abs(ga) > 1e-9 * max(float(np.max(np.abs(ga))), 1e-300)
+                if ok.any() and e.get("GFs") is not None:
+                    k = float(np.median(np.asarray(e["GFs"], float)[ok] / ga[ok]))
+            p.cache["reading_per_point"] = k
         return k
 
     def _sensor_columns(self, f, p: _Prep, shape, s_filtered: np.ndarray) -> dict[str, np.ndarray]:
