@@ -714,6 +714,12 @@ class FmuPlantDevice:
                         else:
                             cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
                                                      else self._sensor(e["GFs"] * col, p))
+        bodies = {}
+        for name, shape, f in forms:             # the sensed body's force on the plant's point
+            if f.kind == "sensed_point" and f.body is not None and has_s:
+                bodies[name] = self._body(f, name, shape, e, p)
+                if bodies[name][1] is not None:
+                    cols_a[f"{name}:m2"] = bodies[name][1][0]
         if refit:
             for k in self.rec_params:
                 cols_a[NOMINAL_PREFIX + k] = self._filtered(J, "a" + k, J["Ja"][k], p, False)
@@ -729,10 +735,10 @@ class FmuPlantDevice:
                     cols_s = {k: f.transform(c, shape, p.ts) for k, c in cols_s.items()}
             for name, shape, f in forms:          # the second body's own motion, simulated
                 if f.kind == "sensed_point" and f.body is not None:
-                    key = ("body", name, tuple(sorted(shape.items())))
-                    if key not in p.cache:
-                        p.cache[key] = self._sensor(self._reading_per_point(e, p) * f.body(self._ctx(p), shape), p)
-                    s = s + p.cache[key]
+                    rd, reaction = bodies[name]
+                    s = s + rd
+                    if reaction is not None:
+                        cols_s[f"{name}:m2"] = reaction[1]
             for name, shape, f in forms:          # the sensed body's own response to the forces on it
                 if f.kind == "sensed_point" and f.columns is not None:
                     key = ("sensed", name, tuple(sorted(shape.items())))
@@ -749,6 +755,23 @@ class FmuPlantDevice:
             cs["bias"] = np.ones(int(m.sum()))
             out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e.get("Gs") else None)
         return out
+
+    def _body(self, f, name: str, shape, e: dict, p: _Prep):
+        """A sensed-point form's second body on one log (kept per shape): its reading added to
+        the prediction (sensor and ``F``), and, when the form gives it, the body's force on the
+        plant's point as columns of the encoder's and the reading's predictions (through the
+        FMU's d acc / d disturbance; None otherwise)."""
+        key = ("body", name, tuple(sorted(shape.items())))
+        hit = p.cache.get(key)
+        if hit is None:
+            out = f.body(self._ctx(p), shape)
+            rd, force = out if isinstance(out, tuple) else (out, None)
+            hit = p.cache[key] = (self._sensor(self._reading_per_point(e, p) * rd, p), force)
+        rd_f, force = hit
+        if force is None:
+            return rd_f, None
+        self._sens(e)                           # (d acc / d disturbance at this evaluation)
+        return rd_f, (_sosfiltfilt(p.cache["sosF"], e["GFa"] * force), self._sensor(e["GFs"] * force, p))
 
     def _reading_per_point(self, e: dict, p: _Prep) -> float:
         """The motion sensor's reading per unit acceleration (a gyroscope: speed) of the

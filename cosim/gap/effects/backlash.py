@@ -65,8 +65,8 @@ def _fmu_grid(c):
 
 
 def _fmu_body(c, sh):
-    d, _ = second_body(c.xd, c.ts, sh["width"], CONTACT_HZ_PER_FS / c.ts, CONTACT_ZETA, sh["mu"], **point_of(c))
-    return body_reading(c, d)
+    d, fr = second_body(c.xd, c.ts, sh["width"], CONTACT_HZ_PER_FS / c.ts, CONTACT_ZETA, sh["mu"], **point_of(c))
+    return body_reading(c, d, fr)
 
 
-FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid, refine=("width", "mu"), body=_fmu_body)
+FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid, refine=("width", "mu"), body=_fmu_body, nonneg=("m2",))

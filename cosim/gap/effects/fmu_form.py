@@ -15,11 +15,13 @@ that evaluation in one of four places, which is its ``kind``:
   ``columns(ctx, shape)`` -> {coefficient: column in the sensor's unit}, where ``ctx.pred``
   is the sensor's predicted reading;
 * ``"sensed_point"``: the sensed point is a second body behind the plant's point (a
-  structure between them): ``body(ctx, shape)`` is the second body's acceleration minus the
-  point's (its speed minus the point's when ``ctx.speed_reading``: a gyroscope), in the
+  structure between them): ``body(ctx, shape)`` returns the second body's acceleration minus
+  the point's (its speed minus the point's when ``ctx.speed_reading``: a gyroscope), in the
   point's units (``ctx.xd`` its position), simulated from the measured motion
   (:func:`second_body`) and added to the plant's predicted reading (converted to the
-  reading's unit by the FMU's own ratio of its reading to its point's motion);
+  reading's unit by the FMU's own ratio of its reading to its point's motion), and the force
+  per unit body mass the body puts on the point beyond the rigid plant's (a force column at
+  the disturbance's input, coefficient ``m2`` >= 0: the body's mass; :func:`body_reading`);
   ``transform(pred, shape, ts)`` (optional) maps the plant's predicted reading linearly; its
   ``columns(ctx, shape)`` (optional) add the sensed body's linear response to the forces on
   it (in the reading's unit per unit coefficient; ``ctx.vd`` the speed and ``ctx.f_dist``
@@ -323,13 +325,15 @@ def point_of(c: Any) -> dict:
     return {"memo": getattr(c, "memo", None)}
 
 
-def body_reading(c: Any, delta: np.ndarray) -> np.ndarray:
+def body_reading(c: Any, delta: np.ndarray, fr: np.ndarray | None = None):
     """The second body's acceleration minus the point's (per-sample centred means) as the
     sensor reads it: itself for an accelerometer, the speed difference (its running integral)
-    for a gyroscope (``c.speed_reading``)."""
-    if not getattr(c, "speed_reading", False):
-        return delta
-    return (np.cumsum(delta) - 0.5 * delta) * c.ts
+    for a gyroscope (``c.speed_reading``); with the guide friction ``fr`` (per unit mass), also
+    the force the body puts on the plant's point beyond what the rigid plant charges, per unit
+    body mass: -(delta + fr) (the body's mass times its acceleration minus the point's, and
+    its guide friction, which the plant carried while the body moved with it)."""
+    rd = delta if not getattr(c, "speed_reading", False) else (np.cumsum(delta) - 0.5 * delta) * c.ts
+    return rd if fr is None else (rd, -(delta + fr))
 
 
 #: the contact of a play (:mod:`backlash`): stiff, i.e. as stiff as the samples can tell (a

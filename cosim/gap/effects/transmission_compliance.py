@@ -141,8 +141,8 @@ def _fmu_grid(c):
 
 
 def _fmu_body(c, sh):
-    d, _ = second_body(c.xd, c.ts, 0.0, sh["fn_hz"], sh["zeta"], sh.get("mu", 0.0), **point_of(c))
-    return body_reading(c, d)
+    d, fr = second_body(c.xd, c.ts, 0.0, sh["fn_hz"], sh["zeta"], sh.get("mu", 0.0), **point_of(c))
+    return body_reading(c, d, fr)
 
 
 def _fmu_columns(c, sh):
@@ -155,4 +155,4 @@ def _fmu_columns(c, sh):
 
 
 FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid, refine=("fn_hz", "mu", "zeta"), columns=_fmu_columns,
-                   nonneg=("inv_m2",), body=_fmu_body)
+                   nonneg=("inv_m2", "m2"), body=_fmu_body)
