@@ -157,8 +157,8 @@ def test_the_guide_friction_holds_the_body_until_the_contact_pushes_harder():
 def test_compliance_form_finds_the_independent_resonance_through_the_plant_fmu(tmp_path):
     """gap-dev2 case-33 (the independent simulator: a 57 Hz motor|nut resonance, its nut held
     by a guide friction), one fit log, through the package's own plant FMU as a user's: the
-    compliance form's fit finds the resonance within 5 % and a guide friction, and removes most
-    of the accelerometer's gap."""
+    compliance form's fit finds the resonance within 5 %, a guide friction and the body's mass
+    within 30 %, and removes most of the accelerometer's gap."""
     from pathlib import Path
 
     from cosim.paths import independent_dir
@@ -178,6 +178,8 @@ def test_compliance_form_finds_the_independent_resonance_through_the_plant_fmu(t
     prm, g = dev.fit_effect(logs, rec, "transmission_compliance")
     assert prm["shape.fn_hz"] == pytest.approx(fn_true, rel=0.05)
     assert prm["shape.mu"] > 0
+    # the body's mass from its force on the plant: the datasheet's nut plus handle, 0.2 kg
+    assert prm["m2"] == pytest.approx(0.2, rel=0.3)
     before = dev.gap_parts(logs, rec)[dev.sig_acc]
     after = dev.gap_parts(logs, rec, {"transmission_compliance": prm})[dev.sig_acc]
     assert after < 0.3 * before
