@@ -17,7 +17,10 @@ each case run through the command line (as the judge does), scored by the rules 
 catalogue effects, failures (non-zero exit, 300 s timeout, no or non-finite gap).
 
     .venv/bin/python bench/bench_gap_own_plant.py [--suite gap-dev emps foreign-dev]
-        [--cases case-01 ...] [--workers 2] [--write]
+        [--set gap-dev|gap-dev2] [--cases case-01 ...] [--workers 2] [--write]
+
+``--set gap-dev2`` runs the ``gap-dev`` suite on ``../shared/data/independent/gap-dev2`` (48
+devices of the same simulator, same binding) instead of ``gap-dev``.
 
 ``--write`` appends the sections to ``bench/results/gap_own_plant.txt``.
 """
@@ -152,14 +155,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--suite", nargs="*", default=["gap-dev", "emps", "foreign-dev"])
     ap.add_argument("--cases", nargs="*")
+    ap.add_argument("--set", dest="dataset", choices=("gap-dev", "gap-dev2"), default="gap-dev",
+                    help="the ball-screw data set of the gap-dev suite")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--write", action="store_true")
     a = ap.parse_args(argv)
     out = []
-    if "gap-dev" in a.suite and GAPDEV.is_dir() and BS_FMU.is_file():
+    data = SHARED / a.dataset
+    if "gap-dev" in a.suite and data.is_dir() and BS_FMU.is_file():
         sub = f" (subset: {' '.join(a.cases)})" if a.cases else ""
-        out.append(suite_cases(GAPDEV, BS_FMU, BS_BINDING, a.cases, a.workers,
-                               [f"# bench/bench_gap_own_plant.py: gap-dev (ballscrew-1dof) through "
+        out.append(suite_cases(data, BS_FMU, BS_BINDING, a.cases, a.workers,
+                               [f"# bench/bench_gap_own_plant.py: {a.dataset} (ballscrew-1dof) through "
                                 f"{BS_FMU.relative_to(ROOT)}{sub}", f"# binding {BS_BINDING.relative_to(ROOT)}"]))
         print(out[-1])
     if "emps" in a.suite and EMPS_FMU.is_file():

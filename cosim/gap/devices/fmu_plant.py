@@ -483,12 +483,16 @@ class FmuPlantDevice:
 
     def _ctx(self, p: _Prep, pred: np.ndarray | None = None):
         xs = p.x
+        xd = p.cache.get("xd")
+        if xd is None:                          # one array per log: the forms' memo keys on it
+            xd = p.cache["xd"] = self.dist_gain * xs + self.dist_offset
         return SimpleNamespace(t=p.t, ts=p.ts, x=xs, v=p.v, pred=pred, angle=self.angle,
                                x_mid=0.5 * (float(np.min(xs)) + float(np.max(xs))),
-                               xd=self.dist_gain * xs + self.dist_offset, dist_angle=self.dist_angle,
+                               xd=xd, dist_angle=self.dist_angle, memo=p.cache,
                                xd_mid=self.dist_gain * 0.5 * (float(np.min(xs)) + float(np.max(xs))) + self.dist_offset,
                                specific=bool(self.motion is not None and self.motion.sensor.specific_force),
-                               g=self._g_out, vd=self.dist_gain * p.v, f_dist=self._f_dist(p))
+                               g=self._g_out, vd=self.dist_gain * p.v, f_dist=self._f_dist(p),
+                               speed_reading=bool(self.motion is not None and self.motion.sensor.kind == "gyroscope"))
 
     def _f_dist(self, p: _Prep) -> np.ndarray:
         """The known external force (torque) at the disturbance's input (FMU units; 0 without one)."""
@@ -509,6 +513,7 @@ class FmuPlantDevice:
                                v_rest=max(p.cache["v_rest"] for p in ps),
                                v_scale=max(p.cache["v_scale"] for p in ps),
                                x_min=min(float(p.x.min()) for p in ps), x_max=max(float(p.x.max()) for p in ps),
+                               a_scale=abs(self.dist_gain) * max(float(np.percentile(np.abs(p.a_enc), 95)) for p in ps),
                                u_abs_q=sorted(set(v for v in qs if v > 0)), u_abs_max=float(np.max(u)))
 
     def _m_eff(self, logs: Sequence[TrialLog], nom: Mapping[str, float] | None) -> float | None:
@@ -722,6 +727,12 @@ class FmuPlantDevice:
                         else:
                             cols_s[f"{name}:{c}"] = (np.zeros_like(col) if (f.body_force and specific)
                                                      else self._sensor(e["GFs"] * col, p))
+        bodies = {}
+        for name, shape, f in forms:             # the sensed body's force on the plant's point
+            if f.kind == "sensed_point" and f.body is not None and has_s:
+                bodies[name] = self._body(f, name, shape, e, p)
+                if bodies[name][1] is not None:
+                    cols_a[f"{name}:m2"] = bodies[name][1][0]
         if refit:
             for k in self.rec_params:
                 cols_a[NOMINAL_PREFIX + k] = self._filtered(J, "a" + k, J["Ja"][k], p, False)
@@ -732,9 +743,15 @@ class FmuPlantDevice:
                               e["Gu"][0][m] if e.get("Gu") else None)}
         if has_s:
             for name, shape, f in forms:          # the filters commute: transform the filtered pieces
-                if f.kind == "sensed_point":
+                if f.kind == "sensed_point" and f.transform is not None:
                     s = f.transform(s, shape, p.ts)
                     cols_s = {k: f.transform(c, shape, p.ts) for k, c in cols_s.items()}
+            for name, shape, f in forms:          # the second body's own motion, simulated
+                if f.kind == "sensed_point" and f.body is not None:
+                    rd, reaction = bodies[name]
+                    s = s + rd
+                    if reaction is not None:
+                        cols_s[f"{name}:m2"] = reaction[1]
             for name, shape, f in forms:          # the sensed body's own response to the forces on it
                 if f.kind == "sensed_point" and f.columns is not None:
                     key = ("sensed", name, tuple(sorted(shape.items())))
@@ -751,6 +768,51 @@ class FmuPlantDevice:
             cs["bias"] = np.ones(int(m.sum()))
             out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e.get("Gs") else None)
         return out
+
+    def _body(self, f, name: str, shape, e: dict, p: _Prep):
+        """A sensed-point form's second body on one log (kept per shape): its reading added to
+        the prediction (sensor and ``F``), and, when the form gives it, the body's force on the
+        plant's point as columns of the encoder's and the reading's predictions (through the
+        FMU's d acc / d disturbance; None otherwise)."""
+        key = ("body", name, tuple(sorted(shape.items())))
+        hit = p.cache.get(key)
+        if hit is None:
+            out = f.body(self._ctx(p), shape)
+            rd, force = out if isinstance(out, tuple) else (out, None)
+            hit = p.cache[key] = (self._sensor(self._reading_per_point(e, p) * rd, p), force)
+        rd_f, force = hit
+        if force is None:
+            return rd_f, None
+        self._sens(e)                           # (d acc / d disturbance at this evaluation)
+        return rd_f, (_sosfiltfilt(p.cache["sosF"], e["GFa"] * force), self._sensor(e["GFs"] * force, p))
+
+    def _reading_per_point(self, e: dict, p: _Prep) -> float:
+        """The motion sensor's reading per unit acceleration (a gyroscope: speed) of the
+        disturbance's point, read from the plant FMU itself at the evaluation ``e`` (1 for an
+        accelerometer in m/s^2 on a point measured in m; a radius for one on an arm measured
+        in rad). An accelerometer: the median ratio of the reading's and the point's
+        sensitivities to a constant disturbance force (the same instant, unlike the reading and
+        the acceleration themselves, which the logs' command timing puts half a sample apart);
+        a gyroscope: the least-squares slope of its predicted reading on the point's speed.
+        Kept per log."""
+        k = p.cache.get("reading_per_point")
+        if k is None:
+            k = 1.0
+            if self.motion is not None and self.motion.sensor.kind == "gyroscope":
+                z = self.dist_gain * p.v
+                y = np.asarray(e["s"], float)
+                z, y = z - z.mean(), y - y.mean()
+                zz = float(z @ z)
+                if zz > 0:
+                    k = float(z @ y) / zz
+            else:
+                self._sens(e)
+                ga = self.dist_gain * np.asarray(e["GFa"], float)
+                ok = np.abs(ga) > 1e-9 * max(float(np.max(np.abs(ga))), 1e-300)
+                if ok.any() and e.get("GFs") is not None:
+                    k = float(np.median(np.asarray(e["GFs"], float)[ok] / ga[ok]))
+            p.cache["reading_per_point"] = k
+        return k
 
     def _sensor_columns(self, f, p: _Prep, shape, s_filtered: np.ndarray) -> dict[str, np.ndarray]:
         """A sensor effect's columns, filtered like the reading: a column proportional to the
@@ -1285,8 +1347,10 @@ class FmuPlantDevice:
                     # them (five grid points around it), then refine
                     key = self.forms[self._alias.get(e, e)].refine
                     if key is not None:
-                        order = sorted(range(len(grid)), key=lambda i: abs(math.log(max(grid[i].get(key, 1.0), 1e-300))
-                                                                           - math.log(max(hint.get(key, 1.0), 1e-300))))
+                        keys = (key,) if isinstance(key, str) else tuple(key)
+                        order = sorted(range(len(grid)), key=lambda i: sum(
+                            abs(math.log(max(grid[i].get(k, 1.0), 1e-300)) - math.log(max(hint.get(k, 1.0), 1e-300)))
+                            for k in keys))
                         grid = [grid[i] for i in sorted(order[:5])]
                 best = None
                 for sh in grid:
@@ -1332,11 +1396,26 @@ class FmuPlantDevice:
 
     def _refine(self, logs, nom, cfg, e, grid):
         key = self.forms[self._alias.get(e, e)].refine
+        if isinstance(key, tuple):
+            # several shape parameters: each refined in turn between its grid neighbours
+            for k in key:
+                cfg = self._refine_key(logs, nom, cfg, e, grid, k)
+            return cfg
+        return self._refine_key(logs, nom, cfg, e, grid, key)
+
+    def _refine_key(self, logs, nom, cfg, e, grid, key):
         if key is None or len(grid) < 2 or self._over_budget("shape refinement"):
             return cfg
         vals = sorted({float(s[key]) for s in grid})
-        i = vals.index(float(cfg[e][key]))
+        cur = float(cfg[e][key])
+        if cur not in vals:                     # a shape off the grid (given, not searched) is kept
+            return cfg
+        i = vals.index(cur)
         lo, hi = vals[max(i - 1, 0)], vals[min(i + 1, len(vals) - 1)]
+        if cur <= 0:                            # a parameter's "none" (0) is kept
+            return cfg
+        if lo <= 0:                             # the neighbour below is "none": as far below as the one above
+            lo = cur * cur / hi if hi > cur else cur
         if hi <= lo:
             return cfg
         base = dict(cfg[e])

@@ -5,6 +5,7 @@ import numpy as np
 
 from .base import (NFINE, BALLSCREW, BallscrewForm, Effect, Terms, fine_to_samples, nut_backlash, params,
                    uniform)
+from .fmu_form import CONTACT_HZ_PER_FS, CONTACT_ZETA, FmuForm, body_reading, guide_friction_grid, log_grid, point_of, second_body
 
 #: damping ratio of the nut on the transmission (contact) stiffness (shared with compliance)
 ZETA_TR = ("1", 0.05, 0.0, 1.0, "damping ratio of the nut on the transmission (contact) "
@@ -51,3 +52,21 @@ EFFECT = Effect(
                                   "c_nut_Ns_m": 2 * c.zeta_contact * math.sqrt(c.k_contact_N_m * c.m_n_kg),
                                   "play_m": ep["width"], "nut_fc_N": 1.0},
 )
+
+
+# ---- the form in the diagnosis of a user's own plant FMU: the sensed point is a second body
+# behind the plant's point (the disturbance's point) through a play of total width w and a
+# stiff contact, held by its own sticking guide friction mu (per unit mass); simulated from
+# the measured motion (fmu_form.second_body), the same machinery as transmission_compliance's
+def _fmu_grid(c):
+    # play from one encoder quantum at the point to a thousand (a wider one shows plainly in the
+    # encoder's own motion); guide friction none to the acceleration scale
+    return [{"width": w, "mu": mu} for w in log_grid(c.q_d, 1000 * c.q_d, 9) for mu in guide_friction_grid(c)]
+
+
+def _fmu_body(c, sh):
+    d, fr = second_body(c.xd, c.ts, sh["width"], CONTACT_HZ_PER_FS / c.ts, CONTACT_ZETA, sh["mu"], **point_of(c))
+    return body_reading(c, d, fr)
+
+
+FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid, refine=("width", "mu"), body=_fmu_body, nonneg=("m2",))

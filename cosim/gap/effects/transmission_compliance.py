@@ -5,7 +5,7 @@ import numpy as np
 from scipy import signal
 
 from .backlash import ZETA_TR
-from .fmu_form import FmuForm, base_excited_cached, log_grid, period_grid  # noqa: F401 (the FMU_FORM below)
+from .fmu_form import FmuForm, body_reading, guide_friction_grid, log_grid, point_of, second_body
 from .base import (BOTH, BallscrewForm, EmpsForm, Effect, Terms, nut_force_response, nut_on_spring, params, shift,
                    uniform)
 
@@ -129,24 +129,30 @@ EFFECT = Effect(
 
 
 # ---- the form in the diagnosis of a user's own plant FMU: the sensed point is a second body
-# on a spring-damper (fn, zeta on a grid) behind the plant's point
+# on a spring-damper (fn, zeta) behind the plant's point (the disturbance's point), held by its
+# own guide friction mu (per unit mass) that sticks, as the built-in form's nut
+# (base.nut_on_spring), simulated from the measured motion (fmu_form.second_body, the same
+# machinery as backlash's, without the play). Why the stick: the body stays put while the
+# point starts until the spring holds more than mu, then slides and rings, and stops dead when
+# its speed reaches zero; a linear spring-damper rings on through those stops
 def _fmu_grid(c):
-    # the damping ratio is not refined, so its grid is the built-in form's light damping (a
-    # resonance of a contact or a screw: 0.03-0.15) and two heavier values
-    return [{"fn_hz": f, "zeta": z} for f in log_grid(0.01 / c.ts, 0.4 / c.ts, 12) for z in (0.03, 0.07, 0.15, 0.3, 0.6)]
+    return [{"fn_hz": f, "zeta": z, "mu": mu} for f in log_grid(0.01 / c.ts, 0.4 / c.ts, 12)
+            for z in (0.05, 0.2) for mu in guide_friction_grid(c)]
+
+
+def _fmu_body(c, sh):
+    d, fr = second_body(c.xd, c.ts, 0.0, sh["fn_hz"], sh["zeta"], sh.get("mu", 0.0), **point_of(c))
+    return body_reading(c, d, fr)
 
 
 def _fmu_columns(c, sh):
-    # the sensed body is also driven by the forces on it (as the built-in form's nut): the known
-    # external force at the disturbance's point (coefficient 1 / its mass, in the reading's
-    # unit per force unit) and its own Coulomb guide friction (coefficient F2 / its mass),
-    # whose steps at every reversal ring the resonance; both through H(s) = s^2 / (s^2 + 2
-    # zeta wn s + wn^2), added to the base-excited motion by superposition
-    out = {"F2": nut_force_response(-np.sign(c.vd), sh["fn_hz"], sh["zeta"], c.ts)}
+    # the sensed body is also pushed by the known external force at the disturbance's point
+    # (coefficient 1 / its mass, in the reading's unit per force unit): its linear response
+    # through H(s) = s^2 / (s^2 + 2 zeta wn s + wn^2), added by superposition
     if np.any(c.f_dist):
-        out["inv_m2"] = nut_force_response(c.f_dist, sh["fn_hz"], sh["zeta"], c.ts)
-    return out
+        return {"inv_m2": nut_force_response(c.f_dist, sh["fn_hz"], sh["zeta"], c.ts)}
+    return {}
 
 
-FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid, columns=_fmu_columns, nonneg=("F2", "inv_m2"),
-                   transform=lambda a, sh, ts: base_excited_cached(a, sh["fn_hz"], sh["zeta"], ts))
+FMU_FORM = FmuForm("sensed_point", grid=_fmu_grid, refine=("fn_hz", "mu", "zeta"), columns=_fmu_columns,
+                   nonneg=("inv_m2", "m2"), body=_fmu_body)
