@@ -342,6 +342,20 @@ class FmuPlantDevice:
         self.c_pos, self.c_vel = c_pos, float(row[self.i_vel])
         self.pos_offset = float(y0[0] - c_pos * x0[i_pos])
         self.internal = tuple(k for k in range(nx) if k not in (self.i_pos, self.i_vel))
+        # a rate sensor (gyroscope) is predicted from the speed state, which the comparison sets
+        # from the smoothed encoder: its prediction carries the encoder's quantisation through
+        # the differentiation (:meth:`_noise`); d reading / d encoder speed, read from the FMU
+        self.rate_gain = 0.0
+        if self.motion is not None and self.motion.sensor.kind == "gyroscope":
+            vr_m = [self.vars.vr(self.motion.output)]
+            h = 1e-4 * max(abs(x0[self.i_vel]), 1.0)
+            xp = x0.copy()
+            xp[self.i_vel] += h
+            probe(xp)
+            s1 = f.getReal(vr_m)[0]
+            probe(x0)
+            s0 = f.getReal(vr_m)[0]
+            self.rate_gain = float((s1 - s0) / h / (self.c_pos * self.c_vel))
         # the disturbance's point (where the force-path effects act) in the encoder's terms:
         # its position = dist_gain * encoder output + dist_offset (a transmission ratio read
         # from the FMU, as the encoder's own); an output not tied to the encoder's state alone
@@ -466,6 +480,16 @@ class FmuPlantDevice:
             if self.motion.sensor.noise_rms:
                 white = max(white, 0.0)
             out[self.sig_acc] = white * float(np.mean(gF))
+            if self.rate_gain:
+                # the prediction of a rate sensor is the encoder's smoothed central-difference
+                # speed: its quantisation noise through the smoothing, the difference, the
+                # sensor's pole and F adds to the reading's own noise (the residual of a device
+                # without any effect is this noise, not a gap)
+                gv = np.abs(hs) ** 4 * (np.sin(wT) / ts) ** 2 * gF
+                bw = self.motion.sensor.bandwidth_hz
+                if bw and bw < 0.5 / ts:
+                    gv = gv / (1.0 + (f / bw) ** 2)
+                out[self.sig_acc] += self.rate_gain ** 2 * q * q / 12.0 * float(np.mean(gv))
         return out
 
     def _ctx(self, p: _Prep, pred: np.ndarray | None = None):
