@@ -253,8 +253,12 @@ def write_case(folder: Path, case_index: int, seed: int, duration_s: float = 8.0
     rng = np.random.default_rng([seed, case_index])
     name, label, effects = CASES[case_index]
     # effect sizes vary per case draw (within +-20 % of the listed ones)
-    effects = {e: {k: (v * float(rng.uniform(0.8, 1.2)) if k not in ("cycles", "theta_c") else v)
-                   for k, v in p.items()} for e, p in effects.items()}
+    def vary(k, v):
+        u = float(rng.uniform(0.8, 1.2))
+        if k in ("cycles", "theta_c"):
+            return v
+        return 1.0 + (v - 1.0) * u if k in ("scale", "fs_ratio") else v * u
+    effects = {e: {k: vary(k, v) for k, v in p.items()} for e, p in effects.items()}
     truth = draw_truth(rng)
     fa, fb = fast or (("multisine", "chirp") if rng.uniform() < 0.5 else ("chirp", "multisine"))
     plan = [("fit", "identification-1", "identification"), ("fit", f"{fa}-1", fa),

@@ -344,7 +344,11 @@ class FmuPlantDevice:
         self.internal = tuple(k for k in range(nx) if k not in (self.i_pos, self.i_vel))
         # a rate sensor (gyroscope) is predicted from the speed state, which the comparison sets
         # from the smoothed encoder: its prediction carries the encoder's quantisation through
-        # the differentiation (:meth:`_noise`); d reading / d encoder speed, read from the FMU
+        # the differentiation (:meth:`_noise`), and it is checked against the encoder's speed
+        # only (its scale, its bias), never against the dynamics. So its time derivative is a
+        # third comparison signal (``sig_rate``), predicted by the plant's acceleration times
+        # d reading / d encoder speed (read from the FMU): the gyroscope's clean rate is the
+        # dynamics signal a coarse encoder's second difference is not
         self.rate_gain = 0.0
         if self.motion is not None and self.motion.sensor.kind == "gyroscope":
             vr_m = [self.vars.vr(self.motion.output)]
@@ -356,6 +360,7 @@ class FmuPlantDevice:
             probe(x0)
             s0 = f.getReal(vr_m)[0]
             self.rate_gain = float((s1 - s0) / h / (self.c_pos * self.c_vel))
+        self.sig_rate = f"{self.motion.column}.d" if self.rate_gain else None
         # the disturbance's point (where the force-path effects act) in the encoder's terms:
         # its position = dist_gain * encoder output + dist_offset (a transmission ratio read
         # from the FMU, as the encoder's own); an output not tied to the encoder's state alone
@@ -406,7 +411,9 @@ class FmuPlantDevice:
         a_enc = signal.sosfiltfilt(sosF, add)
         acc = None
         if self.motion is not None:
-            acc = signal.sosfiltfilt(sosF, self.motion.scale * self._col(log, self.motion.column))
+            y = self.motion.scale * self._col(log, self.motion.column)
+            acc = signal.sosfiltfilt(sosF, y)
+            rate = signal.sosfiltfilt(sosF, np.gradient(y, ts)) if self.rate_gain else None
         # compared samples: away from rest (set-valued friction) and the filters' edges
         q = self.enc.sensor.resolution
         if not q:
@@ -425,7 +432,8 @@ class FmuPlantDevice:
         mask[:e] = False
         mask[n - e:] = False
         p = _Prep(log, ts, t, u, fext, xs, v, a_enc, acc, mask, {}, {"q": q, "v_rest": v_rest,
-                                                                     "v_scale": v_scale, "sosF": sosF})
+                                                                     "v_scale": v_scale, "sosF": sosF,
+                                                                     "rate": rate})
         p.noise = self._noise(p, sos_s, sosF, xe)
         self._preps[id(log)] = p
         return p
@@ -480,6 +488,8 @@ class FmuPlantDevice:
             if self.motion.sensor.noise_rms:
                 white = max(white, 0.0)
             out[self.sig_acc] = white * float(np.mean(gF))
+            if self.rate_gain:          # the reading's central difference through F
+                out[self.sig_rate] = white * float(np.mean(gF * (np.sin(wT) / ts) ** 2))
             if self.rate_gain:
                 # the prediction of a rate sensor is the encoder's smoothed central-difference
                 # speed: its quantisation noise through the smoothing, the difference, the
@@ -761,7 +771,39 @@ class FmuPlantDevice:
             cs = {k: c[m] for k, c in cols_s.items()}
             cs["bias"] = np.ones(int(m.sum()))
             out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e.get("Gs") else None)
+        if self.rate_gain:
+            out[self.sig_rate] = self._rate_signal(p, e, a, cols_a, forms)
         return out
+
+    def _rate_signal(self, p: _Prep, e: dict, a: np.ndarray, cols_a: dict, forms) -> tuple:
+        """The rate sensor's derivative signal (``sig_rate``, see :meth:`_map_states`) from the
+        encoder signal's pieces (``a`` and its columns, already through F): the sensor's pole
+        commutes with F, then ``rate_gain``; the sensor effects' columns on the derivative.
+        No per-trial offset: a constant offset has no derivative."""
+        bw = self.motion.sensor.bandwidth_hz
+        ba = None
+        if bw and bw < 0.5 / p.ts:
+            wc = 2 * math.pi * bw
+            ba = signal.bilinear([wc], [1.0, wc], fs=1.0 / p.ts)
+        g = self.rate_gain
+
+        def pole(x):
+            return g * (signal.lfilter(ba[0], ba[1], x) if ba is not None else x)
+        base = pole(a)
+        cols = {k: pole(c) for k, c in cols_a.items()}
+        for name, shape, f in forms:
+            if f.kind == "sensor":
+                for c, col in f.columns(self._ctx(p, pred=None), shape).items():
+                    if col is None:
+                        cols[f"{name}:{c}"] = base.copy()
+                    else:
+                        key = ("rate", f.generic_name, c, tuple(sorted(shape.items())))
+                        if key not in p.cache:
+                            p.cache[key] = self._sensor(np.gradient(col, p.ts), p)
+                        cols[f"{name}:{c}"] = p.cache[key]
+        m = p.mask
+        return (p.cache["rate"][m], base[m], {k: c[m] for k, c in cols.items()},
+                g * e["Gu"][0][m] if e.get("Gu") else None)
 
     def _sensor_columns(self, f, p: _Prep, shape, s_filtered: np.ndarray) -> dict[str, np.ndarray]:
         """A sensor effect's columns, filtered like the reading: a column proportional to the
@@ -792,7 +834,7 @@ class FmuPlantDevice:
         for lg in logs:
             p = self._prep(lg)
             m = p.mask
-            for sname, y in ((self.sig_enc, p.a_enc), (self.sig_acc, p.acc)):
+            for sname, y in ((self.sig_enc, p.a_enc), (self.sig_acc, p.acc), (self.sig_rate, p.cache["rate"])):
                 if y is None:
                     continue
                 ym = y[m]
@@ -1035,6 +1077,9 @@ class FmuPlantDevice:
         if self.motion is not None:
             out[self.sig_acc] = (f"{self.motion.column} ({self.motion.sensor.kind}, FMU {self.motion.output}), "
                                  f"compared in command units")
+        if self.rate_gain:
+            out[self.sig_rate] = (f"time derivative of {self.motion.column} ({self.motion.sensor.kind}) vs the FMU's "
+                                  f"acceleration, compared in command units")
         return out
 
     def operating_point(self, log: TrialLog, params: Mapping[str, float]) -> dict[str, np.ndarray]:
@@ -1082,7 +1127,7 @@ class FmuPlantDevice:
             return self._rec_cache[key]
         E = self._energy(logs)
         out = {}
-        for s in (self.sig_enc, self.sig_acc):
+        for s in (self.sig_enc, self.sig_acc, self.sig_rate):
             if s is None or s not in E:
                 continue
             var_n = sum(self._prep(lg).noise.get(s, 0.0) * int(self._prep(lg).mask.sum()) for lg in logs)
@@ -1101,11 +1146,11 @@ class FmuPlantDevice:
     def acts_on(self, effect: str) -> set[str]:
         f = self.forms[self._alias.get(effect, effect)]
         if f.kind in ("sensor", "sensed_point"):
-            return {self.sig_acc}
+            return {s for s in (self.sig_acc, self.sig_rate) if s}
         specific = self.motion is not None and self.motion.sensor.specific_force
         if f.kind == "force" and f.body_force and specific and (f.reading is None or self.dist_angle):
             return {self.sig_enc}
-        return {s for s in (self.sig_enc, self.sig_acc) if s}
+        return {s for s in (self.sig_enc, self.sig_acc, self.sig_rate) if s}
 
     def varies_along_travel(self, effect: str) -> bool:
         return self.forms[self._alias.get(effect, effect)].along_travel
