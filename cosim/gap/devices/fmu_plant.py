@@ -524,6 +524,7 @@ class FmuPlantDevice:
         u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
         qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
         return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"], dist_angle=self.dist_angle,
+                               dist_gain=self.dist_gain,
                                m_eff=self._m_eff(logs, nom), q_d=ps[0].cache["q"] * abs(self.dist_gain),
                                xd_span=abs(self.dist_gain) * (max(float(p.x.max()) for p in ps)
                                                               - min(float(p.x.min()) for p in ps)),
