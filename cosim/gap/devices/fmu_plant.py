@@ -790,8 +790,17 @@ class FmuPlantDevice:
 
         def pole(x):
             return g * (signal.lfilter(ba[0], ba[1], x) if ba is not None else x)
+        # the nominal parameters' columns are the cached filtered sensitivities (the same arrays
+        # at every call): their pole is kept beside them
+        memo = p.cache.setdefault("rate_memo", {})
+
+        def pole_nominal(k, c):
+            hit = memo.get(k)
+            if hit is None or hit[0] is not c:
+                hit = memo[k] = (c, pole(c))
+            return hit[1]
         base = pole(a)
-        cols = {k: pole(c) for k, c in cols_a.items()}
+        cols = {k: (pole_nominal(k, c) if k.startswith(NOMINAL_PREFIX) else pole(c)) for k, c in cols_a.items()}
         for name, shape, f in forms:
             if f.kind == "sensor":
                 for c, col in f.columns(self._ctx(p, pred=None), shape).items():
