@@ -17,7 +17,9 @@ output the predicted reading. Two comparison signals, both through the same zero
 * ``<encoder column>.dd``: the encoder's second difference vs the FMU's derivative of its
   speed state;
 * ``<accelerometer column>``: the reading vs the FMU output through the sensor model
-  (bandwidth pole, specific force, a per-trial offset projected out).
+  (bandwidth pole, specific force, a per-trial offset projected out);
+* ``<gyroscope column>.d`` (a rate sensor only): the reading's central difference vs the FMU's
+  acceleration times d reading / d speed (:meth:`FmuPlantDevice._map_states`).
 
 Samples near rest and 50 ms at each end are not compared. Rest: ``|v| < v_rest``, the speed
 error that the state smoothing makes around a reversal or a stick, the plant's friction jump
