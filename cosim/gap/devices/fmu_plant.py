@@ -17,7 +17,9 @@ output the predicted reading. Two comparison signals, both through the same zero
 * ``<encoder column>.dd``: the encoder's second difference vs the FMU's derivative of its
   speed state;
 * ``<accelerometer column>``: the reading vs the FMU output through the sensor model
-  (bandwidth pole, specific force, a per-trial offset projected out).
+  (bandwidth pole, specific force, a per-trial offset projected out);
+* ``<gyroscope column>.d`` (a rate sensor only): the reading's central difference vs the FMU's
+  acceleration times d reading / d speed (:meth:`FmuPlantDevice._map_states`).
 
 Samples near rest and 50 ms at each end are not compared. Rest: ``|v| < v_rest``, the speed
 error that the state smoothing makes around a reversal or a stick, the plant's friction jump
@@ -355,6 +357,25 @@ class FmuPlantDevice:
         self.c_pos, self.c_vel = c_pos, float(row[self.i_vel])
         self.pos_offset = float(y0[0] - c_pos * x0[i_pos])
         self.internal = tuple(k for k in range(nx) if k not in (self.i_pos, self.i_vel))
+        # a rate sensor (gyroscope) is predicted from the speed state, which the comparison sets
+        # from the smoothed encoder: its prediction carries the encoder's quantisation through
+        # the differentiation (:meth:`_noise`), and it is checked against the encoder's speed
+        # only (its scale, its bias), never against the dynamics. So its time derivative is a
+        # third comparison signal (``sig_rate``), predicted by the plant's acceleration times
+        # d reading / d encoder speed (read from the FMU): the gyroscope's clean rate is the
+        # dynamics signal a coarse encoder's second difference is not
+        self.rate_gain = 0.0
+        if self.motion is not None and self.motion.sensor.kind == "gyroscope":
+            vr_m = [self.vars.vr(self.motion.output)]
+            h = 1e-4 * max(abs(x0[self.i_vel]), 1.0)
+            xp = x0.copy()
+            xp[self.i_vel] += h
+            probe(xp)
+            s1 = f.getReal(vr_m)[0]
+            probe(x0)
+            s0 = f.getReal(vr_m)[0]
+            self.rate_gain = float((s1 - s0) / h / (self.c_pos * self.c_vel))
+        self.sig_rate = f"{self.motion.column}.d" if self.rate_gain else None
         # the disturbance's point (where the force-path effects act) in the encoder's terms:
         # its position = dist_gain * encoder output + dist_offset (a transmission ratio read
         # from the FMU, as the encoder's own); an output not tied to the encoder's state alone
@@ -404,8 +425,11 @@ class FmuPlantDevice:
         add[1:-1] = (xs[2:] - 2 * xs[1:-1] + xs[:-2]) / ts ** 2
         a_enc = signal.sosfiltfilt(sosF, add)
         acc = None
+        rate = None
         if self.motion is not None and (self.motion.column in log.data or not self.motion.optional):
-            acc = signal.sosfiltfilt(sosF, self.motion.scale * self._col(log, self.motion.column))
+            y = self.motion.scale * self._col(log, self.motion.column)
+            acc = signal.sosfiltfilt(sosF, y)
+            rate = signal.sosfiltfilt(sosF, np.gradient(y, ts)) if self.rate_gain else None
         # compared samples: away from rest (set-valued friction) and the filters' edges
         q = self.enc.sensor.resolution
         if not q:
@@ -424,7 +448,8 @@ class FmuPlantDevice:
         mask[:e] = False
         mask[n - e:] = False
         p = _Prep(log, ts, t, u, fext, xs, v, a_enc, acc, mask, {}, {"q": q, "v_rest": v_rest,
-                                                                     "v_scale": v_scale, "sosF": sosF})
+                                                                     "v_scale": v_scale, "sosF": sosF,
+                                                                     "rate": rate})
         p.noise = self._noise(p, sos_s, sosF, xe)
         self._preps[id(log)] = p
         return p
@@ -479,6 +504,18 @@ class FmuPlantDevice:
             if self.motion.sensor.noise_rms:
                 white = max(white, 0.0)
             out[self.sig_acc] = white * float(np.mean(gF))
+            if self.rate_gain:          # the reading's central difference through F
+                out[self.sig_rate] = white * float(np.mean(gF * (np.sin(wT) / ts) ** 2))
+            if self.rate_gain:
+                # the prediction of a rate sensor is the encoder's smoothed central-difference
+                # speed: its quantisation noise through the smoothing, the difference, the
+                # sensor's pole and F adds to the reading's own noise (the residual of a device
+                # without any effect is this noise, not a gap)
+                gv = np.abs(hs) ** 4 * (np.sin(wT) / ts) ** 2 * gF
+                bw = self.motion.sensor.bandwidth_hz
+                if bw and bw < 0.5 / ts:
+                    gv = gv / (1.0 + (f / bw) ** 2)
+                out[self.sig_acc] += self.rate_gain ** 2 * q * q / 12.0 * float(np.mean(gv))
         return out
 
     def _ctx(self, p: _Prep, pred: np.ndarray | None = None):
@@ -507,6 +544,7 @@ class FmuPlantDevice:
         u = np.concatenate([np.abs(p.u[:, 0]) for p in ps]) if ps[0].u.shape[1] else np.zeros(1)
         qs = [float(np.quantile(u, q)) for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.995)]
         return SimpleNamespace(ts=ps[0].ts, angle=self.angle, q=ps[0].cache["q"], dist_angle=self.dist_angle,
+                               dist_gain=self.dist_gain,
                                m_eff=self._m_eff(logs, nom), q_d=ps[0].cache["q"] * abs(self.dist_gain),
                                xd_span=abs(self.dist_gain) * (max(float(p.x.max()) for p in ps)
                                                               - min(float(p.x.min()) for p in ps)),
@@ -767,6 +805,8 @@ class FmuPlantDevice:
             cs = {k: c[m] for k, c in cols_s.items()}
             cs["bias"] = np.ones(int(m.sum()))
             out[self.sig_acc] = (p.acc[m], s[m], cs, e["Gs"][0][m] if e.get("Gs") else None)
+        if self.rate_gain and p.cache.get("rate") is not None:   # (an optional gyroscope a log lacks)
+            out[self.sig_rate] = self._rate_signal(p, e, a, cols_a, forms)
         return out
 
     def _body(self, f, name: str, shape, e: dict, p: _Prep):
@@ -814,6 +854,45 @@ class FmuPlantDevice:
             p.cache["reading_per_point"] = k
         return k
 
+    def _rate_signal(self, p: _Prep, e: dict, a: np.ndarray, cols_a: dict, forms) -> tuple:
+        """The rate sensor's derivative signal (``sig_rate``, see :meth:`_map_states`) from the
+        encoder signal's pieces (``a`` and its columns, already through F): the sensor's pole
+        commutes with F, then ``rate_gain``; the sensor effects' columns on the derivative.
+        No per-trial offset: a constant offset has no derivative."""
+        bw = self.motion.sensor.bandwidth_hz
+        ba = None
+        if bw and bw < 0.5 / p.ts:
+            wc = 2 * math.pi * bw
+            ba = signal.bilinear([wc], [1.0, wc], fs=1.0 / p.ts)
+        g = self.rate_gain
+
+        def pole(x):
+            return g * (signal.lfilter(ba[0], ba[1], x) if ba is not None else x)
+        # the nominal parameters' columns are the cached filtered sensitivities (the same arrays
+        # at every call): their pole is kept beside them
+        memo = p.cache.setdefault("rate_memo", {})
+
+        def pole_nominal(k, c):
+            hit = memo.get(k)
+            if hit is None or hit[0] is not c:
+                hit = memo[k] = (c, pole(c))
+            return hit[1]
+        base = pole(a)
+        cols = {k: (pole_nominal(k, c) if k.startswith(NOMINAL_PREFIX) else pole(c)) for k, c in cols_a.items()}
+        for name, shape, f in forms:
+            if f.kind == "sensor":
+                for c, col in f.columns(self._ctx(p, pred=None), shape).items():
+                    if col is None:
+                        cols[f"{name}:{c}"] = base.copy()
+                    else:
+                        key = ("rate", f.generic_name, c, tuple(sorted(shape.items())))
+                        if key not in p.cache:
+                            p.cache[key] = self._sensor(np.gradient(col, p.ts), p)
+                        cols[f"{name}:{c}"] = p.cache[key]
+        m = p.mask
+        return (p.cache["rate"][m], base[m], {k: c[m] for k, c in cols.items()},
+                g * e["Gu"][0][m] if e.get("Gu") else None)
+
     def _sensor_columns(self, f, p: _Prep, shape, s_filtered: np.ndarray) -> dict[str, np.ndarray]:
         """A sensor effect's columns, filtered like the reading: a column proportional to the
         prediction is the filtered prediction itself (linear filters); others are filtered."""
@@ -843,7 +922,7 @@ class FmuPlantDevice:
         for lg in logs:
             p = self._prep(lg)
             m = p.mask
-            for sname, y in ((self.sig_enc, p.a_enc), (self.sig_acc, p.acc)):
+            for sname, y in ((self.sig_enc, p.a_enc), (self.sig_acc, p.acc), (self.sig_rate, p.cache["rate"])):
                 if y is None:
                     continue
                 ym = y[m]
@@ -1174,6 +1253,9 @@ class FmuPlantDevice:
         if self.motion is not None:
             out[self.sig_acc] = (f"{self.motion.column} ({self.motion.sensor.kind}, FMU {self.motion.output}), "
                                  f"compared in command units")
+        if self.rate_gain:
+            out[self.sig_rate] = (f"time derivative of {self.motion.column} ({self.motion.sensor.kind}) vs the FMU's "
+                                  f"acceleration, compared in command units")
         return out
 
     def operating_point(self, log: TrialLog, params: Mapping[str, float]) -> dict[str, np.ndarray]:
@@ -1221,7 +1303,7 @@ class FmuPlantDevice:
             return self._rec_cache[key]
         E = self._energy(logs)
         out = {}
-        for s in (self.sig_enc, self.sig_acc):
+        for s in (self.sig_enc, self.sig_acc, self.sig_rate):
             if s is None or s not in E:
                 continue
             var_n = sum(self._prep(lg).noise.get(s, 0.0) * int(self._prep(lg).mask.sum()) for lg in logs)
@@ -1240,11 +1322,11 @@ class FmuPlantDevice:
     def acts_on(self, effect: str) -> set[str]:
         f = self.forms[self._alias.get(effect, effect)]
         if f.kind in ("sensor", "sensed_point"):
-            return {self.sig_acc}
+            return {s for s in (self.sig_acc, self.sig_rate) if s}
         specific = self.motion is not None and self.motion.sensor.specific_force
         if f.kind == "force" and f.body_force and specific and (f.reading is None or self.dist_angle):
             return {self.sig_enc}
-        return {s for s in (self.sig_enc, self.sig_acc) if s}
+        return {s for s in (self.sig_enc, self.sig_acc, self.sig_rate) if s}
 
     def varies_along_travel(self, effect: str) -> bool:
         return self.forms[self._alias.get(effect, effect)].along_travel

@@ -50,5 +50,13 @@ def _fmu_cols(c, sh):
     return {"A_cog_sin": np.sin(ph), "A_cog_cos": np.cos(ph)}
 
 
-FMU_FORM = FmuForm("force", grid=lambda c: [{"period": p} for p in period_grid(c)], refine="period",
-                   columns=_fmu_cols)
+def _fmu_grid(c):
+    # a ripple of one period per turn of the disturbance's point on a rotary axis is an
+    # unbalance, sin(q + phi): gravity_load's own columns there, the same fit (a tie the
+    # selection would break by order); a cogging ripple has several periods per turn
+    one_turn = (2 * math.pi / abs(getattr(c, "dist_gain", 1.0) or 1.0)
+                if c.angle and getattr(c, "dist_angle", False) else None)
+    return [{"period": p} for p in period_grid(c) if one_turn is None or abs(p - one_turn) > 1e-6 * one_turn]
+
+
+FMU_FORM = FmuForm("force", grid=_fmu_grid, refine="period", columns=_fmu_cols)
