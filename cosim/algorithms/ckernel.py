@@ -174,6 +174,25 @@ def cached_shared(srcs: Sequence[Path], stem: str, also_hashed: Sequence[Path] =
     return lib
 
 
+_OPTIONAL: dict[tuple, object] = {}
+
+
+def optional_function(src: Path, stem: str, symbol: str, restype, argtypes: Sequence) -> object | None:
+    """The C function ``symbol`` of the one-file library ``src`` (:func:`cached_shared`), its
+    ctypes signature set; None without a working C compiler (the caller's Python reference is
+    used then). Looked up once per process."""
+    key = (str(src), stem, symbol)
+    if key not in _OPTIONAL:
+        try:
+            fn = getattr(cached_shared([Path(src)], stem), symbol)
+            fn.restype = restype
+            fn.argtypes = list(argtypes)
+        except (OSError, RuntimeError, AttributeError):
+            fn = None
+        _OPTIONAL[key] = fn
+    return _OPTIONAL[key]
+
+
 def cached_library(names: Sequence[str]) -> ctypes.CDLL:
     """The kernels ``names`` (``c/<name>.c``) compiled into one shared library in the
     cache (:func:`cached_shared`, the ABI header hashed with them)."""

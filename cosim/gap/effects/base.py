@@ -305,28 +305,16 @@ def nut_on_spring_py(xs: np.ndarray, f: np.ndarray, ts: float, k: float, c: floa
     return a_out, fr_out, pt_out
 
 
-_NUT_C: list = []
-
-
 def _nut_spring_c():
     """``cosim_nut_spring_run`` of ``c/nut_spring.c`` compiled once into the cache (None
     without a C compiler: the Python reference is used)."""
-    if not _NUT_C:
-        fn = None
-        try:
-            import ctypes
-            from pathlib import Path
+    import ctypes
+    from pathlib import Path
 
-            from ...algorithms.ckernel import cached_shared
-            src = Path(__file__).resolve().parent / "c" / "nut_spring.c"
-            fn = cached_shared([src], "gap_nut_spring").cosim_nut_spring_run
-            D, P, L = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long
-            fn.restype = L
-            fn.argtypes = [P, P, L, D, D, D, D, D, L, D, D, D, P, P, P]
-        except (OSError, RuntimeError, AttributeError):
-            fn = None
-        _NUT_C.append(fn)
-    return _NUT_C[0]
+    from ...algorithms.ckernel import optional_function
+    D, P, L = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long
+    return optional_function(Path(__file__).resolve().parent / "c" / "nut_spring.c", "gap_nut_spring",
+                             "cosim_nut_spring_run", L, [P, P, L, D, D, D, D, D, L, D, D, D, P, P, P])
 
 
 def nut_on_spring(xs: np.ndarray, f: np.ndarray, ts: float, fn: float, zeta: float, m: float,

@@ -252,28 +252,16 @@ def second_body_py(xk, vk, ak, jk, g, ts: float, w: float, k: float, c: float, m
     return delta, fr_out
 
 
-_SECOND_BODY_C: list = []
-
-
 def _second_body_c():
     """``cosim_second_body_run`` of ``c/second_body.c`` compiled once into the cache (None
     without a C compiler: the Python reference is used)."""
-    if not _SECOND_BODY_C:
-        fn = None
-        try:
-            import ctypes
-            from pathlib import Path
+    import ctypes
+    from pathlib import Path
 
-            from ...algorithms.ckernel import cached_shared
-            src = Path(__file__).resolve().parent / "c" / "second_body.c"
-            fn = cached_shared([src], "gap_second_body").cosim_second_body_run
-            D, P, L = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long
-            fn.restype = L
-            fn.argtypes = [P, P, P, P, P, L, D, D, D, D, D, L, P, P]
-        except (OSError, RuntimeError, AttributeError):
-            fn = None
-        _SECOND_BODY_C.append(fn)
-    return _SECOND_BODY_C[0]
+    from ...algorithms.ckernel import optional_function
+    D, P, L = ctypes.c_double, ctypes.POINTER(ctypes.c_double), ctypes.c_long
+    return optional_function(Path(__file__).resolve().parent / "c" / "second_body.c", "gap_second_body",
+                             "cosim_second_body_run", L, [P, P, P, P, P, L, D, D, D, D, D, L, P, P])
 
 
 def second_body(x: np.ndarray, ts: float, width: float, fn_hz: float, zeta: float, mu: float = 0.0,
