@@ -160,3 +160,48 @@ def test_a_fit_log_at_rest_is_left_out_not_the_whole_diagnosis(tmp_path, foreign
     assert fit == [moving] and kept_test == [test]
     assert len(notes) == 1 and "hold-1.csv left out" in notes[0] and "at rest" in notes[0]
     assert _without_unusable_logs(dev, [rest], [test]) is None     # nothing left to fit on
+
+
+def test_an_fmi3_plant_is_refused_naming_the_version(tmp_path):
+    """The plant path steps FMI 2.0 Model Exchange: an FMI 3.0 plant gets exit 2 and a
+    message saying so (it used to reach FMPy's FMI 2 loader)."""
+    import zipfile
+
+    from cosim.gap.device import GapInputError
+    from cosim.gap.diagnose import diagnose_plant
+    from cosim.logs.trial_log import write_trial_log
+    rows = [("current", "input", "A"), ("F_ext", "input", "N"), ("x", "output", "m"), ("v", "output", "m/s"),
+            ("M", "parameter", "kg")]
+    vars_xml = "".join(
+        f'<Float64 name="{n}" valueReference="{i}" causality="{c}" unit="{u}"'
+        + (' variability="fixed" start="1.2"' if c == "parameter" else (' start="0"' if c == "input" else ""))
+        + "/>" for i, (n, c, u) in enumerate(rows))
+    md = f"""<?xml version="1.0" encoding="UTF-8"?>
+<fmiModelDescription fmiVersion="3.0" modelName="Axis3" instantiationToken="{{axis3}}">
+  <ModelExchange modelIdentifier="Axis3"/>
+  <UnitDefinitions><Unit name="m"><BaseUnit m="1"/></Unit><Unit name="m/s"><BaseUnit m="1" s="-1"/></Unit>
+    <Unit name="A"><BaseUnit A="1"/></Unit><Unit name="N"><BaseUnit kg="1" m="1" s="-2"/></Unit>
+    <Unit name="kg"><BaseUnit kg="1"/></Unit></UnitDefinitions>
+  <ModelVariables><Float64 name="time" valueReference="99" causality="independent" variability="continuous"/>{vars_xml}</ModelVariables>
+  <ModelStructure><Output valueReference="2"/><Output valueReference="3"/></ModelStructure>
+</fmiModelDescription>
+"""
+    fmu = tmp_path / "Axis3.fmu"
+    with zipfile.ZipFile(fmu, "w") as z:
+        z.writestr("modelDescription.xml", md)
+        z.writestr("binaries/x86_64-linux/Axis3.so", b"")
+    binding = tmp_path / "b.yaml"
+    binding.write_text("""format: gap-binding/1
+device: axis3
+commands: [{column: i_cmd, input: current, unit: A}]
+disturbance: {input: F_ext, unit: N, position: x, speed: v}
+measurements: [{column: x_enc, output: x, unit: m, sensor: {kind: encoder, resolution: 1.0e-6}}]
+parameters: {M: {nominal: 1.2, unit: kg, low: 0.9, high: 1.5}}
+""")
+    t = np.arange(2000) * 1e-3
+    log = write_trial_log(tmp_path / "log", "axis3", {"i_cmd": np.sin(t), "x_enc": np.round(np.sin(t) / 1e-6) * 1e-6},
+                          {"i_cmd": "A", "x_enc": "m"}, 1e-3, scenario="identification")
+    with pytest.raises(GapInputError) as ei:
+        diagnose_plant(fmu, binding, [log], [log], tmp_path / "out")
+    assert "FMI 3.0" in str(ei.value) and "FMI 2.0" in str(ei.value)
+    assert not (tmp_path / "out" / "diagnosis.json").exists()

@@ -229,6 +229,10 @@ class FmuPlantDevice:
         self.b = binding
         self.fmu_path = Path(fmu_path or binding.fmu_path)
         self.vars = FmuVariables(self.fmu_path)
+        version = str(getattr(self.vars.md, "fmiVersion", "2.0") or "2.0")
+        if not version.startswith("2"):
+            raise GapInputError(f"the plant FMU is FMI {version}; the gap diagnosis of a plant FMU steps "
+                                "FMI 2.0 Model Exchange (export the plant as FMI 2.0)", self.fmu_path)
         if not self.vars.has_me:
             raise GapInputError("the plant FMU has no Model Exchange interface; the equation-error "
                                 "comparison needs it (a Co-Simulation-only plant is not supported yet)",
