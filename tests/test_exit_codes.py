@@ -183,8 +183,8 @@ def test_sigterm_ends_cosim_run_like_ctrl_c(tmp_path, fmus):
     proc = popen("run", sc, "--out", tmp_path / "out", "--no-build")
     assert _wait_for(lambda: len(_finished(runs)) >= 1 and _dot(runs))
     proc.terminate()
-    _, stderr = proc.communicate(timeout=120)
-    assert proc.returncode == ec.INCOMPLETE and "cosim: interrupted:" in stderr, stderr
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == ec.INCOMPLETE and "cosim: interrupted:" in stderr, (stdout, stderr)
     assert "Traceback" not in stderr and _dot(runs) == []
 
 
